@@ -1,0 +1,64 @@
+"""One root exception for planbench, and the specific errors users can act on.
+
+A failed *plan* is never an exception (it is a :class:`~planbench.planner.PlanStatus`); these
+errors are for input that cannot be used at all: a malformed file, an unknown name, a bad setting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+class PlanbenchError(Exception):
+    """Root of every error planbench raises on purpose."""
+
+
+class RobotFileError(PlanbenchError):
+    """A robot description or robot settings file cannot be used."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ProblemFileError(PlanbenchError):
+    """A scene or problem file (JSON) cannot be used."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class UnknownNameError(PlanbenchError, KeyError):
+    """A name (planner, robot, problem set, problem) that does not exist; lists close matches."""
+
+    def __init__(self, kind: str, name: str, choices: Sequence[str]) -> None:
+        import difflib
+
+        self.kind = kind
+        self.name = name
+        self.choices = sorted(choices)
+        close = difflib.get_close_matches(name, self.choices, n=3, cutoff=0.5)
+        hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+        listing = ", ".join(self.choices[:20]) + (" ..." if len(self.choices) > 20 else "")
+        super().__init__(f"unknown {kind} {name!r}.{hint} Known: {listing}")
+
+    def __str__(self) -> str:  # KeyError would otherwise quote the message
+        return str(self.args[0])
+
+
+class PlannerUnavailableError(PlanbenchError):
+    """A registered planner whose module cannot be imported (a missing optional dependency)."""
+
+    def __init__(self, name: str, reason: str, hint: str = "") -> None:
+        self.name = name
+        self.reason = reason
+        self.hint = hint
+        msg = f"planner {name!r} is registered but cannot be loaded: {reason}"
+        super().__init__(msg + (f" ({hint})" if hint else ""))
+
+
+class InvalidConfigError(PlanbenchError, ValueError):
+    """A setting outside its domain; says which setting and what is allowed."""

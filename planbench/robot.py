@@ -1,0 +1,361 @@
+"""Robots: a pinocchio model, its collision geometry, and the settings a planner needs.
+
+A robot's settings live in one small TOML file under ``robots/`` (installed as the package
+``planbench_robots``); URDF and meshes come from the ``example-robot-data`` package. Joints that are
+not planned (the Panda's fingers) are locked at fixed values with ``pinocchio.buildReducedModel``, so
+every planner sees exactly the planned joints: ``robot.nq`` of them, in ``robot.joint_names`` order.
+
+Settings file keys (units: m, rad, s)::
+
+    name = "panda"                       # required
+    urdf = "panda_description/urdf/panda.urdf"   # required
+    srdf = "panda_description/srdf/panda.srdf"   # optional: its disable_collisions pairs are ignored
+    ee_frame = "panda_link8"             # required: end-effector frame of pose goals
+    home = [...]                         # optional: a configuration of the planned joints
+    ignore_collision_pairs = [["a", "b"]]  # optional: more link pairs never checked for self-collision
+    [fixed_joints]      name = value     # optional: joints held fixed [rad or m]
+    [position_limits]   name = [lo, hi]  # optional: override the URDF's [rad or m]
+    [velocity_limits]   name = value     # optional: override the URDF's [rad/s or m/s]
+
+Relative file paths are looked up beside the settings file first, then in example-robot-data's
+``robots/`` folder (found through the installed distribution, never a machine path).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.metadata
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planbench.errors import RobotFileError, UnknownNameError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["RobotSettings", "Robot", "load_robot", "robot_names", "example_robot_data_dir"]
+
+
+@functools.cache
+def example_robot_data_dir() -> Path:
+    """The installed ``share/example-robot-data`` folder (holds ``robots/<name>_description``)."""
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError as exc:
+        raise RobotFileError(
+            "example-robot-data", "the package is not installed: pip install example-robot-data"
+        ) from exc
+    for f in dist.files or ():
+        parts = Path(str(f)).parts
+        if "example-robot-data" in parts and "robots" in parts:
+            i = parts.index("example-robot-data")
+            return Path(str(dist.locate_file(Path(*parts[: i + 1])))).resolve()
+    raise RobotFileError("example-robot-data", "installed, but no robots/ folder found in it")
+
+
+def _settings_dir() -> Path:
+    import planbench_robots
+
+    return planbench_robots.ROBOTS_DIR
+
+
+def robot_names() -> list[str]:
+    """Names of the robots shipped with planbench (one ``robots/<name>.toml`` each)."""
+    return sorted(p.stem for p in _settings_dir().glob("*.toml"))
+
+
+@dataclass(frozen=True)
+class RobotSettings:
+    """Everything about a robot that is not in its URDF. Units: m, rad, s."""
+
+    name: str
+    urdf: Path
+    ee_frame: str
+    srdf: Path | None = None
+    home: tuple[float, ...] | None = None
+    fixed_joints: Mapping[str, float] = field(default_factory=dict)
+    position_limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    velocity_limits: Mapping[str, float] = field(default_factory=dict)
+    ignore_collision_pairs: tuple[tuple[str, str], ...] = ()
+    description: str = ""
+    source: str = "arguments"  # the settings file, for error messages and provenance
+
+    def replace(self, **changes: Any) -> RobotSettings:
+        return dataclasses.replace(self, **changes)
+
+
+def _resolve(path: str | Path, base: Path | None) -> Path:
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        return p
+    candidates = ([base / p] if base is not None else []) + [
+        Path.cwd() / p,
+        example_robot_data_dir() / "robots" / p,
+    ]
+    for c in candidates:
+        if c.exists():
+            return c.resolve()
+    return candidates[-1]
+
+
+def _read_settings(path: Path) -> RobotSettings:
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise RobotFileError(path, f"cannot read: {exc.strerror}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise RobotFileError(path, f"not valid TOML: {exc}") from exc
+    allowed = {f.name for f in dataclasses.fields(RobotSettings)} - {"source"}
+    unknown = set(raw) - allowed
+    if unknown:
+        raise RobotFileError(path, f"unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+    for key in ("name", "urdf", "ee_frame"):
+        if key not in raw:
+            raise RobotFileError(path, f"missing required key {key!r}")
+    try:
+        return RobotSettings(
+            name=str(raw["name"]),
+            urdf=_resolve(raw["urdf"], path.parent),
+            srdf=_resolve(raw["srdf"], path.parent) if raw.get("srdf") else None,
+            ee_frame=str(raw["ee_frame"]),
+            home=tuple(float(x) for x in raw["home"]) if "home" in raw else None,
+            fixed_joints={k: float(v) for k, v in raw.get("fixed_joints", {}).items()},
+            position_limits={
+                k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()
+            },
+            velocity_limits={k: float(v) for k, v in raw.get("velocity_limits", {}).items()},
+            ignore_collision_pairs=tuple(
+                (str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])
+            ),
+            description=str(raw.get("description", "")),
+            source=str(path),
+        )
+    except (TypeError, ValueError, IndexError) as exc:
+        raise RobotFileError(path, f"a value has the wrong type or shape: {exc}") from exc
+
+
+class Robot:
+    """A manipulator ready for planning: reduced pinocchio model + self-collision geometry.
+
+    Attributes are read-only numpy arrays over the planned joints: ``lower``, ``upper`` [rad or m],
+    ``velocity_limit`` [rad/s or m/s], ``home``. ``collision_model`` is a ``pinocchio.GeometryModel``
+    whose collision pairs are the robot's self-collision pairs (SRDF and extra ignores removed).
+    """
+
+    def __init__(self, settings: RobotSettings) -> None:
+        import pinocchio as pin
+
+        self.settings = settings
+        src = settings.source
+        if not settings.urdf.is_file():
+            raise RobotFileError(settings.urdf, f"URDF file not found (robot {settings.name!r})")
+        share = example_robot_data_dir().parent
+        try:
+            full, geom = pin.buildModelsFromUrdf(
+                str(settings.urdf),
+                package_dirs=[str(share), str(settings.urdf.parent)],
+                geometry_types=pin.GeometryType.COLLISION,
+            )
+        except (RuntimeError, ValueError) as exc:
+            raise RobotFileError(settings.urdf, f"pinocchio cannot parse it: {exc}") from exc
+        if geom.ngeoms == 0:
+            raise RobotFileError(settings.urdf, "it has no <collision> geometry to check paths with")
+        geom.addAllCollisionPairs()
+        if settings.srdf is not None:
+            if not settings.srdf.is_file():
+                raise RobotFileError(settings.srdf, "SRDF file not found")
+            try:
+                pin.removeCollisionPairs(full, geom, str(settings.srdf))
+            except (RuntimeError, ValueError) as exc:
+                raise RobotFileError(settings.srdf, f"pinocchio cannot parse it: {exc}") from exc
+        self._remove_pairs(geom, settings.ignore_collision_pairs, src)
+
+        names = list(full.names)
+        q_ref = pin.neutral(full)
+        locked = []
+        for jname, value in settings.fixed_joints.items():
+            if jname not in names:
+                raise RobotFileError(src, f"fixed joint {jname!r} is not a joint of {settings.urdf.name}")
+            jid = full.getJointId(jname)
+            if full.joints[jid].nq != 1:
+                raise RobotFileError(src, f"fixed joint {jname!r} is not a 1-dof joint")
+            q_ref[full.joints[jid].idx_q] = value
+            locked.append(jid)
+        if locked:
+            model, (geom,) = pin.buildReducedModel(full, [geom], sorted(locked), q_ref)
+        else:
+            model = full
+        if model.nq != model.nv:
+            raise RobotFileError(
+                settings.urdf,
+                "it has continuous or multi-dof joints (nq != nv); planbench plans revolute and "
+                "prismatic joints only: give them limits or list them under [fixed_joints]",
+            )
+        self.model = model
+        self.collision_model = geom
+        self.joint_names: tuple[str, ...] = tuple(model.names[1:])
+
+        lower = model.lowerPositionLimit.copy()
+        upper = model.upperPositionLimit.copy()
+        vmax = model.velocityLimit.copy()
+        for jname, (lo, hi) in settings.position_limits.items():
+            i = self._index(jname, src)
+            lower[i], upper[i] = lo, hi
+        for jname, v in settings.velocity_limits.items():
+            vmax[self._index(jname, src)] = v
+        if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(lower < upper)):
+            raise RobotFileError(src, f"position limits must be finite with lower < upper: {lower}, {upper}")
+        if not (np.all(np.isfinite(vmax)) and np.all(vmax > 0)):
+            raise RobotFileError(src, f"velocity limits must be finite and > 0 [rad/s]: {vmax}")
+        model.lowerPositionLimit = lower
+        model.upperPositionLimit = upper
+        model.velocityLimit = vmax
+        self.lower = _frozen(lower)
+        self.upper = _frozen(upper)
+        self.velocity_limit = _frozen(vmax)
+
+        if not model.existFrame(settings.ee_frame):
+            frames = [f.name for f in model.frames]
+            raise UnknownNameError(f"end-effector frame of robot {settings.name!r}", settings.ee_frame, frames)
+        self.ee_frame_id = model.getFrameId(settings.ee_frame)
+        if settings.home is not None:
+            if len(settings.home) != self.nq:
+                raise RobotFileError(src, f"home has {len(settings.home)} values, the robot plans {self.nq} joints")
+            self.home = _frozen(np.array(settings.home, dtype=float))
+        else:
+            self.home = _frozen(0.5 * (lower + upper))
+        self._data = model.createData()
+
+    @property
+    def name(self) -> str:
+        return self.settings.name
+
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    def _index(self, joint_name: str, src: str) -> int:
+        if joint_name not in self.joint_names:
+            raise UnknownNameError(f"planned joint (in {src})", joint_name, self.joint_names)
+        return self.joint_names.index(joint_name)
+
+    @staticmethod
+    def _remove_pairs(geom: Any, pairs: Sequence[tuple[str, str]], src: str) -> None:
+        import pinocchio as pin
+
+        links: dict[str, list[int]] = {}
+        for i, g in enumerate(geom.geometryObjects):
+            links.setdefault(_link_of(g.name), []).append(i)
+        for a, b in pairs:
+            for link in (a, b):
+                if link not in links:
+                    raise UnknownNameError(f"link with collision geometry (in {src})", link, list(links))
+            for i in links[a]:
+                for j in links[b]:
+                    geom.removeCollisionPair(pin.CollisionPair(min(i, j), max(i, j)))
+
+    def check_configuration(self, q: Any, what: str = "configuration", tol: float = 1e-9) -> np.ndarray:
+        """Return ``q`` as a float array of the right size; raise ValueError naming the problem."""
+        arr = np.asarray(q, dtype=float)
+        if arr.shape != (self.nq,):
+            raise ValueError(f"{what} has shape {arr.shape}; robot {self.name!r} plans {self.nq} joints {self.joint_names}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{what} contains NaN or infinite values: {arr.tolist()}")
+        return arr
+
+    def limit_violations(self, q: np.ndarray, tol: float = 1e-9) -> list[str]:
+        """Human-readable joint-limit violations of one configuration (empty when inside)."""
+        out = []
+        for i in np.flatnonzero((q < self.lower - tol) | (q > self.upper + tol)):
+            out.append(
+                f"{self.joint_names[i]}={q[i]:.4f} outside [{self.lower[i]:.4f}, {self.upper[i]:.4f}]"
+            )
+        return out
+
+    def frame_pose(self, q: np.ndarray, frame: str | None = None) -> Any:
+        """World pose (``pinocchio.SE3``) of ``frame`` (default: the end effector) at ``q``."""
+        import pinocchio as pin
+
+        fid = self.ee_frame_id if frame is None else self.frame_id(frame)
+        pin.framesForwardKinematics(self.model, self._data, np.asarray(q, dtype=float))
+        return pin.SE3(self._data.oMf[fid])
+
+    def frame_id(self, frame: str) -> int:
+        if not self.model.existFrame(frame):
+            raise UnknownNameError(f"frame of robot {self.name!r}", frame, [f.name for f in self.model.frames])
+        return int(self.model.getFrameId(frame))
+
+    def __repr__(self) -> str:
+        return f"Robot({self.name!r}, nq={self.nq}, ee_frame={self.settings.ee_frame!r})"
+
+
+def _link_of(geometry_name: str) -> str:
+    """pinocchio names collision geometries ``<link>_<k>``; recover the link name."""
+    base, _, idx = geometry_name.rpartition("_")
+    return base if base and idx.isdigit() else geometry_name
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_robot(settings: RobotSettings) -> Robot:
+    return Robot(settings)
+
+
+def load_robot(name_or_path: str | Path, **overrides: Any) -> Robot:
+    """Load a shipped robot by name (``"panda"``, ``"ur5"``) or a settings TOML file by path.
+
+    Keyword arguments override settings, e.g. ``load_robot("panda", fixed_joints={...})``. Robots
+    are cached per settings (they are immutable after loading), so loading is cheap after the first.
+
+    To load any URDF without a settings file, build ``RobotSettings(name=..., urdf=..., ee_frame=...)``
+    and call ``Robot(settings)``.
+    """
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.is_file():
+        settings = _read_settings(path.resolve())
+    else:
+        candidate = _settings_dir() / f"{name_or_path}.toml"
+        if not candidate.is_file():
+            raise UnknownNameError("robot", str(name_or_path), robot_names())
+        settings = _read_settings(candidate)
+    if overrides:
+        if "urdf" in overrides:
+            overrides["urdf"] = _resolve(overrides["urdf"], None)
+        if overrides.get("srdf"):
+            overrides["srdf"] = _resolve(overrides["srdf"], None)
+        for key in ("fixed_joints", "position_limits", "velocity_limits"):
+            if key in overrides:
+                overrides[key] = {**getattr(settings, key), **overrides[key]}
+        try:
+            settings = settings.replace(**overrides)
+        except TypeError as exc:
+            allowed = [f.name for f in dataclasses.fields(RobotSettings)]
+            raise RobotFileError(settings.source, f"bad override: {exc}; allowed: {allowed}") from exc
+    return _cached_robot(_hashable(settings))
+
+
+def _hashable(s: RobotSettings) -> RobotSettings:
+    """Settings hold dicts; freeze them so the robot cache can key on them."""
+    return s.replace(
+        fixed_joints=_FrozenDict(s.fixed_joints),
+        position_limits=_FrozenDict({k: tuple(v) for k, v in s.position_limits.items()}),
+        velocity_limits=_FrozenDict(s.velocity_limits),
+    )
+
+
+class _FrozenDict(dict):  # type: ignore[type-arg]
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(tuple(sorted(self.items())))

@@ -1,0 +1,267 @@
+"""Scenes: obstacle geometry as primitives (and meshes) with poses, in the robot's base frame.
+
+JSON format (``planbench-scene/1``; the same obstacle conventions as the MotionBenchMaker data,
+which are those of ``shape_msgs/SolidPrimitive``, URDF and coal)::
+
+    {"format": "planbench-scene/1", "name": "my-scene",
+     "obstacles": [
+       {"name": "table", "type": "box", "size": [1.0, 0.6, 0.04],        # full edge lengths [m]
+        "position": [0.5, 0.0, -0.02], "orientation_xyzw": [0, 0, 0, 1]},
+       {"name": "can", "type": "cylinder", "radius": 0.03, "length": 0.14, # along local z [m]
+        "position": [...], "orientation_xyzw": [...]},
+       {"name": "ball", "type": "sphere", "radius": 0.05, "position": [...]},
+       {"name": "bowl", "type": "mesh", "path": "bowl.stl", "scale": [1, 1, 1], "position": [...]}
+     ]}
+
+``orientation_xyzw`` is a unit quaternion, scalar last, mapping the obstacle's local axes into the
+scene frame (``p_scene = R p_local + position``); it defaults to the identity. A mesh path is
+relative to the JSON file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planbench.errors import ProblemFileError
+
+__all__ = ["Obstacle", "Scene", "SHAPES"]
+
+SHAPES = ("box", "sphere", "cylinder", "mesh")
+SCENE_FORMAT = "planbench-scene/1"
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """One rigid obstacle. Units: metres; quaternion ``[x, y, z, w]``."""
+
+    name: str
+    type: str
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    orientation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    size: tuple[float, float, float] | None = None  # box: full edge lengths [m]
+    radius: float | None = None  # sphere, cylinder [m]
+    length: float | None = None  # cylinder: full height along local z [m]
+    path: str | None = None  # mesh file (absolute, or relative to the working directory)
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # mesh scale
+
+    def __post_init__(self) -> None:
+        where = f"obstacle {self.name!r}"
+        if self.type not in SHAPES:
+            raise ValueError(f"{where}: unknown type {self.type!r}; use one of {SHAPES}")
+        _check_vector(self.position, 3, f"{where}: position")
+        _check_vector(self.orientation_xyzw, 4, f"{where}: orientation_xyzw")
+        norm = math.sqrt(sum(x * x for x in self.orientation_xyzw))
+        if abs(norm - 1.0) > 1e-6:
+            raise ValueError(f"{where}: orientation_xyzw must be a unit quaternion (norm {norm:.6g})")
+        if self.type == "box":
+            if self.size is None:
+                raise ValueError(f"{where}: a box needs 'size' = [x, y, z] full edge lengths [m]")
+            _check_vector(self.size, 3, f"{where}: size")
+            if min(self.size) <= 0:
+                raise ValueError(f"{where}: box size must be > 0, got {list(self.size)}")
+        if self.type in ("sphere", "cylinder"):
+            if self.radius is None or not math.isfinite(self.radius) or self.radius <= 0:
+                raise ValueError(f"{where}: a {self.type} needs 'radius' > 0 [m], got {self.radius}")
+        if self.type == "cylinder":
+            if self.length is None or not math.isfinite(self.length) or self.length <= 0:
+                raise ValueError(f"{where}: a cylinder needs 'length' > 0 [m], got {self.length}")
+        if self.type == "mesh":
+            if not self.path:
+                raise ValueError(f"{where}: a mesh needs 'path'")
+            if not Path(self.path).is_file():
+                raise ValueError(f"{where}: mesh file not found: {self.path}")
+
+    # --- geometry -------------------------------------------------------------------------
+    @property
+    def rotation(self) -> np.ndarray:
+        """3x3 rotation matrix of the obstacle's local axes in the scene frame."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(self.orientation_xyzw).as_matrix()
+
+    def placement(self) -> Any:
+        """The pose as a ``pinocchio.SE3``."""
+        import pinocchio as pin
+
+        return pin.SE3(self.rotation, np.array(self.position, dtype=float))
+
+    def collision_geometry(self) -> Any:
+        """A coal collision geometry in the obstacle's local frame."""
+        import coal
+
+        if self.type == "box":
+            return coal.Box(*self.size)  # type: ignore[misc]
+        if self.type == "sphere":
+            return coal.Sphere(self.radius)
+        if self.type == "cylinder":
+            return coal.Cylinder(self.radius, self.length)
+        loader = coal.MeshLoader()
+        return loader.load(str(self.path), np.array(self.scale, dtype=float))
+
+    def local_half_extents(self) -> np.ndarray:
+        """Half extents of the obstacle's bounding box in its local frame [m]."""
+        if self.type == "box":
+            return 0.5 * np.array(self.size, dtype=float)
+        if self.type == "sphere":
+            return np.full(3, float(self.radius))  # type: ignore[arg-type]
+        if self.type == "cylinder":
+            return np.array([self.radius, self.radius, 0.5 * self.length], dtype=float)  # type: ignore[operator]
+        geom = self.collision_geometry()
+        geom.computeLocalAABB()
+        aabb = geom.aabb_local
+        lo, hi = np.array(aabb.min_), np.array(aabb.max_)
+        return np.maximum(np.abs(lo), np.abs(hi))
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned bounding box in the scene frame, as (lower corner, upper corner) [m]."""
+        half = np.abs(self.rotation) @ self.local_half_extents()
+        c = np.array(self.position, dtype=float)
+        return c - half, c + half
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        """Exact signed distance [m] from each of the (N, 3) points to the obstacle's surface:
+        negative inside. Primitives only (meshes are handled by coal).
+        """
+        local = (np.asarray(points, dtype=float) - np.array(self.position)) @ self.rotation
+        if self.type == "box":
+            q = np.abs(local) - 0.5 * np.array(self.size)
+        elif self.type == "sphere":
+            return np.linalg.norm(local, axis=1) - self.radius  # type: ignore[operator]
+        elif self.type == "cylinder":
+            q = np.stack([np.hypot(local[:, 0], local[:, 1]) - self.radius,  # type: ignore[operator]
+                          np.abs(local[:, 2]) - 0.5 * self.length], axis=1)  # type: ignore[operator]
+        else:
+            raise NotImplementedError("mesh obstacles have no signed distance here; use coal")
+        return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Boolean mask: which of the (N, 3) points lie inside (or on) the obstacle."""
+        return self.signed_distance(points) <= 0.0
+
+    # --- JSON -----------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"name": self.name, "type": self.type}
+        if self.type == "box":
+            d["size"] = list(self.size)  # type: ignore[arg-type]
+        if self.type in ("sphere", "cylinder"):
+            d["radius"] = self.radius
+        if self.type == "cylinder":
+            d["length"] = self.length
+        if self.type == "mesh":
+            d["path"] = self.path
+            d["scale"] = list(self.scale)
+        d["position"] = list(self.position)
+        d["orientation_xyzw"] = list(self.orientation_xyzw)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], base_dir: Path | None = None) -> Obstacle:
+        known = {"name", "type", "position", "orientation_xyzw", "size", "radius", "length", "path", "scale"}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"obstacle {d.get('name')!r}: unknown keys {sorted(unknown)}; allowed {sorted(known)}")
+        if "type" not in d:
+            raise ValueError(f"obstacle {d.get('name')!r}: missing 'type' (one of {SHAPES})")
+        path = d.get("path")
+        if path is not None and base_dir is not None and not Path(path).is_absolute():
+            path = str(base_dir / path)
+        return cls(
+            name=str(d.get("name", d["type"])),
+            type=str(d["type"]),
+            position=_tuple(d.get("position", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+            orientation_xyzw=_tuple(d.get("orientation_xyzw", (0.0, 0.0, 0.0, 1.0))),  # type: ignore[arg-type]
+            size=_tuple(d["size"]) if "size" in d else None,  # type: ignore[arg-type]
+            radius=float(d["radius"]) if "radius" in d else None,
+            length=float(d["length"]) if "length" in d else None,
+            path=path,
+            scale=_tuple(d.get("scale", (1.0, 1.0, 1.0))),  # type: ignore[arg-type]
+        )
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A named set of obstacles, all in the robot's base frame."""
+
+    obstacles: tuple[Obstacle, ...] = ()
+    name: str = "scene"
+    metadata: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        names = [o.name for o in self.obstacles]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"scene {self.name!r}: obstacle names must be unique, repeated: {dupes}")
+
+    def __len__(self) -> int:
+        return len(self.obstacles)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box of all obstacles [m]; raises on an empty scene."""
+        if not self.obstacles:
+            raise ValueError(f"scene {self.name!r} has no obstacles, so no bounding box")
+        boxes = [o.aabb() for o in self.obstacles]
+        return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+
+    def with_obstacles(self, obstacles: Iterable[Obstacle]) -> Scene:
+        return Scene(tuple(self.obstacles) + tuple(obstacles), self.name, dict(self.metadata))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": SCENE_FORMAT, "name": self.name, "obstacles": [o.to_dict() for o in self.obstacles]}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "<dict>", base_dir: Path | None = None) -> Scene:
+        if not isinstance(d, dict):
+            raise ProblemFileError(source, f"a scene must be a JSON object, got {type(d).__name__}")
+        fmt = d.get("format", SCENE_FORMAT)
+        if fmt != SCENE_FORMAT:
+            raise ProblemFileError(source, f"unsupported scene format {fmt!r}; expected {SCENE_FORMAT!r}")
+        items = d.get("obstacles", [])
+        if not isinstance(items, list):
+            raise ProblemFileError(source, "'obstacles' must be a list")
+        obstacles = []
+        for k, item in enumerate(items):
+            try:
+                if not isinstance(item, dict):
+                    raise ValueError("must be a JSON object")
+                obstacles.append(Obstacle.from_dict(item, base_dir))
+            except (ValueError, TypeError, KeyError) as exc:
+                raise ProblemFileError(source, f"obstacle #{k}: {exc}") from exc
+        try:
+            return cls(tuple(obstacles), str(d.get("name", "scene")))
+        except ValueError as exc:
+            raise ProblemFileError(source, str(exc)) from exc
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Scene:
+        p = Path(path)
+        return cls.from_dict(_read_json(p), str(p), p.parent)
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except OSError as exc:
+        raise ProblemFileError(path, f"cannot read: {exc.strerror}") from exc
+    except json.JSONDecodeError as exc:
+        raise ProblemFileError(path, f"not valid JSON: {exc}") from exc
+
+
+def _tuple(v: Sequence[Any]) -> tuple[float, ...]:
+    return tuple(float(x) for x in v)
+
+
+def _check_vector(v: Sequence[float], n: int, what: str) -> None:
+    if len(v) != n:
+        raise ValueError(f"{what} must have {n} values, got {len(v)}")
+    if not all(math.isfinite(x) for x in v):
+        raise ValueError(f"{what} contains NaN or infinite values: {list(v)}")
