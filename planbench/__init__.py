@@ -1,0 +1,29 @@
+"""planbench: plan paths for robot arms and compare planners fairly.
+
+Library use::
+
+    import planbench
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    result = planbench.plan(problem, planner="straight-line", seed=0, time_limit=5.0)
+    print(planbench.evaluate(problem, result))
+"""
+
+from planbench.datasets import load_problems
+from planbench.errors import PlanbenchError
+from planbench.harness import plan
+from planbench.occupancy import OccupancyGrid
+from planbench.planner import PlanResult, PlanStatus, Planner
+from planbench.problem import Goal, Pose, Problem, Tolerances
+from planbench.registry import REGISTRY, Registry, make_planner, register_planner
+from planbench.robot import Robot, RobotSettings, load_robot
+from planbench.scene import Obstacle, Scene
+from planbench.validate import Evaluation, ValidationSettings, evaluate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Evaluation", "Goal", "Obstacle", "OccupancyGrid", "PlanResult", "PlanStatus", "Planner",
+    "PlanbenchError", "Pose", "Problem", "REGISTRY", "Registry", "Robot", "RobotSettings", "Scene",
+    "Tolerances", "ValidationSettings", "evaluate", "load_problems", "load_robot", "make_planner",
+    "plan", "register_planner",
+]

@@ -288,6 +288,20 @@ class Robot:
         pin.framesForwardKinematics(self.model, self._data, np.asarray(q, dtype=float))
         return pin.SE3(self._data.oMf[fid])
 
+    def reach(self, frame: str | None = None) -> float:
+        """An upper bound [m] on the distance from the base origin to ``frame`` over all
+        configurations: the lengths of the kinematic chain's links (plus prismatic travel)."""
+        fr = self.model.frames[self.ee_frame_id if frame is None else self.frame_id(frame)]
+        total = float(np.linalg.norm(fr.placement.translation))
+        jid = fr.parentJoint
+        while jid > 0:
+            total += float(np.linalg.norm(self.model.jointPlacements[jid].translation))
+            if self.model.joints[jid].shortname().startswith("JointModelP"):  # prismatic
+                i = self.model.joints[jid].idx_q
+                total += float(max(abs(self.lower[i]), abs(self.upper[i])))
+            jid = self.model.parents[jid]
+        return total
+
     def frame_id(self, frame: str) -> int:
         if not self.model.existFrame(frame):
             raise UnknownNameError(f"frame of robot {self.name!r}", frame, [f.name for f in self.model.frames])

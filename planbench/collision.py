@@ -1,0 +1,98 @@
+"""Exact collision and distance queries of a robot against a scene's true geometry (coal).
+
+The robot's collision geometry (from its URDF) and the scene's obstacles go into one
+``pinocchio.GeometryModel``: self-collision pairs (the robot's, SRDF pairs removed) plus every
+robot-geometry / obstacle pair. pinocchio's C++ loops then run the coal queries, which keeps the
+per-configuration cost low enough for sampling planners and for dense path validation.
+"""
+
+from __future__ import annotations
+
+import weakref
+from typing import Any
+
+import numpy as np
+
+from planbench.robot import Robot, _link_of
+from planbench.scene import Scene
+
+__all__ = ["CollisionChecker"]
+
+_CHECKERS: weakref.WeakKeyDictionary[Any, CollisionChecker] = weakref.WeakKeyDictionary()
+
+
+class CollisionChecker:
+    """Collision and clearance queries for one robot in one scene. Not thread-safe (own buffers)."""
+
+    def __init__(self, robot: Robot, scene: Scene) -> None:
+        import pinocchio as pin
+
+        self.robot = robot
+        self.scene = scene
+        geom = pin.GeometryModel(robot.collision_model)  # copy: the robot stays untouched
+        self.n_robot_geoms = geom.ngeoms
+        for obstacle in scene.obstacles:
+            obj = pin.GeometryObject(f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(),
+                                     obstacle.collision_geometry())
+            gid = geom.addGeometryObject(obj)
+            for rid in range(self.n_robot_geoms):
+                geom.addCollisionPair(pin.CollisionPair(rid, gid))
+        self.geometry_model = geom
+        self._model = robot.model
+        self._data = robot.model.createData()
+        self._geom_data = pin.GeometryData(geom)
+        # Distances only between robot and obstacles (clearance), never robot-robot.
+        self._dist_data = pin.GeometryData(geom)
+        self._obstacle_pairs = []
+        for k, pair in enumerate(geom.collisionPairs):
+            is_obstacle_pair = pair.second >= self.n_robot_geoms or pair.first >= self.n_robot_geoms
+            self._dist_data.activateCollisionPair(k) if is_obstacle_pair else self._dist_data.deactivateCollisionPair(k)
+            if is_obstacle_pair:
+                self._obstacle_pairs.append(k)
+        self.n_checks = 0
+
+    @classmethod
+    def for_problem(cls, problem: Any) -> CollisionChecker:
+        """The checker for a problem's robot and scene, built once and cached on the problem."""
+        checker = _CHECKERS.get(problem)
+        if checker is None:
+            checker = _CHECKERS[problem] = cls(problem.robot, problem.scene)
+        return checker
+
+    def in_collision(self, q: np.ndarray) -> bool:
+        """True when the robot at ``q`` touches an obstacle or itself (the ignore list aside)."""
+        import pinocchio as pin
+
+        self.n_checks += 1
+        return bool(pin.computeCollisions(self._model, self._data, self.geometry_model,
+                                          self._geom_data, np.asarray(q, dtype=float), True))
+
+    def collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """Every colliding pair at ``q`` as (robot link, link or ``obstacle:<name>``)."""
+        import pinocchio as pin
+
+        pin.computeCollisions(self._model, self._data, self.geometry_model, self._geom_data,
+                              np.asarray(q, dtype=float), False)
+        out = []
+        objs = self.geometry_model.geometryObjects
+        for k, pair in enumerate(self.geometry_model.collisionPairs):
+            if self._geom_data.collisionResults[k].isCollision():
+                a, b = objs[pair.first].name, objs[pair.second].name
+                out.append((_display(a), _display(b)))
+        return out
+
+    def clearance(self, q: np.ndarray) -> float:
+        """Smallest robot-obstacle distance [m] at ``q`` (negative or zero when penetrating;
+        ``inf`` in an empty scene). Self-distances are not included."""
+        import pinocchio as pin
+
+        if not self._obstacle_pairs:
+            return float("inf")
+        pin.computeDistances(self._model, self._data, self.geometry_model, self._dist_data,
+                             np.asarray(q, dtype=float))
+        results = self._dist_data.distanceResults
+        return float(min(results[k].min_distance for k in self._obstacle_pairs))
+
+
+def _display(geometry_name: str) -> str:
+    return geometry_name if geometry_name.startswith("obstacle:") else _link_of(geometry_name)

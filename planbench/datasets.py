@@ -1,0 +1,113 @@
+"""Problem sets by name: ``load_problems("mbm:box")``, ``"mbm:box/0001"``, ``"mbm:*"``, files.
+
+Selectors:
+
+- ``mbm`` or ``mbm:*``: all 700 MotionBenchMaker Panda problems (7 families x 100);
+- ``mbm:<family>``: one family; ``mbm:<family>/0007``: one problem;
+- ``mbm:<family>/0001-0020`` or ``mbm:*/0021-0100``: an index range (inclusive);
+- a path to a problem JSON file, or to a folder of them.
+
+The MotionBenchMaker data ships inside planbench (``planbench/data/mbm``, with its README as
+attribution and licence notice: Apache-2.0 via VAMP, generated with BSD-3-Clause MotionBenchMaker).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from planbench.errors import PlanbenchError, UnknownNameError
+from planbench.problem import Goal, Pose, Problem, Tolerances
+from planbench.robot import load_robot
+from planbench.scene import Scene
+
+__all__ = ["load_problems", "mbm_families", "problem_sets"]
+
+_RANGE = re.compile(r"^(\d+)(?:-(\d+))?$")
+
+
+def problem_sets() -> dict[str, str]:
+    """Names of the built-in problem sets and what they are."""
+    return {"mbm": "MotionBenchMaker Panda set (Chamzas et al. 2022), 7 families x 100 problems: "
+                   + ", ".join(mbm_families())}
+
+
+def _mbm_dir() -> Any:
+    return resources.files("planbench") / "data" / "mbm"
+
+
+@functools.cache
+def _manifest() -> dict[str, Any]:
+    return json.loads((_mbm_dir() / "manifest.json").read_text())  # type: ignore[no-any-return]
+
+
+def mbm_families() -> list[str]:
+    return sorted(_manifest()["families"])
+
+
+@functools.cache
+def _family_data(family: str) -> dict[str, Any]:
+    entry = _manifest()["families"][family]
+    return json.loads((_mbm_dir() / entry["file"]).read_text())  # type: ignore[no-any-return]
+
+
+def _mbm_problem(d: dict[str, Any], family: dict[str, Any]) -> Problem:
+    fingers = dict(zip(family["finger_joint_names"], d["finger_positions"]))
+    robot = load_robot(family["robot"], fixed_joints=fingers)
+    if list(robot.joint_names) != family["joint_names"]:
+        raise PlanbenchError(f"MotionBenchMaker joints {family['joint_names']} differ from robot {robot.joint_names}")
+    scene = Scene.from_dict({"name": d["id"], "obstacles": d["obstacles"]}, f"mbm:{d['id']}")
+    frame = robot.settings.ee_frame
+    if frame in d["goal_ee_pose"]:
+        g = d["goal_ee_pose"][frame]
+        pose = Pose.from_xyzw(g["position"], g["orientation_xyzw"], frame)
+    else:
+        M = robot.frame_pose(d["goal"])
+        pose = Pose(M.translation.copy(), M.rotation.copy(), frame)
+    return Problem(robot, scene, d["start"], Goal(pose, d["goal"]), Tolerances(), f"mbm:{d['id']}",
+                   {"set": "mbm", "family": family["family"], "index": d["index"]})
+
+
+def load_problems(selector: str | Path) -> list[Problem]:
+    """Problems named by ``selector`` (see the module docstring), in a stable order."""
+    text = str(selector)
+    if text == "mbm" or text.startswith("mbm:"):
+        return _load_mbm(text.partition(":")[2] or "*")
+    path = Path(text)
+    if path.is_dir():
+        files = sorted(path.glob("*.json"))
+        if not files:
+            raise PlanbenchError(f"{path}: folder holds no problem .json files")
+        return [Problem.load(f) for f in files]
+    if path.is_file():
+        return [Problem.load(path)]
+    raise UnknownNameError("problem set or file", text, ["mbm", "mbm:*"] + [f"mbm:{f}" for f in mbm_families()])
+
+
+def _load_mbm(rest: str) -> list[Problem]:
+    fam_part, _, idx_part = rest.partition("/")
+    families = mbm_families()
+    if fam_part in ("*", ""):
+        chosen = families
+    elif fam_part in families:
+        chosen = [fam_part]
+    else:
+        raise UnknownNameError("MotionBenchMaker family", fam_part, families)
+    lo, hi = 1, 10**9
+    if idx_part:
+        m = _RANGE.match(idx_part)
+        if not m:
+            raise PlanbenchError(f"bad problem index {idx_part!r}: use e.g. 0007 or 0001-0020")
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) else lo
+    out = []
+    for fam in chosen:
+        data = _family_data(fam)
+        out.extend(_mbm_problem(p, data) for p in data["problems"] if lo <= p["index"] <= hi)
+    if not out:
+        raise PlanbenchError(f"no MotionBenchMaker problem matches 'mbm:{rest}' (indices run 0001-0100)")
+    return out

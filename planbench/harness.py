@@ -1,0 +1,75 @@
+"""Run one planner on one problem: check the problem, time setup and planning apart, catch bugs.
+
+This is the in-process path (``planbench.plan``). It cannot stop a planner that hangs or crashes
+the interpreter; the benchmark runs each query in its own process for that.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from typing import Any
+
+import numpy as np
+
+from planbench.planner import PlanResult, PlanStatus
+from planbench.problem import Problem
+from planbench.registry import REGISTRY, Registry
+
+__all__ = ["plan", "resolve_planner"]
+
+
+def resolve_planner(planner: Any, registry: Registry | None = None, **config: Any) -> Any:
+    """A planner instance from a registered name, a planner class, or an instance."""
+    if isinstance(planner, str):
+        return (registry or REGISTRY).make(planner, **config)
+    if isinstance(planner, type):
+        Config = getattr(planner, "Config", None)
+        return planner(Config(**config)) if Config is not None else planner(**config)
+    if config:
+        raise TypeError("settings can only be given with a planner name or class, not an instance")
+    return planner
+
+
+def plan(problem: Problem, planner: Any = "straight-line", *, seed: int = 0, time_limit: float = 10.0,
+         registry: Registry | None = None, **config: Any) -> PlanResult:
+    """Plan ``problem`` with ``planner`` (a registered name, a class or an instance).
+
+    The problem is checked first: a start that is NaN, outside the limits or in collision gives
+    ``INVALID_START``, an unusable goal pose ``INVALID_GOAL``, without calling the planner. Setup
+    and planning are timed apart with a monotonic clock; an exception raised by the planner gives
+    ``ERROR`` with its traceback in ``info["traceback"]``. ``seed`` seeds the planner's
+    ``numpy.random.Generator``.
+    """
+    if not (np.isfinite(time_limit) and time_limit > 0):
+        raise ValueError(f"time_limit must be > 0 [s], got {time_limit}")
+    instance = resolve_planner(planner, registry, **config)
+    check = problem.check()
+    if check.start:
+        return PlanResult(PlanStatus.INVALID_START, message="; ".join(check.start),
+                          planning_time=0.0, setup_time=0.0)
+    if check.goal_pose:
+        return PlanResult(PlanStatus.INVALID_GOAL, message="; ".join(check.goal_pose),
+                          planning_time=0.0, setup_time=0.0)
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter()
+    try:
+        instance.setup(problem)
+    except Exception as exc:
+        return _error(exc, "setup", setup_time=time.perf_counter() - t0)
+    setup_time = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    try:
+        result = instance.plan(problem, time_limit=float(time_limit), rng=rng)
+    except Exception as exc:
+        return _error(exc, "plan", setup_time=setup_time, planning_time=time.perf_counter() - t1)
+    planning_time = time.perf_counter() - t1
+    if not isinstance(result, PlanResult):
+        return PlanResult(PlanStatus.ERROR, message=f"plan() returned {type(result).__name__}, not a PlanResult",
+                          setup_time=setup_time, planning_time=planning_time)
+    return result.replace(planning_time=planning_time, setup_time=setup_time)
+
+
+def _error(exc: BaseException, where: str, **times: float) -> PlanResult:
+    return PlanResult(PlanStatus.ERROR, message=f"planner raised in {where}(): {type(exc).__name__}: {exc}",
+                      info={"traceback": traceback.format_exc()}, **times)

@@ -1,0 +1,66 @@
+"""Path metrics as plain functions of arrays, so each has an exact, testable definition."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "densify",
+    "joint_path_length",
+    "polyline_length",
+    "execution_duration",
+    "turning_angle",
+]
+
+
+def densify(path: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolate a joint path linearly so that no joint moves more than ``resolution`` between
+    consecutive configurations. Returns the dense states (M, nq) and, for each, the index of the
+    path segment it lies on (waypoint ``k`` itself belongs to segment ``k - 1``, the start to 0).
+    """
+    path = np.asarray(path, dtype=float)
+    if len(path) == 1:
+        return path.copy(), np.zeros(1, dtype=int)
+    steps = np.maximum(1, np.ceil(np.abs(np.diff(path, axis=0)).max(axis=1) / resolution - 1e-12)).astype(int)
+    states = [path[:1]]
+    segment = [np.zeros(1, dtype=int)]
+    for k, n in enumerate(steps):
+        s = (np.arange(1, n + 1) / n)[:, None]
+        states.append(path[k] + s * (path[k + 1] - path[k]))
+        segment.append(np.full(n, k))
+    return np.concatenate(states), np.concatenate(segment)
+
+
+def joint_path_length(path: np.ndarray) -> float:
+    """Sum of Euclidean joint-space segment lengths [rad] (the L2 C-space cost OMPL reports)."""
+    return polyline_length(path)
+
+
+def polyline_length(points: np.ndarray) -> float:
+    """Length of a polyline through the rows of ``points``."""
+    points = np.asarray(points, dtype=float)
+    if len(points) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def execution_duration(path: np.ndarray, velocity_limit: np.ndarray) -> float:
+    """Time [s] to follow the path segment by segment in straight lines, each segment at the
+    speed where its slowest joint runs at its velocity limit (infinite acceleration)."""
+    path = np.asarray(path, dtype=float)
+    if len(path) < 2:
+        return 0.0
+    return float((np.abs(np.diff(path, axis=0)) / np.asarray(velocity_limit)).max(axis=1).sum())
+
+
+def turning_angle(path: np.ndarray, min_segment: float = 1e-9) -> float:
+    """Smoothness: the total turning angle [rad] between consecutive joint-space segments
+    (0 for a straight line; each sharp reversal adds pi). Segments shorter than ``min_segment``
+    are dropped first, so repeated waypoints do not count as turns."""
+    d = np.diff(np.asarray(path, dtype=float), axis=0)
+    norms = np.linalg.norm(d, axis=1)
+    d = d[norms > min_segment] / norms[norms > min_segment][:, None]
+    if len(d) < 2:
+        return 0.0
+    cos = np.clip(np.einsum("ij,ij->i", d[:-1], d[1:]), -1.0, 1.0)
+    return float(np.arccos(cos).sum())
