@@ -1,0 +1,190 @@
+"""The ``planbench`` command line: ``list``, ``plan``, and the commands of other core modules."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from planbench.errors import PlanbenchError
+
+log = logging.getLogger("planbench")
+
+# Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
+COMMAND_MODULES = ("planbench.field.commands",)
+
+
+def parse_setting(text: str) -> tuple[str, Any]:
+    """``key=value`` with a JSON value (``gain=2.5``, ``timed=false``) or a plain string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"settings are key=value, got {text!r}")
+    try:
+        return key.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return key.strip(), value
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from planbench.datasets import problem_sets
+    from planbench.registry import REGISTRY
+    from planbench.robot import load_robot, robot_names
+
+    console = Console()
+    table = Table(title="Planners", title_justify="left")
+    for col in ("name", "origin", "distribution", "available"):
+        table.add_column(col)
+    for name in REGISTRY.names():
+        spec = REGISTRY.spec(name)
+        ok = spec.available
+        status = "yes" if ok else f"no: {spec.error}" + (f" ({spec.hint})" if spec.hint else "")
+        dist = f"{spec.distribution} {spec.version}".strip() or "-"
+        table.add_row(name, f"{spec.origin}: {spec.entry_point}", dist, status)
+    console.print(table)
+    robots = Table(title="Robots", title_justify="left")
+    for col in ("name", "planned joints", "end effector", "description"):
+        robots.add_column(col)
+    for name in robot_names():
+        try:
+            r = load_robot(name)
+            robots.add_row(name, str(r.nq), r.settings.ee_frame, r.settings.description)
+        except PlanbenchError as exc:
+            robots.add_row(name, "-", "-", f"cannot load: {exc}")
+    console.print(robots)
+    sets = Table(title="Problem sets", title_justify="left")
+    sets.add_column("name")
+    sets.add_column("content")
+    for name, what in problem_sets().items():
+        sets.add_row(name, what)
+    console.print(sets)
+    return 0
+
+
+METRICS = (  # (Evaluation field, label, display unit)
+    ("success", "success (validated)", ""), ("status", "planner's status", ""),
+    ("planning_time", "planning time [ms]", "ms"), ("setup_time", "setup time [ms]", "ms"),
+    ("joint_path_length", "joint path length [rad]", ""), ("ee_path_length", "EE path length [m]", ""),
+    ("min_clearance", "min clearance [mm]", "mm"), ("mean_clearance", "mean clearance [mm]", "mm"),
+    ("duration", "duration at velocity limits [s]", ""), ("smoothness", "turning angle [rad]", ""),
+    ("n_waypoints", "waypoints", ""), ("final_position_error", "final position error [mm]", "mm"),
+    ("final_orientation_error", "final orientation error [rad]", ""),
+    ("collision_checks", "collision checks", ""),
+)
+COMPACT = ("success", "planning_time", "joint_path_length", "ee_path_length", "min_clearance")
+
+
+def _fmt(value: Any, unit: str) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "-"
+        value = value * 1000 if unit in ("ms", "mm") else value
+        return f"{value:.4g}" if abs(value) < 1e4 else f"{value:.0f}"
+    return str(value)
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    import planbench
+
+    settings = dict(args.set or [])
+    problems = planbench.load_problems(args.problem)
+    console = Console()
+    rows = []
+    for problem in problems:
+        result = planbench.plan(problem, args.planner, seed=args.seed, time_limit=args.time_limit, **settings)
+        if result.status is planbench.PlanStatus.ERROR:
+            log.debug("%s", result.info.get("traceback", ""))
+        ev = planbench.evaluate(problem, result)
+        rows.append({"problem": problem.id, "planner": args.planner, "seed": args.seed, **ev.as_dict()})
+    title = f"{args.planner} on {args.problem}, seed {args.seed} (every path checked by planbench)"
+    units = {key: (label, unit) for key, label, unit in METRICS}
+    if len(rows) == 1:
+        table = Table(title=title, title_justify="left", show_header=False)
+        table.add_column("metric")
+        table.add_column("value", justify="right")
+        for key, label, unit in METRICS:
+            table.add_row(escape(label), _fmt(rows[0][key], unit))
+        console.print(table)
+    else:
+        table = Table(title=title, title_justify="left")
+        table.add_column("problem", no_wrap=True)
+        for key in COMPACT:
+            table.add_column(escape(units[key][0]), justify="right")
+        for row in rows:
+            table.add_row(row["problem"], *(_fmt(row[key], units[key][1]) for key in COMPACT))
+        console.print(table)
+    for row in rows:
+        if row["failure"]:
+            console.print(f"[bold]{escape(row['problem'])}[/bold] failed: {escape(row['failure'])}", highlight=False)
+    console.print(f"{sum(r['success'] for r in rows)}/{len(rows)} solved (validated)")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1, default=_json_default)
+        console.print(f"metrics written to {args.json}")
+    return 0
+
+
+def _json_default(x: Any) -> Any:
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    return str(x)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="planbench", description="Plan robot-arm paths and compare planners fairly.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging (tracebacks of planner errors)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("list", help="planners (with origin and availability), robots, problem sets")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("plan", help="plan problems with one planner and print the validated metrics")
+    p.add_argument("--problem", required=True, help="mbm:box/0001, mbm:box/0001-0010, mbm:*, or a problem .json")
+    p.add_argument("--planner", default="straight-line", help="a registered planner name (see `planbench list`)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--time-limit", type=float, default=10.0, help="[s] per problem")
+    p.add_argument("--set", action="append", type=parse_setting, metavar="KEY=VALUE",
+                   help="a planner setting (repeatable), e.g. --set timed=false")
+    p.add_argument("--json", metavar="FILE", help="also write the metrics as JSON")
+    p.set_defaults(func=cmd_plan)
+
+    import importlib
+
+    for module in COMMAND_MODULES:
+        try:
+            importlib.import_module(module).add_commands(sub)
+        except ModuleNotFoundError as exc:
+            if exc.name is None or not module.startswith(exc.name):
+                raise
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except PlanbenchError as exc:
+        print(f"planbench: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("planbench: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
