@@ -1,8 +1,8 @@
 """The reference planner: a straight line in joint space from start to goal configuration.
 
-An honest baseline and a smoke test of the harness: it succeeds exactly when the straight segment
-is collision-free (the harness's validation decides that, not this planner), and it needs a goal
-configuration.
+An honest baseline and a smoke test of the harness: it checks the segment for collisions with
+coal at the same resolution as the harness and reports ``COLLISION`` when it is blocked, so it
+succeeds exactly when the straight line is free. It needs a goal configuration.
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planbench.collision import CollisionChecker
+from planbench.metrics import densify
 from planbench.planner import PlanResult, PlanStatus, Planner
 from planbench.problem import Problem
 
@@ -21,6 +23,12 @@ class StraightLineConfig:
 
     timed: bool = True
     """Attach time stamps: the segment at the joint velocity limits (slowest joint at its limit)."""
+    check_resolution: float = 0.01
+    """Largest joint motion between configurations checked for collision [rad]."""
+
+    def __post_init__(self) -> None:
+        if not self.check_resolution > 0:
+            raise ValueError(f"check_resolution must be > 0 [rad], got {self.check_resolution}")
 
 
 class StraightLinePlanner(Planner):
@@ -28,6 +36,9 @@ class StraightLinePlanner(Planner):
 
     name = "straight-line"
     Config = StraightLineConfig
+
+    def setup(self, problem: Problem) -> None:
+        self._checker = CollisionChecker(problem.robot, problem.scene)
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
         goal = problem.goal.q
@@ -39,8 +50,16 @@ class StraightLinePlanner(Planner):
             return PlanResult(PlanStatus.INVALID_GOAL, target="configuration",
                               message="goal configuration outside joint limits: " + "; ".join(problems))
         path = np.stack([problem.start, goal])
+        checker = getattr(self, "_checker", None) or CollisionChecker(robot, problem.scene)
+        states, _ = densify(path, self.config.check_resolution)
+        for i, q in enumerate(states):
+            if checker.in_collision(q):
+                return PlanResult(PlanStatus.COLLISION, target="configuration",
+                                  message=f"the straight line collides {i / (len(states) - 1):.0%} of the way",
+                                  info={"collision_checks": i + 1})
         times = None
         if self.config.timed:
             duration = float((np.abs(goal - problem.start) / robot.velocity_limit).max())
             times = np.array([0.0, max(duration, 1e-9)])
-        return PlanResult(PlanStatus.SUCCESS, path, times, target="configuration")
+        return PlanResult(PlanStatus.SUCCESS, path, times, target="configuration",
+                          info={"collision_checks": len(states)})
