@@ -1,0 +1,224 @@
+"""The field's hot loops, compiled with numba (imported only when numba is installed).
+
+Each function works on arrays whose cells beyond the grid are zero (the caller has subtracted the
+``outside`` occupancy, see ``full.py``), in the arrays' own dtype. Compiled code is cached on disk
+(``cache=True``), so only the first run on a machine pays the compile time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["correlate_axis", "lazy_points", "sample_points"]
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _planes(src, dst, k, sign):  # type: ignore[no-untyped-def]
+    """Correlate (n0, m) along axis 0: the inner loops run over whole contiguous planes."""
+    n0, m = src.shape
+    c = (k.shape[0] - 1) // 2
+    for i in prange(n0):
+        k0 = k[c]
+        for j in range(m):
+            dst[i, j] = k0 * src[i, j]
+        for t in range(1, c + 1):
+            w = k[c + t]
+            sw = sign * w
+            hi = i + t
+            lo = i - t
+            if hi < n0 and lo >= 0:
+                for j in range(m):
+                    dst[i, j] += w * src[hi, j] + sw * src[lo, j]
+            elif hi < n0:
+                for j in range(m):
+                    dst[i, j] += w * src[hi, j]
+            elif lo >= 0:
+                for j in range(m):
+                    dst[i, j] += sw * src[lo, j]
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _rows(src, dst, k, sign):  # type: ignore[no-untyped-def]
+    """Correlate (n0, n1, n2) along axis 1: the inner loops run over contiguous rows."""
+    n0, n1, n2 = src.shape
+    c = (k.shape[0] - 1) // 2
+    for i in prange(n0):
+        k0 = k[c]
+        for j in range(n1):
+            for l in range(n2):
+                dst[i, j, l] = k0 * src[i, j, l]
+            for t in range(1, c + 1):
+                w = k[c + t]
+                sw = sign * w
+                hi = j + t
+                lo = j - t
+                if hi < n1 and lo >= 0:
+                    for l in range(n2):
+                        dst[i, j, l] += w * src[i, hi, l] + sw * src[i, lo, l]
+                elif hi < n1:
+                    for l in range(n2):
+                        dst[i, j, l] += w * src[i, hi, l]
+                elif lo >= 0:
+                    for l in range(n2):
+                        dst[i, j, l] += sw * src[i, lo, l]
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _lines(src, dst, k, sign):  # type: ignore[no-untyped-def]
+    """Correlate (m, n) along its last (contiguous) axis: each line is copied into the middle of a
+    zero-padded buffer, then one bounds-free sweep per tap pair."""
+    m, n = src.shape
+    c = (k.shape[0] - 1) // 2
+    chunks = min(m, 256)
+    for b in prange(chunks):
+        buf = np.zeros(n + 2 * c, src.dtype)
+        mid = buf[c:c + n]
+        for r in range(b * m // chunks, (b + 1) * m // chunks):
+            s = src[r]
+            d = dst[r]
+            k0 = k[c]
+            for j in range(n):
+                mid[j] = s[j]
+                d[j] = k0 * s[j]
+            for t in range(1, c + 1):
+                w = k[c + t]
+                sw = sign * w
+                sp = buf[c + t:c + t + n]
+                sm = buf[c - t:c - t + n]
+                for j in range(n):
+                    d[j] += w * sp[j] + sw * sm[j]
+
+
+def correlate_axis(src: np.ndarray, dst: np.ndarray, k: np.ndarray, axis: int, sign: float) -> None:
+    """``dst = correlate1d(src, k, axis)`` with zeros beyond the ends; ``k`` symmetric (``sign``
+    +1) or antisymmetric (-1) and in the arrays' dtype. ``src``, ``dst``: C-contiguous 3D."""
+    n0, n1, n2 = src.shape
+    s = src.dtype.type(sign)
+    if axis == 0:
+        _planes(src.reshape(n0, n1 * n2), dst.reshape(n0, n1 * n2), k, s)
+    elif axis == 1:
+        _rows(src, dst, k, s)
+    else:
+        _lines(src.reshape(n0 * n1, n2), dst.reshape(n0 * n1, n2), k, s)
+
+
+@njit(cache=True, fastmath=True)
+def _effective(k, w, out):  # type: ignore[no-untyped-def]
+    """Blend a centred 1D kernel (length 2c+1) into ``out`` (length 2m+2, m >= c) for the two cell
+    centres around a point: ``out[m + u] = (1 - w) k(u) + w k(u - 1)``, u = -m .. m+1."""
+    m = (out.shape[0] - 2) // 2
+    c = (k.shape[0] - 1) // 2
+    for j in range(out.shape[0]):
+        out[j] = 0.0
+    for j in range(k.shape[0]):
+        out[m - c + j] += (1.0 - w) * k[j]
+        out[m - c + j + 1] += w * k[j]
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def lazy_points(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
+    """Interpolated field at each point from the occupancy grid directly (see ``lazy.py``).
+
+    The trilinear weights are folded into 1D kernels over the (2m+2)^3 block around the point, and
+    the block is contracted one axis at a time: y with two rows of weights into two z-lines, then z
+    and x by dot products. ``out`` (N, 3) float64 receives (F_x, F_y, F_z).
+    """
+    nx, ny, nz = grid.shape
+    m = max(along.shape[0], across.shape[0]) // 2
+    size = 2 * m + 2
+    dt = grid.dtype.type
+    o = dt(outside)
+    for p in prange(points.shape[0]):
+        base = np.empty(3, np.int64)
+        P = np.empty((3, size), grid.dtype)
+        T = np.empty((3, size), grid.dtype)
+        for a in range(3):
+            u = (points[p, a] - origin[a]) / resolution - 0.5
+            f = math.floor(u)
+            base[a] = np.int64(f) - m
+            _effective(along, u - f, P[a])
+            _effective(across, u - f, T[a])
+        x0 = max(base[0], 0)
+        x1 = min(base[0] + size, nx)
+        y0 = max(base[1], 0)
+        y1 = min(base[1] + size, ny)
+        z0 = max(base[2], 0)
+        z1 = min(base[2] + size, nz)
+        ox = base[0]
+        oy = base[1]
+        oz = base[2]
+        at = np.empty(size, grid.dtype)  # z-line weighted by T_y
+        ap = np.empty(size, grid.dtype)  # z-line weighted by P_y
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        nzb = z1 - z0
+        for ix in range(x0, x1):
+            for j in range(size):
+                at[j] = 0.0
+                ap[j] = 0.0
+            at_s = at[z0 - oz:z1 - oz]
+            ap_s = ap[z0 - oz:z1 - oz]
+            for iy in range(y0, y1):
+                ty = T[1, iy - oy]
+                py = P[1, iy - oy]
+                row = grid[ix, iy, z0:z1]
+                for j in range(nzb):
+                    v = row[j] - o
+                    at_s[j] += ty * v
+                    ap_s[j] += py * v
+            tt = 0.0
+            tp = 0.0
+            pt = 0.0
+            for j in range(size):
+                tt += at[j] * T[2, j]
+                tp += at[j] * P[2, j]
+                pt += ap[j] * T[2, j]
+            fx += P[0, ix - ox] * tt
+            fy += T[0, ix - ox] * pt
+            fz += T[0, ix - ox] * tp
+        out[p, 0] = fx
+        out[p, 1] = fy
+        out[p, 2] = fz
+
+
+@njit(cache=True)
+def sample_points(comp, origin, resolution, margin, points, out):  # type: ignore[no-untyped-def]
+    """Trilinear interpolation of ``comp`` (3, mx, my, mz) at points (see ``interpolate.py``);
+    stored cells beyond the array count as zero."""
+    mx, my, mz = comp.shape[1], comp.shape[2], comp.shape[3]
+    idx = np.empty(3, np.int64)
+    w = np.empty(3)
+    for p in range(points.shape[0]):
+        for a in range(3):
+            u = (points[p, a] - origin[a]) / resolution - 0.5 + margin
+            f = math.floor(u)
+            idx[a] = np.int64(f)
+            w[a] = u - f
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for dx in range(2):
+            ix = idx[0] + dx
+            if ix < 0 or ix >= mx:
+                continue
+            wx = w[0] if dx else 1.0 - w[0]
+            for dy in range(2):
+                iy = idx[1] + dy
+                if iy < 0 or iy >= my:
+                    continue
+                wxy = wx * (w[1] if dy else 1.0 - w[1])
+                for dz in range(2):
+                    iz = idx[2] + dz
+                    if iz < 0 or iz >= mz:
+                        continue
+                    c = wxy * (w[2] if dz else 1.0 - w[2])
+                    f0 += c * comp[0, ix, iy, iz]
+                    f1 += c * comp[1, ix, iy, iz]
+                    f2 += c * comp[2, ix, iy, iz]
+        out[p, 0] = f0
+        out[p, 1] = f1
+        out[p, 2] = f2
