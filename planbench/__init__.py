@@ -12,7 +12,7 @@ from planbench.datasets import load_problems
 from planbench.errors import PlanbenchError
 from planbench.harness import plan
 from planbench.occupancy import OccupancyGrid
-from planbench.planner import PlanResult, PlanStatus, Planner
+from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Goal, Pose, Problem, Tolerances
 from planbench.registry import REGISTRY, Registry, make_planner, register_planner
 from planbench.robot import Robot, RobotSettings, load_robot
@@ -22,8 +22,27 @@ from planbench.validate import Evaluation, ValidationSettings, evaluate
 __version__ = "0.1.0"
 
 __all__ = [
-    "Evaluation", "Goal", "Obstacle", "OccupancyGrid", "PlanResult", "PlanStatus", "Planner",
-    "PlanbenchError", "Pose", "Problem", "REGISTRY", "Registry", "Robot", "RobotSettings", "Scene",
-    "Tolerances", "ValidationSettings", "evaluate", "load_problems", "load_robot", "make_planner",
-    "plan", "register_planner",
+    "Evaluation",
+    "Goal",
+    "Obstacle",
+    "OccupancyGrid",
+    "PlanResult",
+    "PlanStatus",
+    "Planner",
+    "PlanbenchError",
+    "Pose",
+    "Problem",
+    "REGISTRY",
+    "Registry",
+    "Robot",
+    "RobotSettings",
+    "Scene",
+    "Tolerances",
+    "ValidationSettings",
+    "evaluate",
+    "load_problems",
+    "load_robot",
+    "make_planner",
+    "plan",
+    "register_planner",
 ]

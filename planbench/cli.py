@@ -68,12 +68,18 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 METRICS = (  # (Evaluation field, label, display unit)
-    ("success", "success (validated)", ""), ("status", "planner's status", ""),
-    ("planning_time", "planning time [ms]", "ms"), ("setup_time", "setup time [ms]", "ms"),
-    ("joint_path_length", "joint path length [rad]", ""), ("ee_path_length", "EE path length [m]", ""),
-    ("min_clearance", "min clearance [mm]", "mm"), ("mean_clearance", "mean clearance [mm]", "mm"),
-    ("duration", "duration at velocity limits [s]", ""), ("smoothness", "turning angle [rad]", ""),
-    ("n_waypoints", "waypoints", ""), ("final_position_error", "final position error [mm]", "mm"),
+    ("success", "success (validated)", ""),
+    ("status", "planner's status", ""),
+    ("planning_time", "planning time [ms]", "ms"),
+    ("setup_time", "setup time [ms]", "ms"),
+    ("joint_path_length", "joint path length [rad]", ""),
+    ("ee_path_length", "EE path length [m]", ""),
+    ("min_clearance", "min clearance [mm]", "mm"),
+    ("mean_clearance", "mean clearance [mm]", "mm"),
+    ("duration", "duration at velocity limits [s]", ""),
+    ("smoothness", "turning angle [rad]", ""),
+    ("n_waypoints", "waypoints", ""),
+    ("final_position_error", "final position error [mm]", "mm"),
     ("final_orientation_error", "final orientation error [rad]", ""),
     ("collision_checks", "collision checks", ""),
 )
@@ -155,8 +161,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", default="straight-line", help="a registered planner name (see `planbench list`)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--time-limit", type=float, default=10.0, help="[s] per problem")
-    p.add_argument("--set", action="append", type=parse_setting, metavar="KEY=VALUE",
-                   help="a planner setting (repeatable), e.g. --set timed=false")
+    p.add_argument(
+        "--set",
+        action="append",
+        type=parse_setting,
+        metavar="KEY=VALUE",
+        help="a planner setting (repeatable), e.g. --set timed=false",
+    )
     p.add_argument("--json", metavar="FILE", help="also write the metrics as JSON")
     p.set_defaults(func=cmd_plan)
 
@@ -174,8 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     try:
         return int(args.func(args) or 0)
     except PlanbenchError as exc:

@@ -32,8 +32,9 @@ class CollisionChecker:
         geom = pin.GeometryModel(robot.collision_model)  # copy: the robot stays untouched
         self.n_robot_geoms = geom.ngeoms
         for obstacle in scene.obstacles:
-            obj = pin.GeometryObject(f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(),
-                                     obstacle.collision_geometry())
+            obj = pin.GeometryObject(
+                f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(), obstacle.collision_geometry()
+            )
             gid = geom.addGeometryObject(obj)
             for rid in range(self.n_robot_geoms):
                 geom.addCollisionPair(pin.CollisionPair(rid, gid))
@@ -64,15 +65,19 @@ class CollisionChecker:
         import pinocchio as pin
 
         self.n_checks += 1
-        return bool(pin.computeCollisions(self._model, self._data, self.geometry_model,
-                                          self._geom_data, np.asarray(q, dtype=float), True))
+        return bool(
+            pin.computeCollisions(
+                self._model, self._data, self.geometry_model, self._geom_data, np.asarray(q, dtype=float), True
+            )
+        )
 
     def collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Every colliding pair at ``q`` as (robot link, link or ``obstacle:<name>``)."""
         import pinocchio as pin
 
-        pin.computeCollisions(self._model, self._data, self.geometry_model, self._geom_data,
-                              np.asarray(q, dtype=float), False)
+        pin.computeCollisions(
+            self._model, self._data, self.geometry_model, self._geom_data, np.asarray(q, dtype=float), False
+        )
         out = []
         objs = self.geometry_model.geometryObjects
         for k, pair in enumerate(self.geometry_model.collisionPairs):
@@ -88,8 +93,7 @@ class CollisionChecker:
 
         if not self._obstacle_pairs:
             return float("inf")
-        pin.computeDistances(self._model, self._data, self.geometry_model, self._dist_data,
-                             np.asarray(q, dtype=float))
+        pin.computeDistances(self._model, self._data, self.geometry_model, self._dist_data, np.asarray(q, dtype=float))
         results = self._dist_data.distanceResults
         return float(min(results[k].min_distance for k in self._obstacle_pairs))
 

@@ -42,8 +42,9 @@ def blocked_problem(robot_name: str = "panda") -> Problem:
     return Problem.create(robot, Scene((wall,), name="blocked"), base.start, base.goal.q, id="conformance:blocked")
 
 
-def check_planner(planner: Any, config: Any = None, problems: list[Problem] | None = None,
-                  time_limit: float = 2.0, seed: int = 0) -> list[str]:
+def check_planner(
+    planner: Any, config: Any = None, problems: list[Problem] | None = None, time_limit: float = 2.0, seed: int = 0
+) -> list[str]:
     """Problems found with ``planner`` (a class, or a registered name); empty when conformant.
 
     ``problems`` default: a trivial free-space problem (must be solved) and a problem with a small
@@ -57,12 +58,12 @@ def check_planner(planner: Any, config: Any = None, problems: list[Problem] | No
     name = getattr(cls, "name", "")
     if not isinstance(name, str) or not NAME_PATTERN.match(name):
         found.append(f"'name' must be a kebab-case string like 'my-planner', got {name!r}")
-    Config = getattr(cls, "Config", None)
+    Config: Any = getattr(cls, "Config", None)
     if Config is None or not dataclasses.is_dataclass(Config):
         found.append("'Config' must be a dataclass of the planner's settings (units in its docstrings)")
     elif config is None:
         try:
-            config = Config()
+            config = Config()  # type: ignore[operator]
         except TypeError as exc:
             found.append(f"Config() must work with defaults only: {exc}")
             return found
@@ -126,4 +127,3 @@ def _same_path(a: PlanResult, b: PlanResult) -> bool:
     if a.path is None or b.path is None:
         return a.path is None and b.path is None
     return a.path.shape == b.path.shape and bool(np.allclose(a.path, b.path, atol=1e-9, rtol=0))
-

@@ -32,8 +32,10 @@ _RANGE = re.compile(r"^(\d+)(?:-(\d+))?$")
 
 def problem_sets() -> dict[str, str]:
     """Names of the built-in problem sets and what they are."""
-    return {"mbm": "MotionBenchMaker Panda set (Chamzas et al. 2022), 7 families x 100 problems: "
-                   + ", ".join(mbm_families())}
+    return {
+        "mbm": "MotionBenchMaker Panda set (Chamzas et al. 2022), 7 families x 100 problems: "
+        + ", ".join(mbm_families())
+    }
 
 
 def _mbm_dir() -> Any:
@@ -56,7 +58,7 @@ def _family_data(family: str) -> dict[str, Any]:
 
 
 def _mbm_problem(d: dict[str, Any], family: dict[str, Any]) -> Problem:
-    fingers = dict(zip(family["finger_joint_names"], d["finger_positions"]))
+    fingers = dict(zip(family["finger_joint_names"], d["finger_positions"], strict=True))
     robot = load_robot(family["robot"], fixed_joints=fingers)
     if list(robot.joint_names) != family["joint_names"]:
         raise PlanbenchError(f"MotionBenchMaker joints {family['joint_names']} differ from robot {robot.joint_names}")
@@ -68,8 +70,15 @@ def _mbm_problem(d: dict[str, Any], family: dict[str, Any]) -> Problem:
     else:
         M = robot.frame_pose(d["goal"])
         pose = Pose(M.translation.copy(), M.rotation.copy(), frame)
-    return Problem(robot, scene, d["start"], Goal(pose, d["goal"]), Tolerances(), f"mbm:{d['id']}",
-                   {"set": "mbm", "family": family["family"], "index": d["index"]})
+    return Problem(
+        robot,
+        scene,
+        d["start"],
+        Goal(pose, d["goal"]),
+        Tolerances(),
+        f"mbm:{d['id']}",
+        {"set": "mbm", "family": family["family"], "index": d["index"]},
+    )
 
 
 def load_problems(selector: str | Path) -> list[Problem]:
@@ -104,7 +113,7 @@ def _load_mbm(rest: str) -> list[Problem]:
             raise PlanbenchError(f"bad problem index {idx_part!r}: use e.g. 0007 or 0001-0020")
         lo = int(m.group(1))
         hi = int(m.group(2)) if m.group(2) else lo
-    out = []
+    out: list[Problem] = []
     for fam in chosen:
         data = _family_data(fam)
         out.extend(_mbm_problem(p, data) for p in data["problems"] if lo <= p["index"] <= hi)

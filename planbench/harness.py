@@ -31,8 +31,15 @@ def resolve_planner(planner: Any, registry: Registry | None = None, **config: An
     return planner
 
 
-def plan(problem: Problem, planner: Any = "straight-line", *, seed: int = 0, time_limit: float = 10.0,
-         registry: Registry | None = None, **config: Any) -> PlanResult:
+def plan(
+    problem: Problem,
+    planner: Any = "straight-line",
+    *,
+    seed: int = 0,
+    time_limit: float = 10.0,
+    registry: Registry | None = None,
+    **config: Any,
+) -> PlanResult:
     """Plan ``problem`` with ``planner`` (a registered name, a class or an instance).
 
     The problem is checked first: a start that is NaN, outside the limits or in collision gives
@@ -46,11 +53,11 @@ def plan(problem: Problem, planner: Any = "straight-line", *, seed: int = 0, tim
     instance = resolve_planner(planner, registry, **config)
     check = problem.check()
     if check.start:
-        return PlanResult(PlanStatus.INVALID_START, message="; ".join(check.start),
-                          planning_time=0.0, setup_time=0.0)
+        return PlanResult(PlanStatus.INVALID_START, message="; ".join(check.start), planning_time=0.0, setup_time=0.0)
     if check.goal_pose:
-        return PlanResult(PlanStatus.INVALID_GOAL, message="; ".join(check.goal_pose),
-                          planning_time=0.0, setup_time=0.0)
+        return PlanResult(
+            PlanStatus.INVALID_GOAL, message="; ".join(check.goal_pose), planning_time=0.0, setup_time=0.0
+        )
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
     try:
@@ -65,11 +72,20 @@ def plan(problem: Problem, planner: Any = "straight-line", *, seed: int = 0, tim
         return _error(exc, "plan", setup_time=setup_time, planning_time=time.perf_counter() - t1)
     planning_time = time.perf_counter() - t1
     if not isinstance(result, PlanResult):
-        return PlanResult(PlanStatus.ERROR, message=f"plan() returned {type(result).__name__}, not a PlanResult",
-                          setup_time=setup_time, planning_time=planning_time)
+        return PlanResult(
+            PlanStatus.ERROR,
+            message=f"plan() returned {type(result).__name__}, not a PlanResult",
+            setup_time=setup_time,
+            planning_time=planning_time,
+        )
     return result.replace(planning_time=planning_time, setup_time=setup_time)
 
 
-def _error(exc: BaseException, where: str, **times: float) -> PlanResult:
-    return PlanResult(PlanStatus.ERROR, message=f"planner raised in {where}(): {type(exc).__name__}: {exc}",
-                      info={"traceback": traceback.format_exc()}, **times)
+def _error(exc: BaseException, where: str, setup_time: float, planning_time: float = 0.0) -> PlanResult:
+    return PlanResult(
+        PlanStatus.ERROR,
+        message=f"planner raised in {where}(): {type(exc).__name__}: {exc}",
+        info={"traceback": traceback.format_exc()},
+        setup_time=setup_time,
+        planning_time=planning_time,
+    )

@@ -14,8 +14,10 @@ Rule for partly covered cells when voxelizing a scene (``rule=``):
 
 Overlap and fraction are measured on the ``subsamples**3`` midpoints of a regular subdivision of
 each cell (default 4 per edge, 64 per cell): ``"fraction"`` is then the midpoint-rule estimate of the
-covered volume, and ``"any"`` misses only slivers thinner than ``resolution / subsamples``. Mesh obstacles are voxelized with coal
-(a cell-sized box against the mesh), which gives the ``"any"`` rule exactly for every rule.
+covered volume, and ``"any"`` misses only slivers thinner than ``resolution / subsamples``. Only
+cells the obstacle's surface passes through are sub-sampled (found with exact signed distances).
+Mesh obstacles are voxelized with coal (a cell-sized box against the mesh): the ``"any"`` rule,
+whatever rule is asked for.
 """
 
 from __future__ import annotations
@@ -88,8 +90,9 @@ class OccupancyGrid:
 
     # --- constructors ---------------------------------------------------------------------
     @classmethod
-    def empty(cls, lower: np.ndarray, upper: np.ndarray, resolution: float, outside: float = 0.0,
-              dtype: type = np.float64) -> OccupancyGrid:
+    def empty(
+        cls, lower: np.ndarray, upper: np.ndarray, resolution: float, outside: float = 0.0, dtype: type = np.float64
+    ) -> OccupancyGrid:
         """A free grid covering the box [lower, upper] (rounded up to whole cells)."""
         lower = np.asarray(lower, dtype=float)
         upper = np.asarray(upper, dtype=float)
@@ -99,9 +102,16 @@ class OccupancyGrid:
         return cls(np.zeros(tuple(shape), dtype=dtype), lower, resolution, outside)
 
     @classmethod
-    def from_scene(cls, scene: Scene, resolution: float, bounds: tuple[np.ndarray, np.ndarray] | None = None,
-                   rule: str = "any", subsamples: int = 4, padding: float = 0.0,
-                   outside: float = 0.0) -> OccupancyGrid:
+    def from_scene(
+        cls,
+        scene: Scene,
+        resolution: float,
+        bounds: tuple[np.ndarray, np.ndarray] | None = None,
+        rule: str = "any",
+        subsamples: int = 4,
+        padding: float = 0.0,
+        outside: float = 0.0,
+    ) -> OccupancyGrid:
         """Voxelize a scene's obstacles (see the module docstring for ``rule``).
 
         ``bounds`` = (lower, upper) corners [m]; by default the scene's bounding box grown by
@@ -124,7 +134,7 @@ class OccupancyGrid:
             if np.any(i1 <= i0):
                 continue
             block = _cover_block(obstacle, grid.origin, resolution, i0, i1, rule, subsamples)
-            view = data[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]]
+            view = data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
             if rule == "fraction":  # overlapping obstacles: occupancy is the union, capped at 1
                 np.minimum(view + block, 1.0, out=view)
             else:
@@ -132,9 +142,14 @@ class OccupancyGrid:
         return grid
 
     @classmethod
-    def from_points(cls, points: np.ndarray, resolution: float,
-                    bounds: tuple[np.ndarray, np.ndarray] | None = None, min_points: int = 1,
-                    outside: float = 0.0) -> OccupancyGrid:
+    def from_points(
+        cls,
+        points: np.ndarray,
+        resolution: float,
+        bounds: tuple[np.ndarray, np.ndarray] | None = None,
+        min_points: int = 1,
+        outside: float = 0.0,
+    ) -> OccupancyGrid:
         """A binary grid from an (N, 3) point cloud [m]: a cell is occupied when it holds at least
         ``min_points`` points. Points outside ``bounds`` are dropped; NaN rows (invalid depth
         pixels) are ignored. Default bounds: the cloud's bounding box plus one cell.
@@ -182,8 +197,9 @@ def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.n
 
 def _points(origin, resolution, i0, n, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]
     """Sample points at ``offsets`` (fractions of a cell) in cells i0 .. i0+n, as (M, 3)."""
-    axes = [origin[a] + (i0[a] + np.arange(n[a])[:, None] + offsets[None, :]).reshape(-1) * resolution
-            for a in range(3)]
+    axes = [
+        origin[a] + (i0[a] + np.arange(n[a])[:, None] + offsets[None, :]).reshape(-1) * resolution for a in range(3)
+    ]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 

@@ -65,8 +65,11 @@ class Pose:
         return pin.SE3(self.rotation, self.position)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"frame": self.frame, "position": self.position.tolist(),
-                "orientation_xyzw": self.orientation_xyzw.tolist()}
+        return {
+            "frame": self.frame,
+            "position": self.position.tolist(),
+            "orientation_xyzw": self.orientation_xyzw.tolist(),
+        }
 
 
 def pose_error(robot: Robot, q: np.ndarray, goal: Pose) -> tuple[float, float]:
@@ -143,8 +146,10 @@ class Problem:
     def __post_init__(self) -> None:
         start = np.array(self.start, dtype=float)
         if start.shape != (self.robot.nq,):
-            raise ValueError(f"problem {self.id}: start has shape {start.shape}, robot "
-                             f"{self.robot.name!r} plans {self.robot.nq} joints")
+            raise ValueError(
+                f"problem {self.id}: start has shape {start.shape}, robot "
+                f"{self.robot.name!r} plans {self.robot.nq} joints"
+            )
         start.setflags(write=False)
         object.__setattr__(self, "start", start)
         if self.goal.q is not None:
@@ -155,9 +160,17 @@ class Problem:
             object.__setattr__(self, "goal", Goal(self.goal.pose, gq))
 
     @classmethod
-    def create(cls, robot: Robot, scene: Scene, start: Any, goal_q: Any = None,
-               goal_pose: Pose | None = None, tolerances: Tolerances | None = None,
-               id: str = "problem", metadata: Mapping[str, Any] | None = None) -> Problem:
+    def create(
+        cls,
+        robot: Robot,
+        scene: Scene,
+        start: Any,
+        goal_q: Any = None,
+        goal_pose: Pose | None = None,
+        tolerances: Tolerances | None = None,
+        id: str = "problem",
+        metadata: Mapping[str, Any] | None = None,
+    ) -> Problem:
         """Build a problem; with only ``goal_q`` the goal pose is its FK at the end effector."""
         if goal_q is None and goal_pose is None:
             raise ValueError("a goal needs a configuration (goal_q), a pose (goal_pose), or both")
@@ -168,8 +181,7 @@ class Problem:
                 goal_pose = Pose(M.translation.copy(), M.rotation.copy(), robot.settings.ee_frame)
             else:  # keep the bad goal so that check() can say what is wrong with it
                 goal_pose = Pose(np.full(3, np.nan), np.eye(3), robot.settings.ee_frame)
-        return cls(robot, scene, start, Goal(goal_pose, goal_q), tolerances or Tolerances(), id,
-                   dict(metadata or {}))
+        return cls(robot, scene, start, Goal(goal_pose, goal_q), tolerances or Tolerances(), id, dict(metadata or {}))
 
     # --- validity of start and goal ---------------------------------------------------------
     def check(self) -> ProblemCheck:
@@ -191,8 +203,9 @@ class Problem:
             reach = self.robot.reach(p.frame)
             dist = float(np.linalg.norm(p.position))
             if dist > reach:
-                goal.append(f"goal pose is out of reach: {dist:.3f} m from the base, the arm reaches "
-                            f"at most {reach:.3f} m")
+                goal.append(
+                    f"goal pose is out of reach: {dist:.3f} m from the base, the arm reaches at most {reach:.3f} m"
+                )
         return ProblemCheck(start, goal, goal_q)
 
     # --- JSON -----------------------------------------------------------------------------
@@ -210,8 +223,11 @@ class Problem:
             "scene": self.scene.to_dict(),
             "start": self.start.tolist(),
             "goal": goal,
-            "tolerances": {"position": self.tolerances.position, "orientation": self.tolerances.orientation,
-                           "joint": self.tolerances.joint},
+            "tolerances": {
+                "position": self.tolerances.position,
+                "orientation": self.tolerances.orientation,
+                "joint": self.tolerances.joint,
+            },
             "metadata": dict(self.metadata),
         }
 
@@ -238,11 +254,18 @@ class Problem:
             pose = None
             if "pose" in g:
                 pd = g["pose"]
-                pose = Pose.from_xyzw(pd["position"], pd["orientation_xyzw"],
-                                      pd.get("frame", robot.settings.ee_frame))
+                pose = Pose.from_xyzw(pd["position"], pd["orientation_xyzw"], pd.get("frame", robot.settings.ee_frame))
             tol = Tolerances(**d.get("tolerances", {}))
-            return cls.create(robot, scene, d["start"], g.get("q"), pose, tol,
-                              str(d.get("id", Path(source).stem)), d.get("metadata", {}))
+            return cls.create(
+                robot,
+                scene,
+                d["start"],
+                g.get("q"),
+                pose,
+                tol,
+                str(d.get("id", Path(source).stem)),
+                d.get("metadata", {}),
+            )
         except (ValueError, TypeError, KeyError) as exc:
             raise ProblemFileError(source, str(exc)) from exc
 

@@ -99,7 +99,9 @@ class Registry:
                 continue  # a decorator registration wins over an entry point of the same name
             dist = getattr(ep, "dist", None)
             self._specs[ep.name] = PlannerSpec(
-                ep.name, ep.value, "entry point",
+                ep.name,
+                ep.value,
+                "entry point",
                 distribution=dist.metadata["Name"] if dist else "",
                 version=dist.version if dist else "",
             )
@@ -142,7 +144,7 @@ class Registry:
     def make(self, name: str, **config: Any) -> Any:
         """An instance of planner ``name`` with its ``Config`` built from ``config``."""
         cls = self.get(name)
-        Config = getattr(cls, "Config", None)
+        Config: Any = getattr(cls, "Config", None)
         if Config is not None and dataclasses.is_dataclass(Config):
             allowed = {f.name for f in dataclasses.fields(Config)}
             unknown = set(config) - allowed
@@ -151,7 +153,7 @@ class Registry:
                     f"planner {name!r} has no setting(s) {sorted(unknown)}; its settings are {sorted(allowed)}"
                 )
             try:
-                return cls(Config(**config))
+                return cls(Config(**config))  # type: ignore[operator]
             except (TypeError, ValueError) as exc:
                 raise InvalidConfigError(f"planner {name!r}: {exc}") from exc
         return cls(**config)
@@ -170,8 +172,7 @@ def _distribution_of(module: str) -> tuple[str, str]:
 REGISTRY = Registry()
 
 
-def register_planner(cls: type | None = None, *, name: str | None = None,
-                     registry: Registry | None = None) -> Any:
+def register_planner(cls: type | None = None, *, name: str | None = None, registry: Registry | None = None) -> Any:
     """Class decorator: ``@register_planner`` or ``@register_planner(name="x", registry=r)``."""
 
     def wrap(c: type) -> type:
@@ -187,4 +188,3 @@ def get_planner(name: str) -> type:
 
 def make_planner(name: str, **config: Any) -> Any:
     return REGISTRY.make(name, **config)
-

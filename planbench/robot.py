@@ -128,13 +128,9 @@ def _read_settings(path: Path) -> RobotSettings:
             ee_frame=str(raw["ee_frame"]),
             home=tuple(float(x) for x in raw["home"]) if "home" in raw else None,
             fixed_joints={k: float(v) for k, v in raw.get("fixed_joints", {}).items()},
-            position_limits={
-                k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()
-            },
+            position_limits={k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()},
             velocity_limits={k: float(v) for k, v in raw.get("velocity_limits", {}).items()},
-            ignore_collision_pairs=tuple(
-                (str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])
-            ),
+            ignore_collision_pairs=tuple((str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])),
             description=str(raw.get("description", "")),
             source=str(path),
         )
@@ -262,22 +258,11 @@ class Robot:
                 for j in links[b]:
                     geom.removeCollisionPair(pin.CollisionPair(min(i, j), max(i, j)))
 
-    def check_configuration(self, q: Any, what: str = "configuration", tol: float = 1e-9) -> np.ndarray:
-        """Return ``q`` as a float array of the right size; raise ValueError naming the problem."""
-        arr = np.asarray(q, dtype=float)
-        if arr.shape != (self.nq,):
-            raise ValueError(f"{what} has shape {arr.shape}; robot {self.name!r} plans {self.nq} joints {self.joint_names}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} contains NaN or infinite values: {arr.tolist()}")
-        return arr
-
     def limit_violations(self, q: np.ndarray, tol: float = 1e-9) -> list[str]:
         """Human-readable joint-limit violations of one configuration (empty when inside)."""
         out = []
         for i in np.flatnonzero((q < self.lower - tol) | (q > self.upper + tol)):
-            out.append(
-                f"{self.joint_names[i]}={q[i]:.4f} outside [{self.lower[i]:.4f}, {self.upper[i]:.4f}]"
-            )
+            out.append(f"{self.joint_names[i]}={q[i]:.4f} outside [{self.lower[i]:.4f}, {self.upper[i]:.4f}]")
         return out
 
     def frame_pose(self, q: np.ndarray, frame: str | None = None) -> Any:

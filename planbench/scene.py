@@ -135,8 +135,13 @@ class Obstacle:
         elif self.type == "sphere":
             return np.linalg.norm(local, axis=1) - self.radius  # type: ignore[operator]
         elif self.type == "cylinder":
-            q = np.stack([np.hypot(local[:, 0], local[:, 1]) - self.radius,  # type: ignore[operator]
-                          np.abs(local[:, 2]) - 0.5 * self.length], axis=1)  # type: ignore[operator]
+            q = np.stack(
+                [
+                    np.hypot(local[:, 0], local[:, 1]) - self.radius,  # type: ignore[operator]
+                    np.abs(local[:, 2]) - 0.5 * self.length,
+                ],
+                axis=1,
+            )  # type: ignore[operator]
         else:
             raise NotImplementedError("mesh obstacles have no signed distance here; use coal")
         return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)

@@ -90,20 +90,20 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     """Check ``result`` against ``problem`` independently and measure it (see module docstring)."""
     settings = settings or ValidationSettings()
     robot = problem.robot
-    base = dict(status=result.status.value, planning_time=float(result.planning_time),
-                setup_time=float(result.setup_time))
+    status, planning_time, setup_time = result.status.value, float(result.planning_time), float(result.setup_time)
+
+    def unusable(failure: str, n_waypoints: int = 0) -> Evaluation:
+        return Evaluation(False, failure, status, planning_time, setup_time, n_waypoints=n_waypoints)
+
     path = result.path
     if path is None or len(path) == 0:
         reason = result.status.value if result.status is not PlanStatus.SUCCESS else "no path returned"
-        msg = f"{reason}: {result.message}" if result.message else reason
-        return Evaluation(success=False, failure=msg, **base)
+        return unusable(f"{reason}: {result.message}" if result.message else reason)
     if path.shape[1] != robot.nq:
-        return Evaluation(success=False, failure=f"path has {path.shape[1]} columns, robot plans {robot.nq} joints",
-                          n_waypoints=len(path), **base)
+        return unusable(f"path has {path.shape[1]} columns, robot plans {robot.nq} joints", len(path))
     if not np.all(np.isfinite(path)):
         bad = int(np.flatnonzero(~np.all(np.isfinite(path), axis=1))[0])
-        return Evaluation(success=False, failure=f"path has NaN or infinite values (waypoint {bad})",
-                          n_waypoints=len(path), **base)
+        return unusable(f"path has NaN or infinite values (waypoint {bad})", len(path))
 
     failures: list[str] = []
     checks: dict[str, bool] = {}
@@ -136,7 +136,7 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
                 max_ratio = float(ratio.max())
                 checks["velocity_limits"] = max_ratio <= 1.0 + settings.velocity_tolerance
                 if not checks["velocity_limits"]:
-                    k, j = np.unravel_index(np.argmax(ratio), ratio.shape)
+                    k, j = (int(i) for i in np.unravel_index(np.argmax(ratio), ratio.shape))
                     failures.append(
                         f"segment {k} too fast: {robot.joint_names[j]} at {ratio[k, j]:.3f}x its "
                         f"velocity limit of {robot.velocity_limit[j]:.3f} rad/s"
@@ -177,8 +177,10 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         if result.target == "configuration":
             checks["goal_configuration"] = joint_err <= tol.joint
             if not checks["goal_configuration"]:
-                failures.append(f"goal configuration not reached: max joint error {joint_err:.4f} rad "
-                                f"(tolerance {tol.joint:.4f} rad)")
+                failures.append(
+                    f"goal configuration not reached: max joint error {joint_err:.4f} rad "
+                    f"(tolerance {tol.joint:.4f} rad)"
+                )
 
     success = not failures
     failure = "; ".join(failures)
@@ -187,6 +189,9 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     return Evaluation(
         success=success,
         failure=failure,
+        status=status,
+        planning_time=planning_time,
+        setup_time=setup_time,
         n_waypoints=len(path),
         joint_path_length=metrics.joint_path_length(path),
         ee_path_length=metrics.polyline_length(ee_points),
@@ -202,5 +207,4 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         max_velocity_ratio=max_ratio,
         collision_checks=n_checks,
         checks=checks,
-        **base,
     )

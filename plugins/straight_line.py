@@ -13,7 +13,7 @@ import numpy as np
 
 from planbench.collision import CollisionChecker
 from planbench.metrics import densify
-from planbench.planner import PlanResult, PlanStatus, Planner
+from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 
 
@@ -47,19 +47,26 @@ class StraightLinePlanner(Planner):
         robot = problem.robot
         problems = robot.limit_violations(goal)
         if problems:
-            return PlanResult(PlanStatus.INVALID_GOAL, target="configuration",
-                              message="goal configuration outside joint limits: " + "; ".join(problems))
+            return PlanResult(
+                PlanStatus.INVALID_GOAL,
+                target="configuration",
+                message="goal configuration outside joint limits: " + "; ".join(problems),
+            )
         path = np.stack([problem.start, goal])
         checker = getattr(self, "_checker", None) or CollisionChecker(robot, problem.scene)
         states, _ = densify(path, self.config.check_resolution)
         for i, q in enumerate(states):
             if checker.in_collision(q):
-                return PlanResult(PlanStatus.COLLISION, target="configuration",
-                                  message=f"the straight line collides {i / (len(states) - 1):.0%} of the way",
-                                  info={"collision_checks": i + 1})
+                return PlanResult(
+                    PlanStatus.COLLISION,
+                    target="configuration",
+                    message=f"the straight line collides {i / (len(states) - 1):.0%} of the way",
+                    info={"collision_checks": i + 1},
+                )
         times = None
         if self.config.timed:
             duration = float((np.abs(goal - problem.start) / robot.velocity_limit).max())
             times = np.array([0.0, max(duration, 1e-9)])
-        return PlanResult(PlanStatus.SUCCESS, path, times, target="configuration",
-                          info={"collision_checks": len(states)})
+        return PlanResult(
+            PlanStatus.SUCCESS, path, times, target="configuration", info={"collision_checks": len(states)}
+        )

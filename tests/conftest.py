@@ -32,5 +32,6 @@ def midpoint_wall(robot, start, goal, thickness=0.005, size=0.06):
     from scipy.spatial.transform import Rotation
 
     rot, _ = Rotation.align_vectors([normal], [[1.0, 0.0, 0.0]])
-    return Obstacle("plate", "box", position=tuple(mid), size=(thickness, size, size),
-                    orientation_xyzw=tuple(rot.as_quat()))
+    return Obstacle(
+        "plate", "box", position=tuple(mid), size=(thickness, size, size), orientation_xyzw=tuple(rot.as_quat())
+    )

@@ -60,12 +60,15 @@ def test_a_correct_planner_has_no_problems():
     assert check_planner(Good) == []
 
 
-@pytest.mark.parametrize("planner, expected", [
-    (ClaimsSuccessThroughWalls, "claims success but validation fails: collision"),
-    (Broken, "kebab-case"),
-    (Unseeded, "different paths"),
-    (Raises, "plan raised: planner raised in plan(): RuntimeError: bug"),
-])
+@pytest.mark.parametrize(
+    "planner, expected",
+    [
+        (ClaimsSuccessThroughWalls, "claims success but validation fails: collision"),
+        (Broken, "kebab-case"),
+        (Unseeded, "different paths"),
+        (Raises, "plan raised: planner raised in plan(): RuntimeError: bug"),
+    ],
+)
 def test_deliberately_broken_planners_are_flagged(planner, expected):
     found = check_planner(planner)
     assert any(expected in f for f in found), found

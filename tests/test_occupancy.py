@@ -1,9 +1,8 @@
 import numpy as np
 import pytest
 
-from planbench import Obstacle, OccupancyGrid, Scene
-
 from conftest import box
+from planbench import Obstacle, OccupancyGrid, Scene
 
 BOUNDS = (np.array([0.0, 0.0, 0.0]), np.array([1.0, 1.0, 1.0]))
 
@@ -38,9 +37,13 @@ def test_partly_covered_cells_follow_the_rule():
 
 def test_fraction_rule_measures_volume_of_rotated_and_round_obstacles():
     quat = (0.0, 0.0, np.sin(0.3), np.cos(0.3))
-    scene = Scene((box("b", (0.5, 0.5, 0.5), (0.3, 0.2, 0.1), orientation_xyzw=quat),
-                   Obstacle("s", "sphere", position=(0.2, 0.2, 0.2), radius=0.1),
-                   Obstacle("c", "cylinder", position=(0.8, 0.2, 0.5), radius=0.05, length=0.4)))
+    scene = Scene(
+        (
+            box("b", (0.5, 0.5, 0.5), (0.3, 0.2, 0.1), orientation_xyzw=quat),
+            Obstacle("s", "sphere", position=(0.2, 0.2, 0.2), radius=0.1),
+            Obstacle("c", "cylinder", position=(0.8, 0.2, 0.5), radius=0.05, length=0.4),
+        )
+    )
     grid = OccupancyGrid.from_scene(scene, 0.02, bounds=BOUNDS, rule="fraction", subsamples=6)
     volume = 0.3 * 0.2 * 0.1 + 4 / 3 * np.pi * 0.1**3 + np.pi * 0.05**2 * 0.4
     assert grid.data.sum() * 0.02**3 == pytest.approx(volume, rel=0.01)
@@ -56,8 +59,7 @@ def test_default_bounds_hold_the_scene_with_padding():
 
 
 def test_point_cloud_grid():
-    pts = np.array([[0.05, 0.05, 0.05], [0.06, 0.04, 0.05], [0.55, 0.05, 0.95], [5, 5, 5],
-                    [np.nan, 0, 0]])
+    pts = np.array([[0.05, 0.05, 0.05], [0.06, 0.04, 0.05], [0.55, 0.05, 0.95], [5, 5, 5], [np.nan, 0, 0]])
     grid = OccupancyGrid.from_points(pts, 0.1, bounds=BOUNDS)
     assert grid.data[0, 0, 0] == 1 and grid.data[5, 0, 9] == 1 and grid.data.sum() == 2
     two = OccupancyGrid.from_points(pts, 0.1, bounds=BOUNDS, min_points=2)
@@ -65,12 +67,15 @@ def test_point_cloud_grid():
     np.testing.assert_array_equal(grid.occupancy_at(np.array([[0.01, 0.01, 0.01], [-1, 0, 0]])), [1, 0])
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(data=np.zeros((2, 2))), "3D"),
-    (dict(data=np.full((2, 2, 2), 1.5)), r"\[0, 1\]"),
-    (dict(data=np.zeros((2, 2, 2)), resolution=0.0), "resolution"),
-    (dict(data=np.zeros((2, 2, 2)), outside=2.0), "outside"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(data=np.zeros((2, 2))), "3D"),
+        (dict(data=np.full((2, 2, 2), 1.5)), r"\[0, 1\]"),
+        (dict(data=np.zeros((2, 2, 2)), resolution=0.0), "resolution"),
+        (dict(data=np.zeros((2, 2, 2)), outside=2.0), "outside"),
+    ],
+)
 def test_bad_grids_are_refused(kwargs, message):
     args = dict(origin=np.zeros(3), resolution=0.1) | kwargs
     with pytest.raises(ValueError, match=message):

@@ -4,10 +4,10 @@ import re
 import sys
 from pathlib import Path
 
+from test_registry import install_fake_distribution
+
 import planbench
 from planbench.conformance import check_planner
-
-from test_registry import install_fake_distribution
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

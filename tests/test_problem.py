@@ -4,16 +4,19 @@ import numpy as np
 import pytest
 
 import planbench
+from conftest import box
 from planbench import PlanStatus, Problem, Scene
 from planbench.errors import PlanbenchError, ProblemFileError, UnknownNameError
 from planbench.problem import Pose
 
-from conftest import box
-
 # Goals whose joint 4 lies above example-robot-data's (Franka datasheet) limit of -0.0698 rad; the
 # data was generated with robowflex's wider limits. planbench keeps the datasheet limits.
-GOALS_OUTSIDE_LIMITS = {"mbm:table_pick/0031", "mbm:table_pick/0049",
-                        "mbm:table_under_pick/0003", "mbm:table_under_pick/0097"}
+GOALS_OUTSIDE_LIMITS = {
+    "mbm:table_pick/0031",
+    "mbm:table_pick/0049",
+    "mbm:table_under_pick/0003",
+    "mbm:table_under_pick/0097",
+}
 
 
 @pytest.fixture(scope="module")
@@ -73,22 +76,32 @@ def test_problem_json_round_trip(tmp_path):
 
 
 def test_scene_json_round_trip_with_all_primitives(tmp_path):
-    scene = Scene((box("b", (0.5, 0, 0.2), (0.1, 0.2, 0.3), orientation_xyzw=(0, 0, 0.6, 0.8)),
-                   planbench.Obstacle("s", "sphere", position=(0.1, 0.2, 0.3), radius=0.05),
-                   planbench.Obstacle("c", "cylinder", position=(0, 0.4, 0), radius=0.02, length=0.3)), "s1")
+    scene = Scene(
+        (
+            box("b", (0.5, 0, 0.2), (0.1, 0.2, 0.3), orientation_xyzw=(0, 0, 0.6, 0.8)),
+            planbench.Obstacle("s", "sphere", position=(0.1, 0.2, 0.3), radius=0.05),
+            planbench.Obstacle("c", "cylinder", position=(0, 0.4, 0), radius=0.02, length=0.3),
+        ),
+        "s1",
+    )
     scene.save(tmp_path / "s.json")
     assert Scene.load(tmp_path / "s.json") == scene
 
 
-@pytest.mark.parametrize("text, message", [
-    ("{not json", "not valid JSON"),
-    ('{"obstacles": [{"type": "box", "name": "a", "position": [0, 0, 0]}]}', "needs 'size'"),
-    ('{"obstacles": [{"type": "cone", "name": "a"}]}', "unknown type 'cone'"),
-    ('{"obstacles": [{"type": "sphere", "name": "a", "radius": -1}]}', "radius"),
-    ('{"obstacles": [{"type": "box", "name": "a", "size": [1, 1, 1], "orientation_xyzw": [1, 1, 0, 0]}]}',
-     "unit quaternion"),
-    ('{"obstacles": [{"type": "box", "name": "a", "size": [1, 1, 1], "position": [0, NaN, 0]}]}', "NaN"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("{not json", "not valid JSON"),
+        ('{"obstacles": [{"type": "box", "name": "a", "position": [0, 0, 0]}]}', "needs 'size'"),
+        ('{"obstacles": [{"type": "cone", "name": "a"}]}', "unknown type 'cone'"),
+        ('{"obstacles": [{"type": "sphere", "name": "a", "radius": -1}]}', "radius"),
+        (
+            '{"obstacles": [{"type": "box", "name": "a", "size": [1, 1, 1], "orientation_xyzw": [1, 1, 0, 0]}]}',
+            "unit quaternion",
+        ),
+        ('{"obstacles": [{"type": "box", "name": "a", "size": [1, 1, 1], "position": [0, NaN, 0]}]}', "NaN"),
+    ],
+)
 def test_malformed_scene_files_name_the_file_and_problem(tmp_path, text, message):
     path = tmp_path / "scene.json"
     path.write_text(text)

@@ -41,12 +41,21 @@ PLUGIN = """
 
 
 def test_entry_point_planner_from_another_package_is_found_lazily(tmp_path, monkeypatch):
-    install_fake_distribution(tmp_path, monkeypatch, "planbench-hold",
-                              {"hold-still": "pb_hold_plugin:HoldPlanner",
-                               "needs-lib": "pb_missing_dep:Planner",
-                               "broken": "pb_broken:Planner"},
-                              {"pb_hold_plugin": PLUGIN, "pb_missing_dep": "import not_a_real_module_xyz\n",
-                               "pb_broken": "raise RuntimeError('boom at import')\n"})
+    install_fake_distribution(
+        tmp_path,
+        monkeypatch,
+        "planbench-hold",
+        {
+            "hold-still": "pb_hold_plugin:HoldPlanner",
+            "needs-lib": "pb_missing_dep:Planner",
+            "broken": "pb_broken:Planner",
+        },
+        {
+            "pb_hold_plugin": PLUGIN,
+            "pb_missing_dep": "import not_a_real_module_xyz\n",
+            "pb_broken": "raise RuntimeError('boom at import')\n",
+        },
+    )
     registry = Registry()
     assert {"hold-still", "needs-lib", "broken", "straight-line"} <= set(registry.names())
     spec = registry.spec("hold-still")

@@ -22,8 +22,9 @@ def test_panda_plans_seven_joints_with_fingers_locked(panda):
     assert not panda.lower.flags.writeable
 
 
-@pytest.mark.parametrize("family", ["bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "cage",
-                                    "table_pick", "table_under_pick"])
+@pytest.mark.parametrize(
+    "family", ["bookshelf_small", "bookshelf_tall", "bookshelf_thin", "box", "cage", "table_pick", "table_under_pick"]
+)
 def test_flange_fk_matches_mbm_goal_poses(panda, family):
     data = mbm_family(family)
     for p in data["problems"]:
@@ -54,16 +55,19 @@ def test_ur5_loads_with_six_joints():
 
 def test_any_urdf_loads_from_python_with_settings_as_arguments():
     urdf = example_robot_data_dir() / "robots" / "ur_description" / "urdf" / "ur5_robot.urdf"
-    robot = Robot(RobotSettings(name="my-ur5", urdf=urdf, ee_frame="ee_link",
-                                velocity_limits={"elbow_joint": 1.0}))
+    robot = Robot(RobotSettings(name="my-ur5", urdf=urdf, ee_frame="ee_link", velocity_limits={"elbow_joint": 1.0}))
     assert robot.nq == 6
     assert robot.velocity_limit[robot.joint_names.index("elbow_joint")] == 1.0
 
 
 def test_srdf_pairs_are_not_checked(panda):
-    pairs = {(panda.collision_model.geometryObjects[p.first].name.rsplit("_", 1)[0],
-              panda.collision_model.geometryObjects[p.second].name.rsplit("_", 1)[0])
-             for p in panda.collision_model.collisionPairs}
+    pairs = {
+        (
+            panda.collision_model.geometryObjects[p.first].name.rsplit("_", 1)[0],
+            panda.collision_model.geometryObjects[p.second].name.rsplit("_", 1)[0],
+        )
+        for p in panda.collision_model.collisionPairs
+    }
     assert ("panda_link0", "panda_link1") not in pairs  # adjacent, disabled in the SRDF
     assert ("panda_link0", "panda_hand") in pairs or ("panda_hand", "panda_link0") in pairs
 
@@ -73,15 +77,23 @@ def test_unknown_robot_suggests_close_name():
         load_robot("pandaa")
 
 
-@pytest.mark.parametrize("content, message", [
-    ("name = 'x'\nurdf = \n", "not valid TOML"),
-    ("name = 'x'\nee_frame = 'a'\n", "missing required key 'urdf'"),
-    ("name = 'x'\nurdf = 'nope.urdf'\nee_frame = 'a'\n", "URDF file not found"),
-    ("name = 'x'\nurdf = 'panda_description/urdf/panda.urdf'\nee_frame = 'panda_link8'\ncolour = 1\n",
-     "unknown keys"),
-    ("name = 'x'\nurdf = 'panda_description/urdf/panda.urdf'\nee_frame = 'panda_link8'\n"
-     "[fixed_joints]\nnot_a_joint = 0.1\n", "not_a_joint"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("name = 'x'\nurdf = \n", "not valid TOML"),
+        ("name = 'x'\nee_frame = 'a'\n", "missing required key 'urdf'"),
+        ("name = 'x'\nurdf = 'nope.urdf'\nee_frame = 'a'\n", "URDF file not found"),
+        (
+            "name = 'x'\nurdf = 'panda_description/urdf/panda.urdf'\nee_frame = 'panda_link8'\ncolour = 1\n",
+            "unknown keys",
+        ),
+        (
+            "name = 'x'\nurdf = 'panda_description/urdf/panda.urdf'\nee_frame = 'panda_link8'\n"
+            "[fixed_joints]\nnot_a_joint = 0.1\n",
+            "not_a_joint",
+        ),
+    ],
+)
 def test_bad_robot_files_name_the_file_and_the_problem(tmp_path, content, message):
     path = tmp_path / "bad.toml"
     path.write_text(content)

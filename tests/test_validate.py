@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 
 import planbench
+from conftest import midpoint_wall
 from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
 from planbench.collision import CollisionChecker
 from planbench.problem import Goal, Pose
 from planbench.validate import ValidationSettings
-
-from conftest import midpoint_wall
 
 
 def straight(problem, **kw):
@@ -58,8 +57,10 @@ def test_too_fast_trajectory_is_rejected(panda, free_problem):
     assert not ev.success and not ev.checks["velocity_limits"]
     assert ev.max_velocity_ratio == pytest.approx(2.0)
     assert "too fast" in ev.failure
-    back = evaluate(free_problem, PlanResult(PlanStatus.SUCCESS, np.stack([start, goal, goal]),
-                                             times=[0.0, 1.0, 1.0], target="configuration"))
+    back = evaluate(
+        free_problem,
+        PlanResult(PlanStatus.SUCCESS, np.stack([start, goal, goal]), times=[0.0, 1.0, 1.0], target="configuration"),
+    )
     assert not back.success and "increase strictly" in back.failure
 
 
