@@ -14,7 +14,8 @@ Rule for partly covered cells when voxelizing a scene (``rule=``):
 
 Overlap and fraction are measured on the ``subsamples**3`` midpoints of a regular subdivision of
 each cell (default 4 per edge, 64 per cell): ``"fraction"`` is then the midpoint-rule estimate of the
-covered volume, and ``"any"`` misses only slivers thinner than ``resolution / subsamples``. Only
+covered volume, and ``"any"`` misses only slivers thinner than ``resolution / subsamples`` (for
+boxes, ``"any"`` is exact instead: a separating-axis test of the cell against the box). Only
 cells the obstacle's surface passes through are sub-sampled (found with exact signed distances).
 Mesh obstacles are voxelized with coal (a cell-sized box against the mesh): the ``"any"`` rule,
 whatever rule is asked for.
@@ -23,6 +24,7 @@ whatever rule is asked for.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -185,7 +187,10 @@ def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.n
     half_diagonal = 0.5 * np.sqrt(3.0) * resolution
     out = (sd <= -half_diagonal).astype(float)
     boundary = np.argwhere(np.abs(sd) < half_diagonal)
-    if len(boundary):
+    if len(boundary) and rule == "any" and obstacle.type == "box":
+        centres_b = origin + (i0 + boundary + 0.5) * resolution
+        out[tuple(boundary.T)] = _cube_box_overlap(centres_b, 0.5 * resolution, obstacle)
+    elif len(boundary):
         offsets = (np.arange(subsamples) + 0.5) / subsamples
         sub = np.stack(np.meshgrid(offsets, offsets, offsets, indexing="ij"), -1).reshape(-1, 3)
         pts = origin + (i0 + boundary[:, None, :] + sub[None, :, :]) * resolution
@@ -193,6 +198,24 @@ def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.n
         cover = inside.mean(axis=1) if rule == "fraction" else inside.any(axis=1).astype(float)
         out[tuple(boundary.T)] = cover
     return out
+
+
+def _cube_box_overlap(centres: np.ndarray, half: float, obstacle: Any) -> np.ndarray:
+    """Exact overlap of axis-aligned cubes (centres (N, 3), half edge ``half``) with an oriented box,
+    by the separating-axis theorem: 3 grid axes, 3 box axes and their 9 cross products. Touching
+    faces do not count as overlap."""
+    R = obstacle.rotation
+    extents = 0.5 * np.array(obstacle.size)
+    d = centres - np.array(obstacle.position)
+    axes = [np.eye(3)[i] for i in range(3)] + [R[:, k] for k in range(3)]
+    axes += [np.cross(np.eye(3)[i], R[:, k]) for i in range(3) for k in range(3)]
+    separated = np.zeros(len(centres), dtype=bool)
+    for axis in axes:
+        if axis @ axis < 1e-20:  # parallel edges: the face axes already cover it
+            continue
+        radius = half * np.abs(axis).sum() + np.abs(axis @ R) @ extents
+        separated |= np.abs(d @ axis) >= radius * (1.0 - 1e-12)
+    return (~separated).astype(float)
 
 
 def _points(origin, resolution, i0, n, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]

@@ -85,3 +85,24 @@ def test_bad_grids_are_refused(kwargs, message):
 def test_bad_point_cloud_shape():
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         OccupancyGrid.from_points(np.zeros((4, 2)), 0.1)
+
+
+def test_any_rule_for_a_rotated_box_matches_coal_cell_by_cell():
+    import coal
+
+    quat = (0.1, 0.2, 0.3, 0.9)
+    quat = tuple(np.array(quat) / np.linalg.norm(quat))
+    obstacle = box("b", (0.51, 0.48, 0.5), (0.4, 0.25, 0.03), orientation_xyzw=quat)
+    grid = OccupancyGrid.from_scene(Scene((obstacle,)), 0.05, bounds=BOUNDS, rule="any")
+    shape = obstacle.collision_geometry()
+    tf = coal.Transform3s(obstacle.rotation, np.array(obstacle.position))
+    cell = coal.Box(0.05, 0.05, 0.05)
+    expected = np.zeros(grid.shape)
+    centres = grid.cell_centers()
+    for idx in np.ndindex(*grid.shape):
+        centre = centres[idx]
+        result = coal.CollisionResult()
+        request = coal.CollisionRequest()
+        expected[idx] = coal.collide(cell, coal.Transform3s(np.eye(3), centre), shape, tf, request, result)
+    assert expected.sum() > 50
+    np.testing.assert_array_equal(grid.data, expected)
