@@ -1,0 +1,117 @@
+"""CLI subcommands of the matrix field: ``field``, ``kernel`` and ``bench-field``.
+
+``planbench.cli`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
+takes the parsed arguments and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+__all__ = ["add_commands"]
+
+
+def add_commands(subparsers: Any) -> None:
+    """Add ``field``, ``kernel`` and ``bench-field`` to an argparse subparsers object."""
+    p = subparsers.add_parser(
+        "field", help="plot the matrix field of a problem's scene on a slice (PNG)",
+        description="Voxelize a problem's scene, compute its matrix field and plot a slice: colour "
+                    "= field magnitude, arrows = in-plane direction, grey = obstacles.")
+    p.add_argument("--problem", default="mbm:box/0001",
+                   help="problem selector or file; the first problem's scene is used")
+    p.add_argument("--slice", default="z=0.3", help="plane to draw, axis=value [m] (default z=0.3)")
+    p.add_argument("--resolution", type=float, default=0.02, help="grid cell size [m]")
+    p.add_argument("--surface", action="store_true",
+                   help="apply the surface pre-pass (keep only occupied cells with a free neighbour)")
+    p.add_argument("--outside", type=float, default=0.0,
+                   help="occupancy beyond the grid: 0 free, 1 walled in")
+    _kernel_arguments(p, reach=0.2)
+    p.add_argument("--out", default="field.png", help="PNG file to write")
+    p.set_defaults(func=cmd_field)
+
+    p = subparsers.add_parser(
+        "kernel", help="plot a directional kernel's shape, or all profiles (PNG)",
+        description="Plot the kernel K_x (factors, slices, surface) for the chosen settings; with "
+                    "--profile all, compare every profile and taper instead.")
+    _kernel_arguments(p, reach=0.2, allow_all=True)
+    p.add_argument("--resolution", type=float, default=0.01, help="cell size [m]")
+    p.add_argument("--out", default="kernel.png", help="PNG file to write")
+    p.set_defaults(func=cmd_kernel)
+
+    p = subparsers.add_parser(
+        "bench-field", help="benchmark the matrix field against dense, FFT and distance transform",
+        description="Time the full field (separable, compiled and scipy), dense 3D correlation, FFT "
+                    "and a Euclidean distance transform + gradient, and the lazy and precomputed "
+                    "point queries; print medians and ratios measured in this one run.")
+    from planbench.field.bench import add_arguments
+
+    add_arguments(p)
+    p.set_defaults(func=cmd_bench)
+
+
+def _kernel_arguments(p: argparse.ArgumentParser, reach: float, allow_all: bool = False) -> None:
+    from planbench.field.kernels import PROFILES, TAPERS
+
+    profiles = (*PROFILES, "all") if allow_all else PROFILES
+    p.add_argument("--profile", choices=profiles, default="linear", help="profile along the axis")
+    p.add_argument("--taper", choices=TAPERS, default="linear", help="taper across the axis")
+    p.add_argument("--reach", type=float, default=reach, help="kernel reach along the axis [m]")
+    p.add_argument("--width", type=float, default=None,
+                   help="kernel half-width across the axis [m] (default: the reach)")
+    p.add_argument("--gain", type=float, default=1.0, help="field gain")
+    p.add_argument("--sigma", type=float, default=None, help="gaussian profile sigma [m]")
+    p.add_argument("--power", type=float, default=2.0, help="inverse-power exponent")
+
+
+def _spec(args: argparse.Namespace) -> Any:
+    from planbench.field.kernels import KernelSpec
+
+    return KernelSpec(reach=args.reach, width=args.width, profile=args.profile, taper=args.taper,
+                      gain=args.gain, sigma=args.sigma, power=args.power)
+
+
+def cmd_field(args: argparse.Namespace) -> int:
+    import planbench
+    from planbench.field import full_field, surface_grid
+    from planbench.field.plots import parse_slice, plot_field_slice
+    from planbench.occupancy import OccupancyGrid
+
+    axis, value = parse_slice(args.slice)
+    problem = planbench.load_problems(args.problem)[0]
+    kernels = _spec(args).build(args.resolution)
+    grid = OccupancyGrid.from_scene(problem.scene, args.resolution, padding=kernels.reach,
+                                    outside=args.outside)
+    if args.surface:
+        grid = surface_grid(grid)
+    field = full_field(grid, kernels)
+    name = getattr(problem, "id", None) or getattr(problem, "name", "") or args.problem
+    title = (f"{name}: matrix field on {args.slice} m ({args.profile} profile, reach "
+             f"{kernels.reach:g} m, {args.resolution:g} m cells{', surface cells' if args.surface else ''})")
+    plot_field_slice(grid, field, axis, value, out=args.out, title=title)
+    print(f"wrote {args.out} (grid {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} cells)")
+    return 0
+
+
+def cmd_kernel(args: argparse.Namespace) -> int:
+    from planbench.field.plots import plot_kernel, plot_profiles
+
+    if args.profile == "all":
+        plot_profiles(reach=args.reach, resolution=args.resolution, out=args.out)
+    else:
+        kernels = _spec(args).build(args.resolution)
+        title = (f"Kernel K_x: {args.profile} profile, {args.taper} taper, reach {kernels.reach:g} m "
+                 f"({len(kernels.along)} x {len(kernels.across)} x {len(kernels.across)} cells of "
+                 f"{args.resolution:g} m)")
+        plot_kernel(kernels, out=args.out, title=title)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from planbench.field.bench import run_from_args
+
+    return run_from_args(args)
