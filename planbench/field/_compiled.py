@@ -41,11 +41,12 @@ def _planes(src, dst, k, sign):  # type: ignore[no-untyped-def]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _rows(src, dst, k, sign):  # type: ignore[no-untyped-def]
-    """Correlate (n0, n1, n2) along axis 1: the inner loops run over contiguous rows."""
+def _rows(src, dst, k, sign, i0, i1):  # type: ignore[no-untyped-def]
+    """Correlate (n0, n1, n2) along axis 1 for the planes i0 <= i < i1 (the others are left as
+    they are): the inner loops run over contiguous rows."""
     n0, n1, n2 = src.shape
     c = (k.shape[0] - 1) // 2
-    for i in prange(n0):
+    for i in prange(i0, i1):
         k0 = k[c]
         for j in range(n1):
             for l in range(n2):
@@ -92,17 +93,85 @@ def _lines(src, dst, k, sign):  # type: ignore[no-untyped-def]
                     d[j] += w * sp[j] + sw * sm[j]
 
 
-def correlate_axis(src: np.ndarray, dst: np.ndarray, k: np.ndarray, axis: int, sign: float) -> None:
+def correlate_axis(src: np.ndarray, dst: np.ndarray, k: np.ndarray, axis: int, sign: float,
+                   planes: tuple[int, int] | None = None) -> None:
     """``dst = correlate1d(src, k, axis)`` with zeros beyond the ends; ``k`` symmetric (``sign``
-    +1) or antisymmetric (-1) and in the arrays' dtype. ``src``, ``dst``: C-contiguous 3D."""
+    +1) or antisymmetric (-1) and in the arrays' dtype. ``src``, ``dst``: C-contiguous 3D.
+    ``planes`` = (i0, i1) limits an axis-1 pass to those planes of axis 0."""
     n0, n1, n2 = src.shape
     s = src.dtype.type(sign)
     if axis == 0:
         _planes(src.reshape(n0, n1 * n2), dst.reshape(n0, n1 * n2), k, s)
     elif axis == 1:
-        _rows(src, dst, k, s)
+        i0, i1 = planes if planes is not None else (0, n0)
+        _rows(src, dst, k, s, i0, i1)
     else:
         _lines(src.reshape(n0 * n1, n2), dst.reshape(n0 * n1, n2), k, s)
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _embed_lines(grid, outside, m, T, P, h, c):  # type: ignore[no-untyped-def]
+    """First passes from the raw grid (n0, n1, n2) into arrays grown by ``m`` cells per side:
+    ``h = T_z (G - outside)`` and ``c = P_z (G - outside)`` on the grid's (x, y) lines, each line
+    read once. Lines of ``h`` and ``c`` outside the grid's (x, y) range are not written."""
+    n0, n1, n2 = grid.shape
+    ct = (T.shape[0] - 1) // 2
+    cp = (P.shape[0] - 1) // 2
+    pad = max(ct, cp)
+    n = n2 + 2 * m  # output line length
+    o = grid.dtype.type(outside)
+    for i in prange(n0):
+        buf = np.zeros(n + 2 * pad, grid.dtype)  # line of G - outside, zeros beyond the grid
+        mid = buf[pad + m:pad + m + n2]
+        for j in range(n1):
+            row = grid[i, j]
+            for q in range(n2):
+                mid[q] = row[q] - o
+            dh = h[i + m, j + m]
+            dc = c[i + m, j + m]
+            k0 = T[ct]
+            centre = buf[pad:pad + n]
+            for q in range(n):
+                dh[q] = k0 * centre[q]
+                dc[q] = 0.0
+            for t in range(1, ct + 1):
+                w = T[ct + t]
+                sp = buf[pad + t:pad + t + n]
+                sm = buf[pad - t:pad - t + n]
+                for q in range(n):
+                    dh[q] += w * (sp[q] + sm[q])
+            for t in range(1, cp + 1):
+                w = P[cp + t]
+                sp = buf[pad + t:pad + t + n]
+                sm = buf[pad - t:pad - t + n]
+                for q in range(n):
+                    dc[q] += w * (sp[q] - sm[q])
+
+
+def field_from_grid(grid: np.ndarray, outside: float, m: int, P: np.ndarray,
+                    T: np.ndarray) -> np.ndarray:
+    """The three components (3, n0 + 2m, n1 + 2m, n2 + 2m) of the field of ``grid`` (with
+    ``outside`` beyond it), in the grid's dtype; ``P`` and ``T`` in that dtype too.
+
+    Eight passes; the first two read the grid once and the two T_y passes skip the planes of
+    axis 0 that are still zero (outside the grid, in the margin). Intermediates live in the output
+    arrays until those are written, so only one temporary array is needed."""
+    n0, n1, n2 = grid.shape
+    shape = (n0 + 2 * m, n1 + 2 * m, n2 + 2 * m)
+    out = np.zeros((3, *shape), dtype=grid.dtype)  # zero pages: unwritten lines cost nothing
+    f_x, f_y, f_z = out[0], out[1], out[2]
+    _embed_lines(grid, outside, m, T, P, f_y, f_z)  # f_y holds T_z G', f_z holds P_z G' for now
+    tmp = np.zeros(shape, dtype=grid.dtype)
+    grid_planes = (m, m + n0)
+    correlate_axis(f_y, tmp, T, 1, 1.0, grid_planes)  # only the grid's planes are non-zero
+    correlate_axis(tmp, f_x, P, 0, -1.0)  # F_x = P_x T_y T_z G'
+    correlate_axis(f_y, tmp, T, 0, 1.0)
+    correlate_axis(tmp, f_y, P, 1, -1.0)  # F_y = P_y T_x T_z G'
+    tmp[:m] = 0.0
+    tmp[m + n0:] = 0.0
+    correlate_axis(f_z, tmp, T, 1, 1.0, grid_planes)
+    correlate_axis(tmp, f_z, T, 0, 1.0)  # F_z = T_x T_y P_z G'
+    return out
 
 
 @njit(cache=True, fastmath=True)

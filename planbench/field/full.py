@@ -8,6 +8,11 @@ pass. Eight 1D passes give the three components (the taper passes are shared)::
 
     H = T_z G            F_x = P_x T_y H      F_y = P_y T_x H      F_z = T_x T_y P_z G
 
+With numba (``backend="numba"``, the default when it is installed) the passes are compiled loops
+over contiguous planes, rows and lines, run on all cores; the first two read the grid once and
+write straight into the grown arrays, and the intermediates live in the output arrays. Without
+numba each pass is ``scipy.ndimage.correlate1d`` (6-15x slower at 128^3, same numbers).
+
 ``margin`` cells of field are also stored on every side of the grid. With the default margin (the
 kernels' support) the stored array covers every cell where the field can be non-zero, so sampling
 it (:meth:`MatrixField.sample`) gives the same numbers as :func:`~planbench.field.lazy.lazy_field`
@@ -76,10 +81,15 @@ def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: type = np.float32,
     m = kernels.support if margin is None else int(margin)
     if m < 0:
         raise InvalidConfigError(f"margin must be >= 0 cells, got {margin}")
-    g = np.zeros(tuple(n + 2 * m for n in grid.shape), dtype=dt)
-    inner = g[m:m + grid.shape[0], m:m + grid.shape[1], m:m + grid.shape[2]]
-    np.subtract(grid.data, dt.type(grid.outside), out=inner, casting="unsafe")
-    components = correlate_separable(g, kernels, backend=backend)
+    if _backend.resolve(backend) == "numba":
+        P, T = kernels.factors(dt)
+        data = np.ascontiguousarray(grid.data, dtype=dt)
+        components = _backend.compiled().field_from_grid(data, grid.outside, m, P, T)
+    else:
+        g = np.zeros(tuple(n + 2 * m for n in grid.shape), dtype=dt)
+        inner = g[m:m + grid.shape[0], m:m + grid.shape[1], m:m + grid.shape[2]]
+        np.subtract(grid.data, dt.type(grid.outside), out=inner, casting="unsafe")
+        components = correlate_separable(g, kernels, backend="numpy")
     components.setflags(write=False)
     return MatrixField(components, grid.origin.copy(), grid.resolution, m, m >= kernels.support)
 
