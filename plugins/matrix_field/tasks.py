@@ -1,0 +1,222 @@
+"""The task terms of one matrix-field step (METHOD.md section 4), each a small pure function.
+
+Conventions: ``q`` joint positions [rad], ``qd`` joint velocities [rad/s], world-aligned velocities
+``[v; omega]`` ([m/s; rad/s]). ``S`` is pinocchio's spatial Jacobian in the WORLD convention
+(``computeJointJacobians``, ``data.J``): column ``k`` is the twist of joint ``k`` expressed at the
+world origin, ``S[:3]`` linear, ``S[3:]`` angular. The velocity of a world point ``p`` rigidly
+carried by joint ``k`` and its ancestors is ``sum_k (S_v,k + S_w,k x p) qd_k``.
+
+Step (``merge``): ``qd = s qd_1 + N (qd_rep + qd_m + qd_c)``, then velocity and position limits.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = [
+    "attraction_velocity", "orientation_error", "attraction", "adaptive_damping", "dls",
+    "dls_with_nullspace", "nullspace_projector", "manipulability", "manipulability_gradient",
+    "mid_joint_velocity", "strongest", "slowdown_factor", "repulsion_joint_velocity", "point_jacobians",
+    "scale_to_velocity_limits", "clamp_to_position_limits", "merge",
+]
+
+_HALF_PI = 0.5 * math.pi
+
+
+def attraction_velocity(p: np.ndarray, p_goal: np.ndarray, speed_max: float, sigmoid_gain: float) -> np.ndarray:
+    """Translational attraction [m/s] (draft eqs. 4-6, sign as in METHOD.md: towards the goal).
+
+    ``v = (e / d) v_max atan(k_sigm d) / (pi / 2)`` with ``e = p_goal - p``, ``d = |e|``: speed
+    ``v_max`` far away, ``v_max k_sigm d (2 / pi)`` near the goal. Its magnitude is below
+    ``d / dt`` whenever ``dt < pi / (2 v_max k_sigm)``, so an Euler step never overshoots.
+    """
+    e = p_goal - p
+    d = math.sqrt(float(e @ e))
+    if d < 1e-15:
+        return np.zeros(3)
+    return e * (speed_max * math.atan(sigmoid_gain * d) / (_HALF_PI * d))
+
+
+def orientation_error(R: np.ndarray, R_goal: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] (axis times angle, world frame) that turns ``R`` into ``R_goal``.
+
+    ``dR = R_goal R^T`` is converted to a unit quaternion (Shepperd's method, then normalised:
+    the re-orthonormalisation), taken on the short arc (``w >= 0``), and ``omega = 2 log(dQ)``.
+    Rotating ``R`` by ``exp(omega)`` in the world frame gives ``R_goal``: it points TO the goal.
+    """
+    d = (R_goal @ R.T).tolist()
+    (a, b, c), (d_, e, f), (g, h, i) = d
+    tr = a + e + i
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        w, x, y, z = 0.25 * s, (h - f) / s, (c - g) / s, (d_ - b) / s
+    elif a > e and a > i:
+        s = 2.0 * math.sqrt(1.0 + a - e - i)
+        w, x, y, z = (h - f) / s, 0.25 * s, (b + d_) / s, (c + g) / s
+    elif e > i:
+        s = 2.0 * math.sqrt(1.0 + e - a - i)
+        w, x, y, z = (c - g) / s, (b + d_) / s, 0.25 * s, (f + h) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + i - a - e)
+        w, x, y, z = (d_ - b) / s, (c + g) / s, (f + h) / s, 0.25 * s
+    if w < 0.0:  # short arc
+        w, x, y, z = -w, -x, -y, -z
+    vn = math.sqrt(x * x + y * y + z * z)
+    if vn < 1e-12:
+        return np.array([2.0 * x, 2.0 * y, 2.0 * z])
+    angle = 2.0 * math.atan2(vn, w)
+    k = angle / vn
+    return np.array([x * k, y * k, z * k])
+
+
+def attraction(p: np.ndarray, R: np.ndarray, p_goal: np.ndarray, R_goal: np.ndarray, *, speed_max: float,
+               sigmoid_gain: float, position_gain: float, orientation_gain: float,
+               angular_speed_max: float) -> np.ndarray:
+    """``v_att = [k_p v ; k_w omega]`` (6,), the angular part capped at ``angular_speed_max`` [rad/s]."""
+    out = np.empty(6)
+    out[:3] = position_gain * attraction_velocity(p, p_goal, speed_max, sigmoid_gain)
+    w = orientation_gain * orientation_error(R, R_goal)
+    n = math.sqrt(float(w @ w))
+    if n > angular_speed_max:
+        w *= angular_speed_max / n
+    out[3:] = w
+    return out
+
+
+def manipulability(J: np.ndarray) -> float:
+    """Yoshikawa's measure ``m = sqrt(det(J J^T))`` (0 at a singularity). It is the same for the
+    spatial Jacobian and the end-effector Jacobian (they differ by a unimodular transform)."""
+    return math.sqrt(max(float(np.linalg.det(J @ J.T)), 0.0))
+
+
+def adaptive_damping(m: float, damping_max: float, threshold: float) -> float:
+    """Damping ``lambda`` [m]: 0 while ``m >= threshold``, else ``damping_max sqrt(1 - (m/m0)^2)``
+    (Nakamura and Hanafusa 1986): exact least squares away from singularities, damped near them."""
+    if m >= threshold:
+        return 0.0
+    return damping_max * math.sqrt(1.0 - (m / threshold) ** 2)
+
+
+def dls(J: np.ndarray, v: np.ndarray, damping: float) -> np.ndarray:
+    """Damped least squares ``J^T (J J^T + lambda^2 I)^-1 v``."""
+    A = J @ J.T
+    A.flat[:: A.shape[0] + 1] += damping * damping
+    return J.T @ np.linalg.solve(A, v)
+
+
+def dls_with_nullspace(J: np.ndarray, v: np.ndarray, x: np.ndarray, damping: float,
+                       floor: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """``(qd_1, N x)`` with one factorisation: ``qd_1 = J_dls^+ v`` and ``N x = x - J_dls^+ J x``.
+
+    ``floor`` [m] is added to the damping only to keep the solve defined at an exact singularity.
+    """
+    A = J @ J.T
+    A.flat[:: A.shape[0] + 1] += damping * damping + floor * floor
+    rhs = np.stack((v, J @ x), axis=1)
+    sol = J.T @ np.linalg.solve(A, rhs)
+    return sol[:, 0], x - sol[:, 1]
+
+
+def nullspace_projector(J: np.ndarray, damping: float = 0.0) -> np.ndarray:
+    """``N = I - J_dls^+ J`` (n, n). Exact (``J N = 0``) when ``damping == 0`` and ``J`` has full row rank."""
+    n = J.shape[1]
+    A = J @ J.T
+    A.flat[:: A.shape[0] + 1] += damping * damping
+    return np.eye(n) - J.T @ np.linalg.solve(A, J)
+
+
+def _cross_cols(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Column-wise cross product of two (3, n) arrays (np.cross is ~10x slower on small arrays)."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
+
+
+def manipulability_gradient(S: np.ndarray, descendants: np.ndarray, eps: float = 1e-12) -> tuple[float, np.ndarray]:
+    """``(m, grad_q m)`` of the manipulability from the spatial Jacobian ``S`` (6, n).
+
+    ``dm/dq_k = m tr((S S^T)^-1 dS/dq_k S^T)`` and, for a kinematic tree, ``dS_i/dq_k = S_k x S_i``
+    (the motion cross product) when joint ``i`` descends from joint ``k``, else 0.
+    ``descendants[k, i]`` is True when joint ``i`` strictly descends from joint ``k``.
+    """
+    A = S @ S.T
+    m = math.sqrt(max(float(np.linalg.det(A)), 0.0))
+    A.flat[::7] += eps
+    X = np.linalg.solve(A, S)
+    # a_i = v_i x Xv_i + w_i x Xw_i and b_i = w_i x Xv_i, with one cross product of (3, 3n)
+    c = _cross_cols(np.concatenate((S[:3], S[3:], S[3:]), axis=1), np.concatenate((X[:3], X[3:], X[:3]), axis=1))
+    n = S.shape[1]
+    a = c[:, :n] + c[:, n:2 * n]
+    b = c[:, 2 * n:]
+    # column k of a @ D^T: the sum of a_i over the descendants i of k
+    grad = (S[3:] * (a @ descendants.T) + S[:3] * (b @ descendants.T)).sum(axis=0)
+    grad *= m
+    return m, grad
+
+
+def mid_joint_velocity(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, gain: float) -> np.ndarray:
+    """``qd_c = -k_c (q - q_mid) / (q_max - q_min)^2`` [rad/s]: away from the joint limits."""
+    span = upper - lower
+    return -gain * (q - 0.5 * (lower + upper)) / (span * span)
+
+
+def strongest(forces: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The largest of ``forces[rows]`` (3,) by magnitude (zeros when ``rows`` is empty)."""
+    if len(rows) == 0:
+        return np.zeros(3)
+    sub = forces[rows]
+    return sub[int(np.argmax(np.einsum("ij,ij->i", sub, sub)))]
+
+
+def slowdown_factor(repulsion_speed: float, gain: float, minimum: float) -> float:
+    """Primary-task factor ``s = max(s_min, 1 / (1 + k_s |f|_max))`` in ``[s_min, 1]``."""
+    return max(minimum, 1.0 / (1.0 + gain * repulsion_speed))
+
+
+def repulsion_joint_velocity(S: np.ndarray, points: np.ndarray, forces: np.ndarray,
+                             support: np.ndarray) -> np.ndarray:
+    """``qd_rep = sum_i J_i^T f_i`` (n,) without forming the point Jacobians.
+
+    ``points`` (N, 3) world positions [m], ``forces`` (N, 3) repulsive velocities [m/s],
+    ``support[i, k]`` = 1.0 when joint ``k`` moves point ``i``. Row ``k`` of ``J_i^T f_i`` is
+    ``(S_v,k + S_w,k x p_i) . f_i = S_v,k . f_i + S_w,k . (p_i x f_i)``, so the sum over points is
+    two (3, N) x (N, n) products.
+    """
+    wrench = np.empty((6, len(points)))
+    wrench[:3] = forces.T
+    wrench[3:] = _cross_cols(points.T, forces.T)  # p_i x f_i
+    return (S * (wrench @ support)).sum(axis=0)
+
+
+def point_jacobians(S: np.ndarray, points: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """Translational Jacobians (N, 3, n) of world points: ``J_i[:, k] = support[i, k] (S_v,k + S_w,k x p_i)``."""
+    Sv, Sw = S[:3].T, S[3:].T  # (n, 3)
+    J = Sv[None, :, :] + np.cross(Sw[None, :, :], points[:, None, :])  # (N, n, 3); not on the hot path
+    return np.transpose(J * support[:, :, None], (0, 2, 1))
+
+
+def scale_to_velocity_limits(qd: np.ndarray, qd_max: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(qd * c, c)`` with the largest ``c <= 1`` such that every ``|qd_j c| <= qd_max_j``.
+    One factor for all joints, so the direction of ``qd`` is kept."""
+    ratio = float(np.max(np.abs(qd) / qd_max))
+    if ratio <= 1.0:
+        return qd, 1.0
+    c = 1.0 / ratio
+    return qd * c, c
+
+
+def clamp_to_position_limits(q: np.ndarray, qd: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                             dt: float) -> np.ndarray:
+    """``qd`` clipped per joint so that ``q + qd dt`` stays in ``[lower, upper]``.
+
+    Per joint, not one factor for all: a joint resting at its limit would otherwise freeze the
+    whole arm. Clipping only shrinks components, so velocity limits keep holding.
+    """
+    return np.clip(qd, (lower - q) / dt, (upper - q) / dt)
+
+
+def merge(qd_primary: np.ndarray, slowdown: float, qd_secondary_projected: np.ndarray) -> np.ndarray:
+    """``qd = s qd_1 + N (qd_rep + qd_m + qd_c)`` (the projection is done by the caller)."""
+    return slowdown * qd_primary + qd_secondary_projected

@@ -1,0 +1,121 @@
+"""Integration tests of the matrix-field planner, validated by the harness (planbench.evaluate)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench import Obstacle, PlanStatus, Problem, Scene
+from planbench.conformance import check_planner, trivial_problem
+from planbench.robot import load_robot
+from planbench_plugins.matrix_field import MatrixFieldPlanner
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("panda")
+
+
+def wall_problem(robot, top: float = 0.5) -> Problem:
+    """The hand swings from left to right (joint 1 from +0.7 to -0.7 rad at the ready pose); a
+    thin wall in front of the robot, 2 cm thick, rises to ``top`` [m], above the hand's straight
+    way (the hand passes at about 0.59 m, its fingers lower). The arm can reach over it."""
+    start = np.array(robot.home)
+    start[0] = 0.7
+    goal = np.array(robot.home)
+    goal[0] = -0.7
+    h = top - 0.2
+    wall = Obstacle("wall", "box", position=(0.4, 0.0, 0.2 + h / 2), size=(0.3, 0.02, h))
+    return Problem.create(robot, Scene((wall,), name="wall"), start, goal, id="test:wall")
+
+
+def test_conformance():
+    assert check_planner(MatrixFieldPlanner) == []
+
+
+def test_free_space_reaches_goal_pose(robot):
+    problem = trivial_problem()
+    result = planbench.plan(problem, MatrixFieldPlanner, time_limit=5.0)
+    ev = planbench.evaluate(problem, result)
+    assert result.status is PlanStatus.SUCCESS and ev.success, ev.failure
+    assert result.target == "pose"
+    n = len(result.path)
+    assert np.allclose(result.times, np.arange(n) * MatrixFieldPlanner.Config().dt)
+    assert ev.max_velocity_ratio <= 1.0 + 1e-9
+    for key in ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown"):
+        assert result.info[key].shape == (n,)
+    assert result.info["position_error"][-1] <= 0.5 * problem.tolerances.position
+    assert np.all(result.info["repulsion"][:-1] == 0.0)  # empty scene: no field
+
+
+def test_wall_is_avoided_with_positive_clearance(robot):
+    problem = wall_problem(robot)
+    assert problem.check().ok
+    # without repulsion the arm hits the wall ...
+    blind = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=0)
+    assert not planbench.evaluate(problem, blind).success
+    # ... with it, the hand goes over the wall
+    result = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0)
+    ev = planbench.evaluate(problem, result)
+    assert result.status is PlanStatus.SUCCESS and ev.success, ev.failure
+    assert ev.min_clearance > 0.005
+    assert np.nanmax(result.info["repulsion"]) > 0
+    assert np.nanmin(result.info["slowdown"]) < 1.0
+
+
+def test_full_and_lazy_field_give_the_same_path(robot):
+    problem = wall_problem(robot, top=0.55)
+    full = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0, field_mode="full")
+    lazy = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0, field_mode="lazy")
+    assert full.status is lazy.status
+    assert full.path.shape == lazy.path.shape
+    assert np.allclose(full.path, lazy.path, atol=1e-8)
+    assert np.allclose(full.info["repulsion"], lazy.info["repulsion"], atol=1e-9, equal_nan=True)
+
+
+def test_named_failures(robot):
+    problem = wall_problem(robot)
+    short = planbench.plan(problem, MatrixFieldPlanner, max_steps=5)
+    assert short.status is PlanStatus.STEP_LIMIT and len(short.path) == 6
+    crash = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=1)
+    assert crash.status is PlanStatus.COLLISION
+    assert not planbench.evaluate(problem, crash).success
+    # the blind arm in collision: the path ends where the checker first found it
+    from planbench.collision import CollisionChecker
+
+    checker = CollisionChecker(robot, problem.scene)
+    assert checker.in_collision(crash.path[-1]) and not checker.in_collision(crash.path[-2])
+
+
+def test_local_minimum_is_reported(robot):
+    # A goal pose behind a wide wall, straight through it: attraction and repulsion cancel.
+    start = np.array(robot.home)
+    ee = robot.frame_pose(start).translation
+    wall = Obstacle("wall", "box", position=(ee[0] + 0.2, ee[1], ee[2]), size=(0.02, 0.8, 0.8))
+    goal_pose = planbench.Pose(ee + np.array([0.35, 0.0, 0.0]), robot.frame_pose(start).rotation, "panda_link8")
+    problem = Problem.create(robot, Scene((wall,), name="behind"), start, None, goal_pose, id="test:behind")
+    result = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0)
+    assert result.status is PlanStatus.LOCAL_MINIMUM, result.message
+    assert planbench.evaluate(problem, result).failure.startswith("goal not reached")
+
+
+def test_time_limit(robot):
+    problem = wall_problem(robot)
+    result = planbench.plan(problem, MatrixFieldPlanner, time_limit=1e-4)
+    assert result.status is PlanStatus.TIMEOUT
+
+
+def test_positions_and_velocities_stay_in_limits_near_limits(robot):
+    # start with joint 4 almost at its upper limit and drive to a pose that pulls it further
+    start = np.array(robot.home)
+    start[3] = robot.upper[3] - 0.01
+    goal = start.copy()
+    goal[3] = robot.upper[3] - 0.001
+    goal[1] += 0.4
+    problem = Problem.create(robot, Scene(name="empty"), start, goal, id="test:limits")
+    result = planbench.plan(problem, MatrixFieldPlanner, time_limit=5.0)
+    path = result.path
+    assert np.all(path >= np.asarray(robot.lower)) and np.all(path <= np.asarray(robot.upper))
+    speed = np.abs(np.diff(path, axis=0)) / np.diff(result.times)[:, None]
+    assert np.all(speed <= np.asarray(robot.velocity_limit) * (1 + 1e-9))

@@ -1,0 +1,255 @@
+"""Unit tests of the matrix-field planner's task terms, control points, kinematics and settings."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from planbench.errors import InvalidConfigError
+from planbench.robot import load_robot
+from planbench_plugins.matrix_field import MatrixFieldConfig, place_control_points
+from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.matrix_field.kinematics import ArmKinematics
+from planbench_plugins.matrix_field.planner import stalled, wall_field
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("panda")
+
+
+@pytest.fixture(scope="module")
+def kin(robot):
+    k = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot, 0.12))
+    k.update(np.asarray(robot.home) + 0.1)
+    return k
+
+
+# --- attraction ----------------------------------------------------------------------------
+def test_attraction_is_v_max_far_away_and_points_to_goal():
+    p, goal = np.zeros(3), np.array([30.0, 40.0, 0.0])  # 50 m away
+    v = T.attraction_velocity(p, goal, speed_max=0.5, sigmoid_gain=20.0)
+    assert np.linalg.norm(v) == pytest.approx(0.5, rel=1e-3)
+    assert np.allclose(v / np.linalg.norm(v), goal / 50.0)
+
+
+def test_attraction_falls_to_zero_at_goal_without_overshoot():
+    goal = np.array([0.3, -0.2, 0.5])
+    assert np.array_equal(T.attraction_velocity(goal.copy(), goal, 0.5, 20.0), np.zeros(3))
+    p, dt = np.array([0.0, 0.0, 0.0]), 0.01
+    dists = []
+    for _ in range(2000):
+        v = T.attraction_velocity(p, goal, 0.5, 20.0)
+        before = goal - p
+        p = p + v * dt
+        after = goal - p
+        assert before @ after >= 0.0  # never passes the goal
+        dists.append(np.linalg.norm(after))
+    assert np.all(np.diff(dists) <= 0)
+    assert dists[-1] < 1e-9
+
+
+def test_attraction_magnitude_is_monotone_in_distance():
+    d = np.linspace(1e-4, 2.0, 200)
+    mags = [np.linalg.norm(T.attraction_velocity(np.zeros(3), np.array([x, 0, 0]), 0.5, 20.0)) for x in d]
+    assert np.all(np.diff(mags) > 0) and max(mags) < 0.5
+
+
+def test_orientation_error_of_known_rotation_is_its_axis_angle():
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        R = Rotation.random(random_state=rng).as_matrix()
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = rng.uniform(0.0, math.pi - 1e-3)
+        R_goal = Rotation.from_rotvec(axis * angle).as_matrix() @ R  # world-frame rotation of R
+        assert np.allclose(T.orientation_error(R, R_goal), axis * angle, atol=1e-9)
+
+
+def test_orientation_error_takes_the_short_arc_and_zero_at_goal():
+    R = np.eye(3)
+    big = Rotation.from_rotvec([0, 0, 1.5 * math.pi]).as_matrix()  # = -0.5 pi about z
+    assert np.allclose(T.orientation_error(R, big), [0, 0, -0.5 * math.pi], atol=1e-9)
+    assert np.allclose(T.orientation_error(big, big), 0.0, atol=1e-12)
+    tiny = Rotation.from_rotvec([1e-9, 0, 0]).as_matrix()
+    assert np.allclose(T.orientation_error(R, tiny), [1e-9, 0, 0], atol=1e-15)
+
+
+def test_attraction_caps_angular_speed():
+    R_goal = Rotation.from_rotvec([0, 3.0, 0]).as_matrix()
+    v = T.attraction(np.zeros(3), np.eye(3), np.zeros(3), R_goal, speed_max=0.5, sigmoid_gain=20,
+                     position_gain=1, orientation_gain=4, angular_speed_max=1.5)
+    assert np.allclose(v[:3], 0) and np.allclose(v[3:], [0, 1.5, 0])
+
+
+# --- least squares, null space, manipulability ---------------------------------------------
+def test_dls_is_exact_inverse_without_damping(kin):
+    v = np.array([0.1, -0.2, 0.05, 0.3, 0.0, -0.1])
+    assert np.allclose(kin.J @ T.dls(kin.J, v, 0.0), v, atol=1e-10)
+    damped = T.dls(kin.J, v, 0.5)
+    assert np.linalg.norm(damped) < np.linalg.norm(T.dls(kin.J, v, 0.0))
+
+
+def test_nullspace_projection_leaves_ee_velocity_unchanged(kin, robot):
+    rng = np.random.default_rng(0)
+    assert np.linalg.matrix_rank(kin.J) == 6
+    v = rng.normal(size=6)
+    for _ in range(20):
+        x = rng.normal(size=7) * 3.0  # e.g. a repulsion velocity
+        qd1, nx = T.dls_with_nullspace(kin.J, v, x, damping=0.0, floor=0.0)
+        for s in (1.0, 0.3):
+            qd = T.merge(qd1, s, nx)
+            assert np.allclose(kin.J @ qd, s * kin.J @ qd1, atol=1e-9, rtol=0)
+    N = T.nullspace_projector(kin.J)
+    assert np.allclose(kin.J @ N, 0.0, atol=1e-9) and np.allclose(N @ N, N, atol=1e-9)
+
+
+def test_adaptive_damping():
+    assert T.adaptive_damping(0.05, 0.1, 0.02) == 0.0
+    assert T.adaptive_damping(0.0, 0.1, 0.02) == pytest.approx(0.1)
+    assert 0 < T.adaptive_damping(0.01, 0.1, 0.02) < 0.1
+
+
+def test_manipulability_gradient_matches_finite_differences(robot):
+    import pinocchio as pin
+
+    data = robot.model.createData()
+
+    def spatial(q):
+        pin.computeJointJacobians(robot.model, data, q)
+        return data.J.copy()
+
+    kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot))
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(robot.lower + 0.3, robot.upper - 0.3)
+        m, grad = T.manipulability_gradient(spatial(q), kin.descendants)
+        kin.update(q)
+        assert m == pytest.approx(T.manipulability(kin.J), rel=1e-9)  # same for EE and spatial J
+        h = 1e-6
+        num = [(T.manipulability(spatial(q + h * e)) - T.manipulability(spatial(q - h * e))) / (2 * h)
+               for e in np.eye(7)]
+        assert np.allclose(grad, num, atol=1e-7)
+
+
+# --- repulsion mapping, control points, kinematics -----------------------------------------
+def test_repulsion_joint_velocity_equals_sum_of_point_jacobian_transposes(kin):
+    rng = np.random.default_rng(2)
+    F = rng.normal(size=(len(kin.points), 3))
+    Jp = T.point_jacobians(kin.S, kin.points, kin.support)
+    expected = np.einsum("nak,na->k", Jp, F)
+    assert np.allclose(T.repulsion_joint_velocity(kin.S, kin.points, F, kin.support), expected, atol=1e-12)
+
+
+def test_point_jacobians_match_finite_differences(robot, kin):
+    q = np.asarray(robot.home) + 0.1
+    cp = kin.cp
+    Jp = T.point_jacobians(kin.S, kin.points, kin.support)
+    h = 1e-6
+    for k in range(7):
+        e = np.zeros(7)
+        e[k] = h
+        num = (cp.world(robot, q + e) - cp.world(robot, q - e)) / (2 * h)
+        assert np.allclose(Jp[:, :, k], num, atol=1e-7)
+
+
+def test_kinematics_agree_with_pinocchio(robot, kin):
+    q = np.asarray(robot.home) + 0.1
+    M = robot.frame_pose(q)
+    assert np.allclose(kin.p, M.translation) and np.allclose(kin.R, M.rotation)
+    assert np.allclose(kin.points, kin.cp.world(robot, q), atol=1e-12)
+
+
+def test_control_points_cover_every_moving_link(robot):
+    cp = place_control_points(robot, 0.12)
+    moving = {g.name.rpartition("_")[0] for g in robot.collision_model.geometryObjects if g.parentJoint > 0}
+    assert set(cp.link) == moving
+    assert 15 <= len(cp) <= 25
+    assert np.all(cp.joint > 0) and np.all(cp.radius >= 0)
+    assert len(place_control_points(robot, 0.05)) > len(cp)  # finer spacing, more points
+
+
+def test_control_points_override(robot):
+    cp = place_control_points(robot, 0.12, [("panda_hand", [[0.0, 0.0, 0.05]]), ("panda_link1", [])])
+    assert "panda_link1" not in cp.link
+    assert cp.link.count("panda_hand") == 1
+    i = cp.link.index("panda_hand")
+    q = np.asarray(robot.home)
+    hand = robot.frame_pose(q, "panda_hand")
+    assert np.allclose(cp.world(robot, q)[i], hand.act(np.array([0.0, 0.0, 0.05])))
+
+
+# --- limits, slow-down, mid-joint ----------------------------------------------------------
+def test_velocity_scaling_keeps_direction_and_limits():
+    rng = np.random.default_rng(4)
+    vmax = np.array([2.175] * 4 + [2.61] * 3)
+    for _ in range(100):
+        qd = rng.normal(size=7) * rng.uniform(0.1, 20)
+        out, c = T.scale_to_velocity_limits(qd, vmax)
+        assert np.all(np.abs(out) <= vmax * (1 + 1e-12))
+        assert 0 < c <= 1 and np.allclose(out, c * qd)
+
+
+def test_position_clamp_never_leaves_limits(robot):
+    rng = np.random.default_rng(5)
+    lo, hi, dt = np.asarray(robot.lower), np.asarray(robot.upper), 0.01
+    for _ in range(200):
+        q = rng.uniform(lo, hi)
+        j = rng.integers(7)
+        q[j] = lo[j] if rng.random() < 0.5 else hi[j]  # some joints at a limit
+        qd = rng.normal(size=7) * 50
+        out = T.clamp_to_position_limits(q, qd, lo, hi, dt)
+        nxt = q + out * dt
+        assert np.all(nxt >= lo - 1e-12) and np.all(nxt <= hi + 1e-12)
+        assert np.all(np.abs(out) <= np.abs(qd))
+    at_limit = lo.copy()
+    out = T.clamp_to_position_limits(at_limit, -np.ones(7), lo, hi, dt)
+    assert np.allclose(out, 0.0)
+
+
+def test_slowdown_and_mid_joint():
+    assert T.slowdown_factor(0.0, 2.0, 0.2) == 1.0
+    assert T.slowdown_factor(1.0, 2.0, 0.2) == pytest.approx(1 / 3)
+    assert T.slowdown_factor(100.0, 2.0, 0.2) == 0.2
+    lo, hi = np.array([-1.0, 0.0]), np.array([1.0, 4.0])
+    assert np.allclose(T.mid_joint_velocity(np.array([0.0, 2.0]), lo, hi, 1.0), 0.0)
+    v = T.mid_joint_velocity(np.array([0.5, 1.0]), lo, hi, 1.0)
+    assert v[0] == pytest.approx(-0.5 / 4) and v[1] == pytest.approx(1.0 / 16)
+
+
+# --- local minimum, stand-off, settings ----------------------------------------------------
+def test_stalled_definition():
+    window = 10
+    flat = np.full(30, 0.2)
+    assert not stalled(flat, 9, window, 0.02)  # never before a full window
+    assert stalled(flat, 10, window, 0.02)
+    decaying = 0.2 * np.exp(-0.1 * np.arange(30))  # ~63 % per window: progress
+    assert not stalled(decaying, 25, window, 0.02)
+
+
+def test_wall_field_follows_kernel_profile():
+    from planbench.field import KernelSpec
+
+    k = KernelSpec(reach=0.16, profile="linear").build(0.02)  # c = 8 cells, taper sum 9
+    for cells in (1, 3, 5):
+        d = cells * 0.02 - 0.01  # a cell centre
+        expected = (9 - cells) / 9 * 81
+        assert wall_field(k, d) == pytest.approx(expected, rel=1e-9)
+    assert wall_field(k, 0.2) == 0.0  # beyond the reach
+
+
+@pytest.mark.parametrize("bad", [dict(dt=0), dict(speed_max=-1), dict(field_mode="dense"), dict(max_steps=0),
+                                 dict(standoff=0.3), dict(damping="auto"), dict(slowdown_min=2.0),
+                                 dict(control_points={"panda_hand": [[1, 2]]}), dict(repulsion_gain=float("nan"))])
+def test_config_validation(bad):
+    with pytest.raises(InvalidConfigError):
+        MatrixFieldConfig(**bad)
+
+
+def test_config_defaults_and_overrides_freeze():
+    c = MatrixFieldConfig(control_points={"panda_hand": [[0, 0, 0.1]]})
+    assert c.control_points == (("panda_hand", ((0.0, 0.0, 0.1),)),)
+    assert MatrixFieldConfig().stall_steps == 100
