@@ -27,7 +27,8 @@ def is_png(path) -> bool:
 @pytest.mark.parametrize("profile", ["gaussian", "all"])
 def test_kernel_command_writes_a_png(tmp_path, profile):
     out = tmp_path / "kernel.png"
-    args = parser().parse_args(["kernel", "--profile", profile, "--reach", "0.05", "--out", str(out)])
+    argv = ["kernel", "--profile", profile, "--reach", "0.05", "--out", str(out)]
+    args = parser().parse_args(argv)
     assert args.func(args) == 0 and is_png(out)
 
 

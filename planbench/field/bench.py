@@ -141,7 +141,8 @@ def run(settings: BenchSettings, progress: Callable[[str], None] | None = None) 
                     "edt+grad": lambda: np.gradient(distance_transform_edt(free)),
                 }
                 if settings.scipy:
-                    fns["scipy1d"] = lambda: full_field(grid, kernels, dt, margin=0, backend="numpy")
+                    fns["scipy1d"] = lambda: full_field(grid, kernels, dt, margin=0,
+                                                        backend="numpy")
                 if settings.fft:
                     fns["fft"] = lambda: fft_field(grid, kernels, np.dtype(dt).type)
                 say(f"{n}^3 L={length} {dt}: " + ", ".join(fns))
@@ -213,8 +214,8 @@ def environment() -> str:
 
         numba = nb.__version__
     return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-            f"python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__},"
-            f" numba {numba}")
+            f"python {platform.python_version()}, numpy {np.__version__}, "
+            f"scipy {scipy.__version__}, numba {numba}")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -26,7 +26,7 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--slice", default="z=0.3", help="plane to draw, axis=value [m] (default z=0.3)")
     p.add_argument("--resolution", type=float, default=0.02, help="grid cell size [m]")
     p.add_argument("--surface", action="store_true",
-                   help="apply the surface pre-pass (keep only occupied cells with a free neighbour)")
+                   help="apply the surface pre-pass (keep occupied cells with a free neighbour)")
     p.add_argument("--outside", type=float, default=0.0,
                    help="occupancy beyond the grid: 0 free, 1 walled in")
     _kernel_arguments(p, reach=0.2)
@@ -44,9 +44,9 @@ def add_commands(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "bench-field", help="benchmark the matrix field against dense, FFT and distance transform",
-        description="Time the full field (separable, compiled and scipy), dense 3D correlation, FFT "
-                    "and a Euclidean distance transform + gradient, and the lazy and precomputed "
-                    "point queries; print medians and ratios measured in this one run.")
+        description="Time the full field (separable, compiled and scipy), dense 3D correlation, "
+                    "FFT and a Euclidean distance transform + gradient, and the lazy and "
+                    "precomputed point queries; print medians and ratios measured in one run.")
     from planbench.field.bench import add_arguments
 
     add_arguments(p)
@@ -89,8 +89,9 @@ def cmd_field(args: argparse.Namespace) -> int:
         grid = surface_grid(grid)
     field = full_field(grid, kernels)
     name = getattr(problem, "id", None) or getattr(problem, "name", "") or args.problem
+    surface = ", surface cells" if args.surface else ""
     title = (f"{name}: matrix field on {args.slice} m ({args.profile} profile, reach "
-             f"{kernels.reach:g} m, {args.resolution:g} m cells{', surface cells' if args.surface else ''})")
+             f"{kernels.reach:g} m, {args.resolution:g} m cells{surface})")
     plot_field_slice(grid, field, axis, value, out=args.out, title=title)
     print(f"wrote {args.out} (grid {grid.shape[0]}x{grid.shape[1]}x{grid.shape[2]} cells)")
     return 0
@@ -103,9 +104,9 @@ def cmd_kernel(args: argparse.Namespace) -> int:
         plot_profiles(reach=args.reach, resolution=args.resolution, out=args.out)
     else:
         kernels = _spec(args).build(args.resolution)
-        title = (f"Kernel K_x: {args.profile} profile, {args.taper} taper, reach {kernels.reach:g} m "
-                 f"({len(kernels.along)} x {len(kernels.across)} x {len(kernels.across)} cells of "
-                 f"{args.resolution:g} m)")
+        n_l, n_w = len(kernels.along), len(kernels.across)
+        title = (f"Kernel K_x: {args.profile} profile, {args.taper} taper, reach "
+                 f"{kernels.reach:g} m ({n_l} x {n_w} x {n_w} cells of {args.resolution:g} m)")
         plot_kernel(kernels, out=args.out, title=title)
     print(f"wrote {args.out}")
     return 0

@@ -1,4 +1,4 @@
-"""Plots of the matrix field (matplotlib, no GUI: every function returns a Figure and can write a PNG).
+"""Plots of the matrix field (matplotlib, no GUI: each function returns a Figure, can write a PNG).
 
 - :func:`plot_profiles`: the profile along the axis for each profile type, and the tapers
   (the draft's "ERK" and linear kernel graphics).
