@@ -119,3 +119,14 @@ def test_positions_and_velocities_stay_in_limits_near_limits(robot):
     assert np.all(path >= np.asarray(robot.lower)) and np.all(path <= np.asarray(robot.upper))
     speed = np.abs(np.diff(path, axis=0)) / np.diff(result.times)[:, None]
     assert np.all(speed <= np.asarray(robot.velocity_limit) * (1 + 1e-9))
+
+
+def test_plot_result_writes_png(robot, tmp_path):
+    from planbench_plugins.matrix_field import MatrixFieldConfig, plot_result
+
+    problem = wall_problem(robot)
+    config = MatrixFieldConfig(tool_repulsion_gain=1.0)
+    result = planbench.plan(problem, MatrixFieldPlanner(config))
+    fig = plot_result(problem, result, tmp_path / "plan.png", config=config)
+    assert (tmp_path / "plan.png").stat().st_size > 10_000
+    assert len(fig.axes) == 3
