@@ -106,3 +106,19 @@ def test_any_rule_for_a_rotated_box_matches_coal_cell_by_cell():
         expected[idx] = coal.collide(cell, coal.Transform3s(np.eye(3), centre), shape, tf, request, result)
     assert expected.sum() > 50
     np.testing.assert_array_equal(grid.data, expected)
+
+
+def test_mesh_obstacles_collide_and_voxelize_through_coal(panda):
+    from planbench.collision import CollisionChecker
+    from planbench.robot import example_robot_data_dir
+
+    stl = example_robot_data_dir() / "robots" / "panda_description" / "meshes" / "collision" / "link0.stl"
+    mesh = Obstacle("base-copy", "mesh", position=(0.5, 0.0, 0.3), path=str(stl))
+    scene = Scene((mesh,))
+    lo, hi = mesh.aabb()
+    assert np.all(hi - lo > 0.05) and np.all(hi - lo < 0.5)
+    grid = OccupancyGrid.from_scene(scene, 0.02, padding=0.02)
+    assert 0 < grid.data.sum() < grid.data.size
+    checker = CollisionChecker(panda, scene)
+    assert not checker.in_collision(panda.home)
+    assert 0.0 < checker.clearance(panda.home) < 1.0
