@@ -130,3 +130,11 @@ def test_plot_result_writes_png(robot, tmp_path):
     fig = plot_result(problem, result, tmp_path / "plan.png", config=config)
     assert (tmp_path / "plan.png").stat().st_size > 10_000
     assert len(fig.axes) == 3
+
+
+def test_numba_and_numpy_backends_give_the_same_path(robot):
+    problem = wall_problem(robot)
+    a = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0, backend="auto")
+    b = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0, backend="numpy")
+    assert a.status is b.status and a.path.shape == b.path.shape
+    assert np.allclose(a.path, b.path, atol=1e-7)

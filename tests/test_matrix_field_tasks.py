@@ -253,3 +253,39 @@ def test_config_defaults_and_overrides_freeze():
     c = MatrixFieldConfig(control_points={"panda_hand": [[0, 0, 0.1]]})
     assert c.control_points == (("panda_hand", ((0.0, 0.0, 0.1),)),)
     assert MatrixFieldConfig().stall_steps == 100
+
+
+# --- the compiled step equals the composition of the task functions ------------------------
+@pytest.mark.skipif(not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba(),
+                    reason="numba not installed")
+@pytest.mark.parametrize("damping", ["adaptive", "fixed"])
+def test_compiled_step_matches_numpy_reference(robot, damping):
+    from planbench_plugins.matrix_field import fast
+
+    cfg = MatrixFieldConfig(damping=damping, tool_repulsion_gain=1.0)
+    prm = fast.pack_params(cfg)
+    kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=True)
+    ref_kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=False)
+    rng = np.random.default_rng(7)
+    lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
+    vmax = np.asarray(robot.velocity_limit)
+    tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)
+    for trial in range(10):
+        q = rng.uniform(lo, hi)
+        if trial == 0:
+            q[3] = hi[3]  # at a limit
+        kin.update(q)
+        ref_kin.update(q)
+        assert np.allclose(kin.points, ref_kin.points, atol=1e-14)
+        F = rng.normal(size=kin.points.shape) * (trial % 3)  # some steps without repulsion
+        p_goal = rng.uniform(-0.5, 0.5, 3)
+        R_goal = Rotation.random(random_state=rng).as_matrix()
+        out = []
+        for fn, k in ((fast.step_compiled, kin), (fast.step_numpy, ref_kin)):
+            qd, dg = np.zeros(7), np.zeros(6)
+            fn(k.S, k.J, k.p, k.R, p_goal, R_goal, q, lo, hi, vmax, k.points, F, k.support, k.descendants,
+               tool, prm, qd, dg)
+            out.append((qd, dg))
+        assert np.allclose(out[0][0], out[1][0], atol=1e-10, rtol=1e-8)
+        assert np.allclose(out[0][1], out[1][1], atol=1e-10, rtol=1e-8)
+        assert np.all(np.abs(out[0][0]) <= vmax * (1 + 1e-12))

@@ -108,6 +108,10 @@ class MatrixFieldConfig:
     velocity_scale: float = 1.0
     """Fraction of the robot's joint velocity limits the planner may use [-]."""
 
+    backend: str = "auto"
+    """Step arithmetic: ``"numba"`` (one compiled call per step), ``"numpy"`` (the task functions
+    composed in Python), ``"auto"`` (numba when installed). Same numbers to rounding."""
+
     # --- failure detection ---------------------------------------------------------------
     stall_window: float = 1.0
     """Local-minimum window [s] (see :func:`~planbench_plugins.matrix_field.planner.stalled`)."""
@@ -140,7 +144,8 @@ class MatrixFieldConfig:
             if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "max_steps" else 0):
                 raise InvalidConfigError(f"{name} must be a whole number >= "
                                          f"{1 if name == 'max_steps' else 0}, got {v!r}")
-        for name, choices in (("field_mode", FIELD_MODES), ("damping", DAMPING_MODES),
+        for name, choices in (("field_mode", FIELD_MODES), ("backend", ("auto", "numba", "numpy")),
+                              ("damping", DAMPING_MODES),
                               ("kernel_profile", ("linear", "gaussian", "inverse-power")),
                               ("kernel_taper", ("linear", "gaussian", "constant"))):
             if getattr(self, name) not in choices:

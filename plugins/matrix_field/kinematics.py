@@ -29,8 +29,14 @@ class ArmKinematics:
     where joint ``i`` strictly descends from joint ``k``.
     """
 
-    def __init__(self, robot: Any, frame_id: int, points: ControlPoints) -> None:
+    def __init__(self, robot: Any, frame_id: int, points: ControlPoints, compiled: bool = False) -> None:
         import pinocchio as pin
+
+        self._positions = None
+        if compiled:
+            from planbench_plugins.matrix_field.fast import control_point_positions
+
+            self._positions = control_point_positions
 
         self._pin = pin
         self.model = model = robot.model
@@ -86,5 +92,8 @@ class ArmKinematics:
             np.stack(self._Rviews, out=self._Rbuf)
             np.stack(self._tviews, out=self._tbuf)
             j = self._cp_joint
-            np.einsum("nij,nj->ni", self._Rbuf[j], self._cp_local, out=self.points)
-            self.points += self._tbuf[j]
+            if self._positions is not None:
+                self._positions(self._Rbuf, self._tbuf, j, self._cp_local, self.points)
+            else:
+                np.einsum("nij,nj->ni", self._Rbuf[j], self._cp_local, out=self.points)
+                self.points += self._tbuf[j]

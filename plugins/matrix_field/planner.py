@@ -38,7 +38,6 @@ per path row): ``position_error`` [m], ``orientation_error`` [rad], ``repulsion`
 from __future__ import annotations
 
 import logging
-import math
 import time
 from typing import Any
 
@@ -46,7 +45,7 @@ import numpy as np
 
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
-from planbench_plugins.matrix_field import tasks
+from planbench_plugins.matrix_field import fast
 from planbench_plugins.matrix_field.config import MatrixFieldConfig
 from planbench_plugins.matrix_field.control_points import ControlPoints, place_control_points
 from planbench_plugins.matrix_field.kinematics import ArmKinematics
@@ -156,6 +155,21 @@ class MatrixFieldPlanner(Planner):
             checker = CollisionChecker(problem.robot, problem.scene)
         self._prepared = {"problem": problem, "grid": grid, "kernels": kernels, "field": field,
                           "points": points, "gain": repulsion_gain(cfg, kernels), "checker": checker}
+        if cfg.backend == "numba" or (cfg.backend == "auto" and fast.have_numba()):
+            self._warm_up(problem)
+
+    def _warm_up(self, problem: Problem) -> None:
+        """Compile (or load from numba's cache) the step for the argument types the loop uses,
+        here in the untimed setup rather than in the first timed step."""
+        robot = problem.robot
+        kin = ArmKinematics(robot, robot.frame_id(problem.goal.pose.frame), self._prepared["points"], compiled=True)
+        q = np.array(problem.start, dtype=float)
+        kin.update(q)
+        n = robot.nq
+        fast.step_compiled(kin.S, kin.J, kin.p, kin.R, np.zeros(3), np.eye(3), q, np.asarray(robot.lower),
+                           np.asarray(robot.upper), np.ones(n), kin.points, np.zeros_like(kin.points),
+                           kin.support, kin.descendants, np.zeros(0, dtype=np.intp),
+                           fast.pack_params(self.config), np.zeros(n), np.zeros(6))
 
     @property
     def control_points(self) -> ControlPoints | None:
@@ -184,7 +198,6 @@ class MatrixFieldPlanner(Planner):
         t_start = time.perf_counter()
         goal = problem.goal.pose
         frame_id = robot.frame_id(goal.frame)
-        kin = ArmKinematics(robot, frame_id, prep["points"])
         p_goal = np.asarray(goal.position, dtype=float)
         R_goal = np.asarray(goal.rotation, dtype=float)
         tol_p = cfg.goal_tolerance_scale * problem.tolerances.position
@@ -200,11 +213,9 @@ class MatrixFieldPlanner(Planner):
         lazy = None
         if has_field and field is None:
             from planbench.field import lazy_field as lazy
-        att_kw = dict(speed_max=cfg.speed_max, sigmoid_gain=cfg.sigmoid_gain, position_gain=cfg.position_gain,
-                      orientation_gain=cfg.orientation_gain, angular_speed_max=cfg.angular_speed_max)
         window = cfg.stall_steps
-        tool_gain = cfg.tool_repulsion_gain
         tool = np.flatnonzero(np.asarray(prep["points"].joint) == robot.model.frames[frame_id].parentJoint)
+        tool = tool.astype(np.intp)
         n_max = cfg.max_steps + 1
         path = np.empty((n_max, robot.nq))
         diag = {name: np.full(n_max, np.nan) for name in
@@ -213,14 +224,26 @@ class MatrixFieldPlanner(Planner):
         q = np.array(problem.start, dtype=float)
         status, message = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
         k = 0
+        use_numba = cfg.backend == "numba" or (cfg.backend == "auto" and fast.have_numba())
+        step = fast.step_compiled if use_numba else fast.step_numpy
+        kin = ArmKinematics(robot, frame_id, prep["points"], compiled=use_numba)
+        prm = fast.pack_params(cfg)
+        F = np.zeros((len(prep["points"]), 3))
+        qd = np.zeros(robot.nq)
+        dg = np.zeros(6)
+        names = ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown", "damping")
+        columns = [diag[name] for name in names]
         while True:
             path[k] = q
             kin.update(q)
-            e_p = p_goal - kin.p
-            err_p = math.sqrt(float(e_p @ e_p))
-            err_r = float(np.linalg.norm(tasks.orientation_error(kin.R, R_goal)))
-            diag["position_error"][k] = err_p
-            diag["orientation_error"][k] = err_r
+            if has_field:
+                F = field.sample(kin.points) if field is not None else lazy(grid, kernels, kin.points)
+                F *= k_rep
+            step(kin.S, kin.J, kin.p, kin.R, p_goal, R_goal, q, lower, upper, qd_max, kin.points, F,
+                 kin.support, kin.descendants, tool, prm, qd, dg)
+            for col, value in zip(columns, dg.tolist(), strict=True):
+                col[k] = value
+            err_p, err_r = dg[0], dg[1]
             e = err_p + cfg.rotation_weight * err_r
             best[k] = e if k == 0 else min(e, best[k - 1])
             if checker is not None and (k % cfg.collision_check_every == 0) and k > 0 \
@@ -241,37 +264,8 @@ class MatrixFieldPlanner(Planner):
             if k % 16 == 0 and time.perf_counter() - t_start > time_limit:
                 status, message = PlanStatus.TIMEOUT, f"time limit of {time_limit:g} s reached after {k} steps"
                 break
-
-            v_att = tasks.attraction(kin.p, kin.R, p_goal, R_goal, **att_kw)
-            S = kin.S
-            secondary = tasks.mid_joint_velocity(q, lower, upper, cfg.mid_joint_gain)
-            if cfg.manipulability_gain > 0:
-                m, grad = tasks.manipulability_gradient(S, kin.descendants)
-                secondary += cfg.manipulability_gain * grad
-            else:
-                m = tasks.manipulability(kin.J)
-            rep = 0.0
-            if has_field:
-                F = field.sample(kin.points) if field is not None else lazy(grid, kernels, kin.points)
-                F *= k_rep
-                rep = math.sqrt(float(np.max(np.einsum("ij,ij->i", F, F))))
-                if rep > 0.0:
-                    secondary += tasks.repulsion_joint_velocity(S, kin.points, F, kin.support)
-                    if tool_gain > 0:
-                        fade = min(1.0, err_p / cfg.tool_fade_distance)
-                        v_att[:3] += (tool_gain * fade) * tasks.strongest(F, tool)
-            lam = (tasks.adaptive_damping(m, cfg.damping_factor, cfg.manipulability_threshold)
-                   if cfg.damping == "adaptive" else cfg.damping_factor)
-            qd1, projected = tasks.dls_with_nullspace(kin.J, v_att, secondary, lam)
-            s = tasks.slowdown_factor(rep, cfg.slowdown_gain, cfg.slowdown_min) if cfg.slowdown_gain > 0 else 1.0
-            qd = tasks.merge(qd1, s, projected)
-            qd, _ = tasks.scale_to_velocity_limits(qd, qd_max)
-            qd = tasks.clamp_to_position_limits(q, qd, lower, upper, dt)
-            diag["repulsion"][k] = rep
-            diag["manipulability"][k] = m
-            diag["slowdown"][k] = s
-            diag["damping"][k] = lam
-            q = np.clip(q + qd * dt, lower, upper)
+            q = q + qd * dt
+            np.clip(q, lower, upper, out=q)
             k += 1
         if status is not PlanStatus.SUCCESS and checker is not None and status is not PlanStatus.COLLISION \
                 and checker.in_collision(path[k]):

@@ -1,0 +1,199 @@
+"""Benchmarks of the matrix-field planner. Prints medians; run on a quiet machine for timings.
+
+    python benchmarks/matrix_field.py step                  # per-step cost and its split
+    python benchmarks/matrix_field.py mbm "mbm:*/0021-0100"  # planning on MotionBenchMaker
+    python benchmarks/matrix_field.py sweep                 # parameter sweep on 0001-0020
+
+``step``: the median time of one planner step with the Panda's automatic control points (20), from
+the planner's own loop (``max_steps`` steps, no stopping, no collision checks), and the median of
+each part timed alone: pinocchio (``computeJointJacobians``, ``updateFramePlacement``,
+``getFrameJacobian``), field sampling (trilinear, at the control points), linear algebra (all
+task terms: attraction, manipulability gradient, repulsion mapping, DLS with null space, limits).
+Glue is the rest (Python loop, bookkeeping, control-point placement).
+
+``mbm``: success (validated by ``planbench.evaluate``), median planning and setup time, median
+joint and end-effector path length and minimum clearance of the solved problems, and the failure
+reasons, per family, next to the straight-line reference planner.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+import planbench
+from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
+from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.matrix_field.kinematics import ArmKinematics
+
+
+def _median_us(fn: Any, reps: int = 2000, batches: int = 7) -> float:
+    out = []
+    for _ in range(batches):
+        t0 = time.perf_counter()
+        for _ in range(reps):
+            fn()
+        out.append((time.perf_counter() - t0) / reps * 1e6)
+    return statistics.median(out)
+
+
+def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str, float]:
+    import pinocchio as pin
+
+    problem = planbench.load_problems(problem_id)[0]
+    cfg = MatrixFieldConfig(stall_ratio=0.0, max_steps=steps, collision_check_every=0,
+                            goal_tolerance_scale=1e-9)
+    planner = MatrixFieldPlanner(cfg)
+    planner.setup(problem)
+    totals = []
+    for _ in range(5):
+        r = planner.plan(problem, time_limit=60.0, rng=np.random.default_rng(0))
+        t0 = time.perf_counter()
+        r = planner.plan(problem, time_limit=60.0, rng=np.random.default_rng(0))
+        totals.append((time.perf_counter() - t0) / max(1, r.info["steps"]) * 1e6)
+    step_us = statistics.median(totals)
+
+    robot = problem.robot
+    prep = planner._prepared
+    kin = ArmKinematics(robot, robot.ee_frame_id, prep["points"])
+    q = np.asarray(problem.start, dtype=float) + 0.05
+    kin.update(q)
+    model, data, fid = kin.model, kin.data, kin.frame_id
+
+    def pin_calls() -> None:
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacement(model, data, fid)
+        pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+
+    field = prep["field"]
+    pts = kin.points.copy()
+    gain = prep["gain"]
+    F = field.sample(pts) * gain
+    goal = problem.goal.pose
+    lower, upper, vmax = np.asarray(robot.lower), np.asarray(robot.upper), np.asarray(robot.velocity_limit)
+
+    def linalg() -> None:
+        v = T.attraction(kin.p, kin.R, goal.position, goal.rotation, speed_max=0.5, sigmoid_gain=20.0,
+                         position_gain=1.0, orientation_gain=4.0, angular_speed_max=1.5)
+        x = T.mid_joint_velocity(q, lower, upper, 2.0)
+        m, g = T.manipulability_gradient(kin.S, kin.descendants)
+        x += 0.5 * g
+        x += T.repulsion_joint_velocity(kin.S, kin.points, F, kin.support)
+        qd1, nx = T.dls_with_nullspace(kin.J, v, x, 0.0)
+        qd, _ = T.scale_to_velocity_limits(T.merge(qd1, 0.5, nx), vmax)
+        T.clamp_to_position_limits(q, qd, lower, upper, 0.01)
+
+    parts = {
+        "pinocchio": _median_us(pin_calls),
+        "field sampling": _median_us(lambda: field.sample(pts)),
+        "linear algebra": _median_us(linalg),
+    }
+    parts["glue (rest)"] = step_us - sum(parts.values())
+    return {"step": step_us, **parts, "control_points": float(len(prep["points"]))}
+
+
+def run_mbm(selector: str, config: dict[str, Any], time_limit: float = 5.0, straight: bool = True,
+            verbose: bool = False) -> dict[str, Any]:
+    problems = planbench.load_problems(selector)
+    rows = []
+    for problem in problems:
+        fam = problem.metadata.get("family", "?")
+        r = planbench.plan(problem, MatrixFieldPlanner, time_limit=time_limit, **config)
+        ev = planbench.evaluate(problem, r)
+        reason = "success" if ev.success else (r.status.value if r.status is not planbench.PlanStatus.SUCCESS
+                                                else "invalid:" + ev.failure.split(":")[0][:30])
+        row = dict(family=fam, id=problem.id, ok=ev.success, reason=reason, time=r.planning_time,
+                   setup=r.setup_time, qlen=ev.joint_path_length, eelen=ev.ee_path_length,
+                   clearance=ev.min_clearance, steps=r.info.get("steps", 0))
+        if straight:
+            s = planbench.plan(problem, "straight-line", time_limit=time_limit)
+            es = planbench.evaluate(problem, s)
+            row.update(sl_ok=es.success, sl_qlen=es.joint_path_length, sl_eelen=es.ee_path_length,
+                       sl_clearance=es.min_clearance, sl_time=s.planning_time)
+        rows.append(row)
+        if verbose:
+            print(problem.id, reason, f"{r.planning_time * 1e3:.1f} ms", ev.failure[:80], flush=True)
+    return {"rows": rows, "summary": summarize(rows, straight)}
+
+
+def _med(values: list[float]) -> float:
+    vals = [v for v in values if np.isfinite(v)]
+    return float(np.median(vals)) if vals else float("nan")
+
+
+def summarize(rows: list[dict[str, Any]], straight: bool = True) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for fam in sorted({r["family"] for r in rows}) + ["all"]:
+        rr = [r for r in rows if fam in ("all", r["family"])]
+        ok = [r for r in rr if r["ok"]]
+        s: dict[str, Any] = dict(
+            n=len(rr), success=len(ok) / len(rr), time_ms=1e3 * _med([r["time"] for r in rr]),
+            setup_ms=1e3 * _med([r["setup"] for r in rr]), qlen=_med([r["qlen"] for r in ok]),
+            eelen=_med([r["eelen"] for r in ok]), clearance=_med([r["clearance"] for r in ok]),
+            reasons=dict(Counter(r["reason"] for r in rr if not r["ok"])))
+        if straight:
+            sok = [r for r in rr if r["sl_ok"]]
+            s.update(sl_success=len(sok) / len(rr), sl_qlen=_med([r["sl_qlen"] for r in sok]),
+                     sl_eelen=_med([r["sl_eelen"] for r in sok]), sl_clearance=_med([r["sl_clearance"] for r in sok]))
+        out[fam] = s
+    return out
+
+
+def print_summary(summary: dict[str, Any]) -> None:
+    print(f"{'family':18s} {'n':>4s} {'succ':>6s} {'t_med ms':>9s} {'setup ms':>9s} {'q len':>6s} {'ee len':>7s} "
+          f"{'clear':>6s} | {'SL succ':>7s} {'SL q':>6s} {'SL ee':>6s} {'SL clr':>6s}  failures")
+    for fam, s in summary.items():
+        print(f"{fam:18s} {s['n']:4d} {s['success']:6.0%} {s['time_ms']:9.1f} {s['setup_ms']:9.1f} {s['qlen']:6.2f} "
+              f"{s['eelen']:7.2f} {s['clearance']:6.3f} | {s.get('sl_success', float('nan')):7.0%} "
+              f"{s.get('sl_qlen', float('nan')):6.2f} {s.get('sl_eelen', float('nan')):6.2f} "
+              f"{s.get('sl_clearance', float('nan')):6.3f}  {s['reasons']}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    st = sub.add_parser("step")
+    st.add_argument("--problem", default="mbm:box/0001")
+    m = sub.add_parser("mbm")
+    m.add_argument("selector", nargs="?", default="mbm:*/0021-0100")
+    m.add_argument("--config", default="{}", help="JSON object of MatrixFieldConfig settings")
+    m.add_argument("--json", help="write the rows and summary to this file")
+    m.add_argument("-v", action="store_true")
+    sw = sub.add_parser("sweep")
+    sw.add_argument("--selector", default="mbm:*/0001-0020")
+    sw.add_argument("--grid", default='{"standoff": [0.08, 0.1, 0.12], "tool_repulsion_gain": [0.0, 1.0]}')
+    args = ap.parse_args(argv)
+    if args.cmd == "step":
+        res = bench_step(args.problem)
+        print(f"per-step median with {int(res.pop('control_points'))} control points:")
+        for k, v in res.items():
+            print(f"  {k:16s} {v:7.1f} us")
+    elif args.cmd == "mbm":
+        out = run_mbm(args.selector, json.loads(args.config), verbose=args.v)
+        print_summary(out["summary"])
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(out, fh, indent=1, default=float)
+    else:
+        import itertools
+
+        grid = json.loads(args.grid)
+        keys = list(grid)
+        for values in itertools.product(*(grid[k] for k in keys)):
+            cfg = dict(zip(keys, values, strict=True))
+            out = run_mbm(args.selector, cfg, straight=False)
+            s = out["summary"]["all"]
+            per = " ".join(f"{f[:10]}={v['success']:.0%}" for f, v in out["summary"].items() if f != "all")
+            print(json.dumps(cfg), f"success {s['success']:.1%} t_med {s['time_ms']:.1f} ms  {per}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
