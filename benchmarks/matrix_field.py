@@ -7,9 +7,10 @@
 ``step``: the median time of one planner step with the Panda's automatic control points (20), from
 the planner's own loop (``max_steps`` steps, no stopping, no collision checks), and the median of
 each part timed alone: pinocchio (``computeJointJacobians``, ``updateFramePlacement``,
-``getFrameJacobian``), field sampling (trilinear, at the control points), linear algebra (all
-task terms: attraction, manipulability gradient, repulsion mapping, DLS with null space, limits).
-Glue is the rest (Python loop, bookkeeping, control-point placement).
+``getFrameJacobian``), field sampling (trilinear, at the control points), linear algebra (the
+compiled step: all task terms, manipulability gradient, repulsion mapping, DLS with null space,
+limits). Glue is the rest (Python loop, bookkeeping, reading joint placements, control-point
+positions). The numpy reference step (the task functions composed in Python) is timed alone too.
 
 ``mbm``: success (validated by ``planbench.evaluate``), median planning and setup time, median
 joint and end-effector path length and minimum clearance of the solved problems, and the failure
@@ -29,8 +30,7 @@ from typing import Any
 import numpy as np
 
 import planbench
-from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
-from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner, fast
 from planbench_plugins.matrix_field.kinematics import ArmKinematics
 
 
@@ -62,7 +62,8 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
 
     robot = problem.robot
     prep = planner._prepared
-    kin = ArmKinematics(robot, robot.ee_frame_id, prep["points"])
+    compiled = fast.have_numba()
+    kin = ArmKinematics(robot, robot.ee_frame_id, prep["points"], compiled=compiled)
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)
     model, data, fid = kin.model, kin.data, kin.frame_id
@@ -74,28 +75,23 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
 
     field = prep["field"]
     pts = kin.points.copy()
-    gain = prep["gain"]
-    F = field.sample(pts) * gain
+    F = field.sample(pts) * prep["gain"]
     goal = problem.goal.pose
     lower, upper, vmax = np.asarray(robot.lower), np.asarray(robot.upper), np.asarray(robot.velocity_limit)
-
-    def linalg() -> None:
-        v = T.attraction(kin.p, kin.R, goal.position, goal.rotation, speed_max=0.5, sigmoid_gain=20.0,
-                         position_gain=1.0, orientation_gain=4.0, angular_speed_max=1.5)
-        x = T.mid_joint_velocity(q, lower, upper, 2.0)
-        m, g = T.manipulability_gradient(kin.S, kin.descendants)
-        x += 0.5 * g
-        x += T.repulsion_joint_velocity(kin.S, kin.points, F, kin.support)
-        qd1, nx = T.dls_with_nullspace(kin.J, v, x, 0.0)
-        qd, _ = T.scale_to_velocity_limits(T.merge(qd1, 0.5, nx), vmax)
-        T.clamp_to_position_limits(q, qd, lower, upper, 0.01)
+    tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)
+    prm = fast.pack_params(cfg)
+    qd, dg = np.zeros(robot.nq), np.zeros(6)
+    step = fast.step_compiled if compiled else fast.step_numpy
+    args = (kin.S, kin.J, kin.p, kin.R, goal.position, goal.rotation, q, lower, upper, vmax, kin.points, F,
+            kin.support, kin.descendants, tool, prm, qd, dg)
 
     parts = {
         "pinocchio": _median_us(pin_calls),
         "field sampling": _median_us(lambda: field.sample(pts)),
-        "linear algebra": _median_us(linalg),
+        "linear algebra": _median_us(lambda: step(*args)),
     }
     parts["glue (rest)"] = step_us - sum(parts.values())
+    parts["(numpy step, reference)"] = _median_us(lambda: fast.step_numpy(*args), reps=500)
     return {"step": step_us, **parts, "control_points": float(len(prep["points"]))}
 
 

@@ -163,6 +163,19 @@ def test_kinematics_agree_with_pinocchio(robot, kin):
     assert np.allclose(kin.points, kin.cp.world(robot, q), atol=1e-12)
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+def test_kinematics_follow_every_update(robot, compiled):
+    if compiled and not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba():
+        pytest.skip("numba not installed")
+    k = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=compiled)
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        q = rng.uniform(robot.lower, robot.upper)
+        k.update(q)
+        assert np.allclose(k.points, k.cp.world(robot, q), atol=1e-12)
+        assert np.allclose(k.p, robot.frame_pose(q).translation, atol=1e-12)
+
+
 def test_control_points_cover_every_moving_link(robot):
     cp = place_control_points(robot, 0.12)
     moving = {g.name.rpartition("_")[0] for g in robot.collision_model.geometryObjects if g.parentJoint > 0}

@@ -55,6 +55,7 @@ class ArmKinematics:
         self._tviews = [M.translation for M in self._joints]
         self._Rbuf = np.empty((njoints, 3, 3))
         self._tbuf = np.empty((njoints, 3))
+        self._aliased = self._alias_placements(njoints)
         self.cp = points
         self._cp_joint = np.asarray(points.joint, dtype=int)
         self._cp_local = np.ascontiguousarray(points.local, dtype=float)
@@ -74,6 +75,30 @@ class ArmKinematics:
         for a in ancestors[model.frames[self.frame_id].parentJoint]:
             self.frame_support[idx_v[a]] = 1.0
 
+    def _alias_placements(self, njoints: int) -> bool:
+        """Point ``_Rbuf`` / ``_tbuf`` straight at pinocchio's joint placements when they lie in
+        memory at one fixed stride (an ``std::vector<SE3>``: 9 doubles of column-major rotation, 3
+        of translation), so that no copy is needed per step. The layout is checked here against
+        the ordinary accessors, and the copying path is kept when it does not hold."""
+        import ctypes
+
+        addr = [M.rotation.__array_interface__["data"][0] for M in self._joints]
+        taddr = [M.translation.__array_interface__["data"][0] for M in self._joints]
+        stride = addr[1] - addr[0] if njoints > 1 else 0
+        if (njoints < 2 or stride <= 0 or any(b - a != stride for a, b in zip(addr, addr[1:], strict=False))
+                or any(t - a != 72 for a, t in zip(addr, taddr, strict=True))
+                or not all(M.rotation.flags["F_CONTIGUOUS"] for M in self._joints)):
+            return False
+        raw = (ctypes.c_double * ((stride // 8) * (njoints - 1) + 12)).from_address(addr[0])
+        base = np.ctypeslib.as_array(raw)
+        R = np.lib.stride_tricks.as_strided(base, (njoints, 3, 3), (stride, 8, 24))  # R[j, a, b]
+        t = np.lib.stride_tricks.as_strided(base[9:], (njoints, 3), (stride, 8))
+        ok = all(np.array_equal(R[j], self._Rviews[j]) and np.array_equal(t[j], self._tviews[j])
+                 for j in range(njoints))
+        if ok:
+            self._Rbuf, self._tbuf = R, t
+        return ok
+
     @staticmethod
     def _chain(model: Any, j: int) -> list[int]:
         out = []
@@ -89,8 +114,9 @@ class ArmKinematics:
         pin.updateFramePlacement(self.model, self.data, self.frame_id)
         self.J = pin.getFrameJacobian(self.model, self.data, self.frame_id, pin.LOCAL_WORLD_ALIGNED)
         if len(self._cp_joint):
-            np.stack(self._Rviews, out=self._Rbuf)
-            np.stack(self._tviews, out=self._tbuf)
+            if not self._aliased:
+                np.stack(self._Rviews, out=self._Rbuf)
+                np.stack(self._tviews, out=self._tbuf)
             j = self._cp_joint
             if self._positions is not None:
                 self._positions(self._Rbuf, self._tbuf, j, self._cp_local, self.points)
