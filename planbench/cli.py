@@ -106,10 +106,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     settings = dict(args.set or [])
     problems = planbench.load_problems(args.problem)
+    planner = planbench.make_planner(args.planner, **settings)
+    if args.plot and (len(problems) != 1 or not hasattr(planner, "plot_result")):
+        why = "one problem" if len(problems) != 1 else f"a planner with a figure; {args.planner!r} has none"
+        raise PlanbenchError(f"--plot needs {why}")
     console = Console()
     rows = []
     for problem in problems:
-        result = planbench.plan(problem, args.planner, seed=args.seed, time_limit=args.time_limit, **settings)
+        result = planbench.plan(problem, planner, seed=args.seed, time_limit=args.time_limit)
         if result.status is planbench.PlanStatus.ERROR:
             log.debug("%s", result.info.get("traceback", ""))
         ev = planbench.evaluate(problem, result)
@@ -135,6 +139,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if row["failure"]:
             console.print(f"[bold]{escape(row['problem'])}[/bold] failed: {escape(row['failure'])}", highlight=False)
     console.print(f"{sum(r['success'] for r in rows)}/{len(rows)} solved (validated)")
+    if args.plot:
+        planner.plot_result(problems[0], result, args.plot)
+        console.print(f"figure written to {args.plot}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1, default=_json_default)
@@ -169,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a planner setting (repeatable), e.g. --set timed=false",
     )
     p.add_argument("--json", metavar="FILE", help="also write the metrics as JSON")
+    p.add_argument("--plot", metavar="PNG", help="write the planner's figure of the result (one problem only)")
     p.set_defaults(func=cmd_plan)
 
     import importlib

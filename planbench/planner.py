@@ -111,3 +111,6 @@ class Planner:
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
         raise NotImplementedError
+
+    # Optional: ``plot_result(self, problem, result, path_png)`` writes the planner's own figure of a
+    # result to a PNG; ``planbench plan ... --plot out.png`` calls it when the planner has one.

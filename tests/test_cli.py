@@ -31,3 +31,8 @@ def test_list_shows_planners_robots_and_sets(capsys):
     assert main(["list"]) == 0
     text = capsys.readouterr().out
     assert "straight-line" in text and "panda" in text and "ur5" in text and "mbm" in text
+
+
+def test_plot_needs_a_planner_with_a_figure(capsys):
+    assert main(["plan", "--problem", "mbm:box/0001", "--plot", "x.png"]) == 2
+    assert "'straight-line' has none" in capsys.readouterr().err

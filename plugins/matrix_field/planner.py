@@ -141,6 +141,12 @@ class MatrixFieldPlanner(Planner):
         super().__init__(config, **settings)
         self._prepared: dict[str, Any] | None = None
 
+    def plot_result(self, problem: Problem, result: PlanResult, path_png: Any) -> Any:
+        """The planner's figure of a result (``planbench plan ... --plot out.png``)."""
+        from planbench_plugins.matrix_field.plots import plot_result
+
+        return plot_result(problem, result, path_png, config=self.config)
+
     # --- setup (untimed by the harness, reported as setup time) -----------------------------
     def setup(self, problem: Problem) -> None:
         """Voxelize the scene, build the kernels and (full mode) the whole field, place control
