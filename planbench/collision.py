@@ -52,9 +52,7 @@ class CollisionChecker:
         # Broadphase for in_collision: its own data, so that collisions() results stay apart.
         self._bp_data = robot.model.createData()
         self._bp_geom_data = pin.GeometryData(geom)
-        self._broadphase = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
-            robot.model, geom, self._bp_geom_data
-        )
+        self._broadphase = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(robot.model, geom, self._bp_geom_data)
         # Distances only between robot and obstacles (clearance), never robot-robot.
         self._dist_data = pin.GeometryData(geom)
         self._obstacle_pairs = []

@@ -18,7 +18,7 @@ def boundary_configurations(checker, robot, n, seed=0):
     Q = rng.uniform(robot.lower, robot.upper, size=(200, robot.nq))
     hit = np.array([checker.in_collision_all_pairs(q) for q in Q])
     out = []
-    for a, b in zip(Q[~hit][:n], Q[hit][:n]):
+    for a, b in zip(Q[~hit][:n], Q[hit][:n], strict=False):
         lo, hi = 0.0, 1.0
         for _ in range(25):
             mid = 0.5 * (lo + hi)
