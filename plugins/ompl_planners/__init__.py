@@ -1,0 +1,27 @@
+"""OMPL sampling-based planners as planbench baselines (see :mod:`.base` for how a query runs).
+
+Needs the ``ompl`` package (2.x Python bindings, ``pip install ompl``).
+"""
+
+from __future__ import annotations
+
+try:
+    import ompl  # noqa: F401
+except ImportError as exc:  # pragma: no cover
+    raise ImportError("the OMPL planners need the 'ompl' package: pip install ompl") from exc
+
+from .base import OMPLAnyConfig, OMPLConfig, OMPLPlanner, geometric_planners, planner_parameters
+from .planners import BITstarPlanner, KPIECEPlanner, PRMstarPlanner, RRTConnectPlanner, RRTstarPlanner
+
+__all__ = [
+    "OMPLConfig",
+    "OMPLAnyConfig",
+    "OMPLPlanner",
+    "RRTConnectPlanner",
+    "RRTstarPlanner",
+    "BITstarPlanner",
+    "PRMstarPlanner",
+    "KPIECEPlanner",
+    "geometric_planners",
+    "planner_parameters",
+]

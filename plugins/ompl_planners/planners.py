@@ -1,0 +1,59 @@
+"""The named OMPL baselines: one class per planner, each fixing the OMPL planner it runs.
+
+All share :class:`~.base.OMPLConfig` (``params`` passes the planner's own parameters through).
+Papers:
+
+- RRT-Connect: J. J. Kuffner, S. M. LaValle, "RRT-Connect: An efficient approach to single-query
+  path planning", ICRA 2000.
+- RRT*: S. Karaman, E. Frazzoli, "Sampling-based algorithms for optimal motion planning", IJRR 30(7),
+  2011 (also PRM*).
+- BIT*: J. D. Gammell, S. S. Srinivasa, T. D. Barfoot, "Batch Informed Trees (BIT*)", ICRA 2015.
+- KPIECE: I. A. Sucan, L. E. Kavraki, "Kinodynamic motion planning by interior-exterior cell
+  exploration", WAFR 2008.
+"""
+
+from __future__ import annotations
+
+from .base import OMPLConfig, OMPLPlanner
+
+__all__ = ["RRTConnectPlanner", "RRTstarPlanner", "BITstarPlanner", "PRMstarPlanner", "KPIECEPlanner"]
+
+
+class RRTConnectPlanner(OMPLPlanner):
+    """OMPL ``RRTConnect``: two trees grown towards each other."""
+
+    name = "ompl-rrtconnect"
+    Config = OMPLConfig
+    ompl_planner = "RRTConnect"
+
+
+class RRTstarPlanner(OMPLPlanner):
+    """OMPL ``RRTstar`` (stops at its first solution unless ``optimize=True``)."""
+
+    name = "ompl-rrtstar"
+    Config = OMPLConfig
+    ompl_planner = "RRTstar"
+
+
+class BITstarPlanner(OMPLPlanner):
+    """OMPL ``BITstar`` (stops at its first solution unless ``optimize=True``)."""
+
+    name = "ompl-bitstar"
+    Config = OMPLConfig
+    ompl_planner = "BITstar"
+
+
+class PRMstarPlanner(OMPLPlanner):
+    """OMPL ``PRMstar``. Not exactly reproducible: OMPL searches the roadmap in a second thread."""
+
+    name = "ompl-prmstar"
+    Config = OMPLConfig
+    ompl_planner = "PRMstar"
+
+
+class KPIECEPlanner(OMPLPlanner):
+    """OMPL ``KPIECE1`` on OMPL's default projection of the joint space."""
+
+    name = "ompl-kpiece"
+    Config = OMPLConfig
+    ompl_planner = "KPIECE1"

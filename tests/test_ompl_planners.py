@@ -1,0 +1,191 @@
+"""OMPL baselines: each solves small problems (validated by the harness), same seed -> same path,
+settings are checked, grid mode agrees with the primitives, OMPL stays quiet."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench.collision import CollisionChecker
+from planbench.conformance import blocked_problem, check_planner, trivial_problem
+from planbench.errors import InvalidConfigError, UnknownNameError
+from planbench.planner import PlanStatus
+from planbench.problem import Problem
+from planbench.scene import Obstacle, Scene
+
+pytest.importorskip("ompl")
+
+from planbench_plugins.ompl_planners import (  # noqa: E402
+    BITstarPlanner,
+    KPIECEPlanner,
+    OMPLAnyConfig,
+    OMPLPlanner,
+    PRMstarPlanner,
+    RRTConnectPlanner,
+    RRTstarPlanner,
+    geometric_planners,
+    planner_parameters,
+)
+from planbench_plugins.ompl_planners.grid import grid_checker, grid_for_scene  # noqa: E402
+
+NAMED = [RRTConnectPlanner, RRTstarPlanner, BITstarPlanner, PRMstarPlanner, KPIECEPlanner]
+
+
+@pytest.fixture(scope="module")
+def blocked():
+    return blocked_problem()
+
+
+def solved(problem, planner, **kw):
+    result = planbench.plan(problem, planner, **{"seed": 3, "time_limit": 5.0, **kw})
+    ev = planbench.evaluate(problem, result)
+    assert result.status is PlanStatus.SUCCESS, result.message
+    assert ev.success, ev.failure
+    return result
+
+
+@pytest.mark.parametrize("cls", NAMED, ids=lambda c: c.name)
+def test_each_planner_solves_the_free_problem(cls):
+    result = solved(trivial_problem(), cls)
+    assert result.target == "configuration"
+    assert result.info["ompl_planner"] == cls.ompl_planner
+
+
+@pytest.mark.parametrize(
+    "cls", [RRTConnectPlanner, BITstarPlanner, PRMstarPlanner, KPIECEPlanner], ids=lambda c: c.name
+)
+def test_planners_go_around_an_obstacle(cls, blocked):
+    straight = planbench.plan(blocked, "straight-line")
+    assert straight.status is PlanStatus.COLLISION  # the obstacle is really in the way
+    result = solved(blocked, cls)
+    assert len(result.path) >= 3
+    assert result.info["collision_checks"] > 0
+
+
+def test_any_ompl_planner_by_name(blocked):
+    result = solved(blocked, OMPLPlanner(planner="LBKPIECE1", params={"range": 0.5}))
+    assert result.info["ompl_planner"] == "LBKPIECE1"
+    assert {"RRTConnect", "RRTstar", "BITstar", "PRMstar", "KPIECE1", "AORRTC"} <= set(geometric_planners())
+
+
+def test_simplification_is_on_by_default_and_timed_apart(blocked):
+    on = solved(blocked, RRTConnectPlanner)
+    off = solved(blocked, RRTConnectPlanner, simplify=False)
+    assert on.info["simplify_time"] > 0 and off.info["simplify_time"] == 0.0
+    assert on.info["solve_time"] + on.info["simplify_time"] <= on.planning_time
+    # same seed: the same raw path, which simplification shortens
+    assert planbench.metrics.joint_path_length(on.path) < planbench.metrics.joint_path_length(off.path)
+
+
+@pytest.mark.parametrize("cls", NAMED + [OMPLPlanner], ids=lambda c: c.name)
+def test_conformance(cls):
+    assert check_planner(cls, time_limit=1.0) == []
+
+
+def path_of(problem, planner, seed):
+    return planbench.plan(problem, planner, seed=seed, time_limit=5.0).path
+
+
+def test_same_seed_same_path_in_one_process(blocked):
+    a, b = path_of(blocked, RRTConnectPlanner, 7), path_of(blocked, RRTConnectPlanner, 7)
+    c = path_of(blocked, RRTConnectPlanner, 8)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape != c.shape or not np.allclose(a, c)
+
+
+SCRIPT = """
+import json, sys, planbench
+from planbench.conformance import blocked_problem
+from planbench_plugins.ompl_planners import RRTConnectPlanner, PRMstarPlanner
+r = planbench.plan(blocked_problem(), RRTConnectPlanner, seed=int(sys.argv[1]), time_limit=5.0)
+planbench.plan(blocked_problem(), PRMstarPlanner, seed=1, time_limit=0.5)  # a threaded planner too
+print(json.dumps(r.path.tolist()))
+"""
+
+
+def run_fresh(seed):
+    out = subprocess.run([sys.executable, "-c", SCRIPT, str(seed)], capture_output=True, text=True, check=True)
+    return np.array(json.loads(out.stdout)), out.stderr
+
+
+def test_same_seed_same_path_in_a_fresh_process_and_nothing_on_the_terminal(blocked):
+    fresh, stderr = run_fresh(7)
+    again, _ = run_fresh(7)
+    assert stderr == ""  # no OMPL log lines, no nanobind leak report at exit
+    np.testing.assert_array_equal(fresh, again)
+    np.testing.assert_array_equal(fresh, path_of(blocked, RRTConnectPlanner, 7))  # and the same as in-process
+
+
+def test_log_output_when_asked(capfd):
+    planbench.plan(trivial_problem(), RRTConnectPlanner(log_level="info"), time_limit=1.0)
+    out = capfd.readouterr()
+    assert "RRTConnect" in out.out + out.err
+    planbench.plan(trivial_problem(), RRTConnectPlanner(), time_limit=1.0)
+    out = capfd.readouterr()
+    assert out.out + out.err == ""
+
+
+def test_settings_are_checked():
+    with pytest.raises(UnknownNameError, match="range"):
+        RRTConnectPlanner(params={"rang": 1.0})
+    with pytest.raises(UnknownNameError, match="RRTConnect"):
+        OMPLPlanner(planner="RRTConect")
+    with pytest.raises(InvalidConfigError):
+        RRTConnectPlanner(collision="voxels")
+    with pytest.raises(InvalidConfigError):
+        RRTConnectPlanner(resolution=0.0)
+    assert "range" in planner_parameters("RRTConnect")
+    assert "rewire_factor" in planner_parameters("RRTstar")
+    assert OMPLAnyConfig().planner == "RRTConnect"
+
+
+def test_pose_only_goal_uses_ik_samples(panda, blocked):
+    problem = Problem.create(panda, blocked.scene, blocked.start, goal_pose=blocked.goal.pose, id="test:pose")
+    result = solved(problem, RRTConnectPlanner, time_limit=5.0)
+    assert result.target == "pose"
+    assert result.info["ik_goals"] >= 1
+
+
+def test_invalid_goal_configuration_is_a_status(panda):
+    problem = Problem.create(panda, Scene((), name="empty"), trivial_problem().start, panda.upper + 0.1)
+    result = planbench.plan(problem, RRTConnectPlanner, time_limit=1.0)
+    assert result.status is PlanStatus.INVALID_GOAL
+    assert "limits" in result.message
+
+
+# --- occupancy-grid collision mode ---------------------------------------------------------------
+
+
+def aligned_scene(res):
+    """Boxes whose faces lie on multiples of the grid resolution."""
+    return Scene(
+        (
+            Obstacle("table", "box", position=(0.5, 0.0, 0.1), size=(0.4, 0.8, 0.2)),
+            Obstacle("post", "box", position=(0.3, 0.3, 0.5), size=(0.1, 0.1, 0.6)),
+        ),
+        name="aligned",
+    )
+
+
+@pytest.mark.parametrize("geometry", ["octree", "boxes"])
+def test_grid_mode_agrees_with_primitives_on_an_aligned_scene(panda, geometry):
+    res = 0.05
+    scene = aligned_scene(res)
+    grid = grid_for_scene(scene, res)
+    assert grid.data.sum() == 8 * 16 * 4 + 2 * 2 * 12  # exactly the boxes' cells
+    exact = CollisionChecker(panda, scene)
+    voxels = grid_checker(panda, grid, geometry)
+    Q = np.random.default_rng(0).uniform(panda.lower, panda.upper, size=(400, 7))
+    a = np.array([exact.in_collision(q) for q in Q])
+    b = np.array([voxels.in_collision(q) for q in Q])
+    # configurations touching a box face exactly are measure-zero; away from them both agree
+    np.testing.assert_array_equal(a, b)
+    assert a.any() and not a.all()
+
+
+def test_grid_mode_plans_a_valid_path(blocked):
+    # the grid inflates obstacles by at most a cell: a path free in the grid is free in the scene
+    solved(blocked, RRTConnectPlanner, collision="grid", grid_resolution=0.02)
