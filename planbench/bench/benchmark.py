@@ -1,0 +1,214 @@
+"""Run a suite: expand it into runs, skip those already in the database, run the rest in isolated
+worker processes and write each record as soon as it ends."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from planbench.bench.db import ResultsDB, RunKey
+from planbench.bench.runner import Runner
+from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_planner_class, load_suite, parse_seeds
+from planbench.errors import PlanbenchError, PlannerUnavailableError, UnknownNameError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BenchmarkOutcome", "prepare", "run_benchmark", "select"]
+
+
+@dataclass
+class BenchmarkOutcome:
+    """What a benchmark call did: runs planned in total, skipped (already done), run now, and the
+    wall time [s] of the runs done now (worker start included)."""
+
+    suite: str
+    db_path: str
+    total: int
+    skipped: int
+    ran: int
+    wall_time: float
+    skipped_planners: list[str]
+
+
+def select(
+    suite: Suite | str | Path,
+    planners: Sequence[str] | None = None,
+    problems: Sequence[str] | None = None,
+    seeds: Any = None,
+    time_limit: float | None = None,
+) -> Suite:
+    """The suite narrowed or changed by command-line style options.
+
+    ``planners``: labels of the suite, or registered names / ``"module:Attr"`` not in it (added
+    with default settings); ``problems``: selectors replacing the suite's; ``seeds``: a count, a
+    list or text (``"0,1,2"``, ``"5"``, ``"0-9"``); ``time_limit`` [s].
+    """
+    s = suite if isinstance(suite, Suite) else load_suite(suite)
+    changes: dict[str, Any] = {}
+    if planners:
+        entries = []
+        for name in planners:
+            match = [p for p in s.planners if p.label == name]
+            entries.append(match[0] if match else PlannerEntry(name.rpartition(":")[2], name))
+        changes["planners"] = tuple(entries)
+    if problems:
+        changes["problems"] = tuple(problems)
+    if seeds is not None:
+        changes["seeds"] = parse_seeds(seeds)
+    if time_limit is not None:
+        changes["time_limit"] = float(time_limit)
+    return s.with_changes(**changes) if changes else s
+
+
+def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[str, str]]:
+    """Planners that can run (settings checked here, before any process starts), labels of optional
+    planners skipped with the reason, and each label's planner version."""
+    from planbench.bench.suite import make_planner_instance
+    from planbench.registry import REGISTRY
+
+    usable, skipped, versions = [], [], {}
+    for entry in suite.planners:
+        try:
+            cls = load_planner_class(entry.planner)
+            make_planner_instance(entry.planner, entry.settings)
+        except (PlannerUnavailableError, UnknownNameError, PlanbenchError) as exc:
+            if entry.optional:
+                skipped.append(f"{entry.label}: {exc}")
+                continue
+            raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: {exc}") from exc
+        if ":" not in entry.planner:
+            spec = REGISTRY.spec(entry.planner)
+            versions[entry.label] = f"{spec.distribution} {spec.version}".strip()
+        else:
+            versions[entry.label] = str(getattr(cls, "__module__", ""))
+        fresh = entry.fresh_process or bool(getattr(cls, "fresh_process", False))
+        usable.append(entry if fresh == entry.fresh_process else _with_fresh(entry))
+    return usable, skipped, versions
+
+
+def _with_fresh(entry: PlannerEntry) -> PlannerEntry:
+    from dataclasses import replace
+
+    return replace(entry, fresh_process=True)
+
+
+def prepare(
+    suite: Suite, db: ResultsDB, resume: bool = False, overwrite: bool = False
+) -> tuple[list[dict[str, Any]], int, list[str]]:
+    """Tasks still to run, how many are already done, and the skipped optional planners."""
+    planners, skipped, versions = _check_planners(suite)
+    if not planners:
+        raise PlanbenchError(f"{suite.source}: no planner of the suite can be loaded: " + "; ".join(skipped))
+    refs = expand_problems(suite.problems)
+    stored = db.suite_settings(suite.name)
+    n_before = db.count(suite.name)
+    if n_before and overwrite:
+        db.delete_suite_runs(suite.name)
+        n_before = 0
+    elif n_before and not resume:
+        raise PlanbenchError(
+            f"{db.path} already holds {n_before} runs of suite {suite.name!r}: pass --resume to run only the "
+            "missing ones, --overwrite to replace them, or choose another --out"
+        )
+    if n_before and stored is not None:
+        definition, settings = stored
+        if settings != json.loads(suite.settings_json()):
+            raise PlanbenchError(
+                f"{db.path}: suite {suite.name!r} was run with settings {settings}, now {suite.settings_json()}; "
+                "resuming would mix them: use another --out"
+            )
+        old = {p["label"]: (p["planner"], p["settings"]) for p in definition.get("planners", [])}
+        for p in planners:
+            if p.label in old and old[p.label] != (p.planner, p.settings):
+                raise PlanbenchError(
+                    f"{db.path}: planner {p.label!r} of suite {suite.name!r} was run as {old[p.label]}, now "
+                    f"{(p.planner, p.settings)}; give it another label or use another --out"
+                )
+    definition = suite.to_dict()
+    if stored is not None and n_before:  # keep the union of planners run so far
+        labels = {p.label for p in suite.planners}
+        definition["planners"] = [p for p in stored[0]["planners"] if p["label"] not in labels] + list(
+            definition["planners"]
+        )
+    db.put_suite(suite.name, definition, suite.settings_json())
+    done = db.done_keys(suite.name)
+    tasks = []
+    run_settings = json.loads(suite.settings_json())
+    for entry in planners:
+        for ref in refs:
+            for seed in suite.seeds:
+                key: RunKey = (suite.name, ref.id, entry.label, int(seed))
+                if key in done:
+                    continue
+                tasks.append(
+                    {
+                        "key": key,
+                        "problem_ref": ref.ref,
+                        "family": ref.family,
+                        "planner": entry.planner,
+                        "label": entry.label,
+                        "settings": entry.settings,
+                        "planner_version": versions.get(entry.label, ""),
+                        "seed": int(seed),
+                        "time_limit": suite.time_limit,
+                        "grace": suite.grace,
+                        "setup_timeout": suite.setup_timeout,
+                        "validation_timeout": suite.validation_timeout,
+                        "memory_limit": suite.memory_limit,
+                        "validation": suite.validation,
+                        "fresh_process": entry.fresh_process,
+                        "run_settings": run_settings,
+                    }
+                )
+    # Interleave planners and problems so partial results (and the progress counts) are balanced.
+    tasks.sort(key=lambda t: (t["seed"], t["key"][1], t["label"]))
+    n_done = len(refs) * len(suite.seeds) * len(planners) - len(tasks)
+    return tasks, n_done, skipped
+
+
+def run_benchmark(
+    suite: Suite,
+    out: str | Path,
+    jobs: int | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    on_record: Callable[[dict[str, Any], dict[str, Any]], None] | None = None,
+    on_start: Callable[[int, int, list[str]], None] | None = None,
+) -> BenchmarkOutcome:
+    """Run ``suite`` into the results database ``out`` (see :func:`prepare` for resume rules).
+
+    ``on_start(n_to_run, n_already_done, skipped_planners)`` and ``on_record(task, record)`` let the
+    caller show progress; records are in the database before ``on_record`` is called.
+    """
+    with ResultsDB(out) as db:
+        tasks, n_done, skipped = prepare(suite, db, resume=resume, overwrite=overwrite)
+        if on_start is not None:
+            on_start(len(tasks), n_done, skipped)
+
+        def write(task: dict[str, Any], record: dict[str, Any]) -> None:
+            suite_name, problem, label, seed = task["key"]
+            fields = {
+                "suite": suite_name,
+                "problem": problem,
+                "family": task["family"],
+                "planner": label,
+                "seed": seed,
+                "planner_name": task["planner"],
+                "planner_settings": task["settings"],
+                "planner_version": task["planner_version"],
+                "time_limit": task["time_limit"],
+                "settings": task["run_settings"],
+            }
+            db.add_run(fields, record)
+            if on_record is not None:
+                on_record(task, record)
+
+        t0 = time.perf_counter()
+        Runner(jobs).run(tasks, write)
+        wall = time.perf_counter() - t0
+        return BenchmarkOutcome(suite.name, str(db.path), len(tasks) + n_done, n_done, len(tasks), wall, skipped)

@@ -1,0 +1,241 @@
+"""CLI subcommands of the benchmark: ``bench``, ``report`` and ``export``.
+
+``planbench.cli`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
+takes the parsed arguments and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+__all__ = ["add_commands"]
+
+
+def _csv_list(text: str) -> list[str]:
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
+def add_commands(subparsers: Any) -> None:
+    """Add ``bench``, ``report`` and ``export`` to an argparse subparsers object."""
+    p = subparsers.add_parser(
+        "bench",
+        help="run a benchmark suite (planners x problems x seeds) into a results database",
+        description="Run every planner of a suite on every problem and seed, each run in an isolated "
+        "worker process with hard time limits; every run is validated and written to a SQLite "
+        "database as soon as it ends. Interrupted? Run the same command with --resume.",
+    )
+    p.add_argument("--suite", default="smoke", help="a built-in suite (smoke, mbm) or a suite .toml file")
+    p.add_argument("--planners", type=_csv_list, help="comma-separated labels of the suite, or planner names to add")
+    p.add_argument("--problems", nargs="+", metavar="SELECTOR", help="problem selectors replacing the suite's")
+    p.add_argument("--seeds", help="a count (3), a list (0,1,5) or a range (0-9)")
+    p.add_argument("--jobs", "-j", type=int, default=0, help="worker processes (default: all cores)")
+    p.add_argument("--time-limit", type=float, help="[s] planning time per run")
+    p.add_argument("--out", default="results.db", help="results database (SQLite), default results.db")
+    p.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
+    p.add_argument("--overwrite", action="store_true", help="delete this suite's runs in --out first")
+    p.add_argument("--by", choices=("planner", "family"), default="planner", help="summary grouping")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_bench)
+
+    p = subparsers.add_parser(
+        "report",
+        help="summary tables (terminal, Markdown, CSV), plots and an HTML report of a results database",
+    )
+    p.add_argument("db", help="results database written by `planbench bench`")
+    p.add_argument("--suite", help="only this suite (default: all suites in the database)")
+    p.add_argument(
+        "--by", choices=("planner", "family"), default="planner", help="group by planner, or planner and family"
+    )
+    p.add_argument("--markdown", metavar="FILE", help="write the table as Markdown")
+    p.add_argument("--csv", metavar="FILE", help="write the table as CSV (SI units)")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")
+    p.add_argument("--html", metavar="FILE", help="write one self-contained HTML report")
+    p.set_defaults(func=cmd_report)
+
+    p = subparsers.add_parser(
+        "export",
+        help="export a results database: OMPL benchmark logs, a Planner Arena database, or CSV of every run",
+    )
+    p.add_argument("db", help="results database written by `planbench bench`")
+    p.add_argument("--format", required=True, choices=("ompl-log", "planner-arena", "csv"))
+    p.add_argument(
+        "--out",
+        help="output: a folder of .log files (ompl-log), a .db file (planner-arena), a .csv file "
+        "(default: next to the database)",
+    )
+    p.add_argument("--suite", help="only this suite")
+    p.set_defaults(func=cmd_export)
+
+
+def _by(choice: str) -> tuple[str, ...]:
+    return ("planner", "family") if choice == "family" else ("planner",)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+
+    from planbench.bench.benchmark import run_benchmark, select
+    from planbench.bench.db import ResultsDB
+    from planbench.bench.report import failures, summarize, to_rich
+    from planbench.bench.runner import default_jobs
+
+    console = Console(stderr=False)
+    suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit)
+    jobs = args.jobs or default_jobs()
+    progress = _Progress(console, enabled=not args.no_progress)
+
+    def on_start(n: int, done: int, skipped: list[str]) -> None:
+        for why in skipped:
+            console.print(f"[yellow]skipping optional planner[/yellow] {escape(why)}", highlight=False)
+        console.print(
+            f"suite [bold]{escape(suite.name)}[/bold]: {n + done} runs ({done} already in {escape(args.out)}, "
+            f"{n} to run) on {jobs} worker process{'es' if jobs > 1 else ''}, time limit {suite.time_limit:g} s",
+            highlight=False,
+        )
+        progress.start(n)
+
+    try:
+        outcome = run_benchmark(
+            suite,
+            args.out,
+            jobs=jobs,
+            resume=args.resume,
+            overwrite=args.overwrite,
+            on_record=progress.update,
+            on_start=on_start,
+        )
+    except KeyboardInterrupt:
+        progress.stop()
+        with ResultsDB(args.out) as db:
+            n = db.count(suite.name)
+        console.print(
+            f"interrupted: {n} runs of suite {escape(suite.name)!r} are in {escape(args.out)}; "
+            "run the same command with --resume to do only the missing ones"
+        )
+        return 130
+    progress.stop()
+    console.print(f"{outcome.ran} runs in {outcome.wall_time:.1f} s (wall), results in {escape(args.out)}")
+    with ResultsDB(args.out, create=False) as db:
+        rows = db.rows(suite.name)
+    console.print(to_rich(summarize(rows, _by(args.by)), _by(args.by), title=f"suite {suite.name}"))
+    for line in failures(rows, limit=10):
+        console.print(escape(line), highlight=False)
+    console.print(f"more: planbench report {escape(args.out)} --by family --html report.html")
+    return 0
+
+
+class _Progress:
+    """A rich progress bar with counts of validated successes and failures."""
+
+    def __init__(self, console: Any, enabled: bool = True) -> None:
+        self.console = console
+        self.enabled = enabled
+        self.bar: Any = None
+        self.counts = {"solved": 0, "failed": 0, "error": 0, "timeout": 0, "crash": 0}
+
+    def start(self, total: int) -> None:
+        if not self.enabled or total == 0:
+            return
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(
+            TextColumn("[progress.description]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn(
+                "[green]{task.fields[solved]} solved[/green] [red]{task.fields[failed]} failed[/red]{task.fields[bad]}"
+            ),
+            TimeElapsedColumn(),
+            console=self.console,
+        )
+        self.bar.start()
+        self.task = self.bar.add_task("benchmark", total=total, solved=0, failed=0, bad="")
+
+    def update(self, task: dict[str, Any], record: dict[str, Any]) -> None:
+        ev = record["evaluation"]
+        self.counts["solved" if ev["success"] else "failed"] += 1
+        if ev["status"] in ("error", "timeout", "crash"):
+            self.counts[ev["status"]] += 1
+        if self.bar is None:
+            return
+        bad = ", ".join(f"{self.counts[k]} {k}" for k in ("error", "timeout", "crash") if self.counts[k])
+        self.bar.update(
+            self.task,
+            advance=1,
+            solved=self.counts["solved"],
+            failed=self.counts["failed"],
+            bad=f" ({bad})" if bad else "",
+        )
+
+    def stop(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+            self.bar = None
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+
+    from planbench.bench.db import ResultsDB
+    from planbench.bench.report import failures, summarize, to_csv, to_markdown, to_rich
+
+    console = Console()
+    with ResultsDB(args.db, create=False) as db:
+        rows = db.rows(args.suite)
+    if not rows:
+        console.print(f"{escape(args.db)} holds no runs" + (f" of suite {escape(args.suite)!r}" if args.suite else ""))
+        return 1
+    by = _by(args.by)
+    summary = summarize(rows, by)
+    console.print(to_rich(summary, by, title=f"{args.db}: {len(rows)} runs"))
+    for line in failures(rows, limit=10):
+        console.print(escape(line), highlight=False)
+    if args.markdown:
+        Path(args.markdown).write_text(to_markdown(summary, by))
+        console.print(f"Markdown table written to {escape(args.markdown)}")
+    if args.csv:
+        Path(args.csv).write_text(to_csv(summary))
+        console.print(f"CSV table written to {escape(args.csv)}")
+    if args.plots:
+        from planbench.bench.plots import write_plots
+
+        files = write_plots(rows, args.plots)
+        console.print(f"{len(files)} plots written to {escape(args.plots)}")
+    if args.html:
+        from planbench.bench.html import write_html
+
+        write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}")
+        console.print(f"HTML report written to {escape(args.html)}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from planbench.bench import export
+    from planbench.bench.db import ResultsDB
+
+    db_path = Path(args.db)
+    default = {
+        "ompl-log": db_path.with_suffix("").as_posix() + "-ompl-logs",
+        "planner-arena": db_path.with_suffix("").as_posix() + "-plannerarena.db",
+        "csv": db_path.with_suffix(".csv").as_posix(),
+    }[args.format]
+    out = Path(args.out or default)
+    with ResultsDB(db_path, create=False) as db:
+        rows = db.rows(args.suite)
+    if args.format == "ompl-log":
+        files = export.write_ompl_logs(rows, out)
+        print(f"{len(files)} OMPL benchmark logs written to {out} (one per problem)")
+    elif args.format == "planner-arena":
+        export.write_planner_arena(rows, out)
+        print(f"Planner Arena database written to {out} (open it with `plannerarena {out}`)")
+    else:
+        export.write_runs_csv(rows, out)
+        print(f"{len(rows)} runs written to {out}")
+    return 0

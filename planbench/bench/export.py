@@ -1,0 +1,259 @@
+"""Exports of a results database: OMPL benchmark logs, a Planner Arena database, CSV of every run.
+
+OMPL's benchmark log (the text ``ompl::tools::Benchmark::saveResultsToFile`` writes, read by
+``ompl_benchmark_statistics.py``) holds one *experiment*: one problem with every planner's runs.
+``write_ompl_logs`` therefore writes one ``.log`` file per problem. ``write_planner_arena`` writes
+the SQLite schema that ``ompl_benchmark_statistics.py`` builds from such logs and Planner Arena
+reads (``experiments``, ``plannerConfigs``, ``enums``, ``runs``, ``progress``), directly.
+
+Run properties, in both: OMPL's own names where planbench has the quantity -- ``time`` (planning
+time [s]), ``solved`` (planbench's validated success), ``status`` (an enum over
+:class:`planbench.PlanStatus`), ``approximate solution``, ``correct solution``, ``solution length``
+(joint path length [rad]), ``solution smoothness`` (total turning angle [rad]), ``solution
+clearance`` (min clearance [m]) -- and every other planbench metric as an extra column
+(``setup time``, ``ee path length``, ``duration``, ``seed``, ...). Runs killed or crashed have no
+time; they appear with ``time`` empty and status ``timeout`` or ``crash``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+import sqlite3
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from planbench.planner import PlanStatus
+
+__all__ = ["RUN_PROPERTIES", "write_ompl_logs", "write_planner_arena", "write_runs_csv", "experiments"]
+
+STATUS_ENUM = [s.value for s in PlanStatus]
+
+# (OMPL-style property name, SQL type, function of a planbench row)
+RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
+    ("time", "REAL", lambda r: r["planning_time"]),
+    ("solved", "BOOLEAN", lambda r: int(bool(r["success"]))),
+    ("status", "ENUM", lambda r: STATUS_ENUM.index(r["status"]) if r["status"] in STATUS_ENUM else None),
+    ("approximate solution", "BOOLEAN", lambda r: 0),
+    ("correct solution", "BOOLEAN", lambda r: int(bool(r["success"]))),
+    ("solution length", "REAL", lambda r: r["joint_path_length"]),
+    ("solution smoothness", "REAL", lambda r: r["smoothness"]),
+    ("solution clearance", "REAL", lambda r: r["min_clearance"]),
+    ("planner claimed success", "BOOLEAN", lambda r: int(r["status"] == "success")),
+    ("setup time", "REAL", lambda r: r["setup_time"]),
+    ("ee path length", "REAL", lambda r: r["ee_path_length"]),
+    ("mean clearance", "REAL", lambda r: r["mean_clearance"]),
+    ("duration", "REAL", lambda r: r["duration"]),
+    ("trajectory duration", "REAL", lambda r: r["trajectory_duration"]),
+    ("final position error", "REAL", lambda r: r["final_position_error"]),
+    ("final orientation error", "REAL", lambda r: r["final_orientation_error"]),
+    ("final joint error", "REAL", lambda r: r["final_joint_error"]),
+    ("waypoints", "INTEGER", lambda r: r["n_waypoints"]),
+    ("collision checks", "INTEGER", lambda r: r["collision_checks"]),
+    ("wall time", "REAL", lambda r: r["wall_time"]),
+    ("seed", "INTEGER", lambda r: r["seed"]),
+)
+
+
+def _value(v: Any) -> Any:
+    """None for missing numbers (OMPL writes them as empty or ``nan``)."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return None
+    return v
+
+
+def experiments(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows grouped into OMPL experiments: one per (suite, problem), planners in label order."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["suite"], r["problem"]), []).append(r)
+    out = []
+    for (suite, problem), members in sorted(groups.items()):
+        planners: dict[str, list[dict[str, Any]]] = {}
+        for r in sorted(members, key=lambda r: (r["planner"], r["seed"])):
+            planners.setdefault(r["planner"], []).append(r)
+        settings = _json(members[0].get("settings"))
+        versions = _json(members[0].get("versions"))
+        out.append(
+            {
+                "name": f"{suite}:{problem}" if len(groups) and len({s for s, _ in groups}) > 1 else problem,
+                "suite": suite,
+                "problem": problem,
+                "family": members[0].get("family") or "",
+                "planners": planners,
+                "time_limit": float(members[0].get("time_limit") or 0.0),
+                "memory_limit": float(settings.get("memory_limit", 0.0) or 0.0),
+                "total_time": float(sum(r["wall_time"] for r in members if _value(r.get("wall_time")) is not None)),
+                "host": members[0].get("host") or "unknown",
+                "date": members[0].get("finished") or "",
+                "seed": min(r["seed"] for r in members),
+                "runs_per_planner": max(len(v) for v in planners.values()),
+                "version": versions.get("planbench", "0.0.0") or "0.0.0",
+                "setup": json.dumps({"suite": suite, "problem": problem, "settings": settings}, sort_keys=True),
+                "cpuinfo": versions.get("platform", ""),
+            }
+        )
+    return out
+
+
+def _json(v: Any) -> dict[str, Any]:
+    if isinstance(v, dict):
+        return v
+    try:
+        d = json.loads(v) if v else {}
+    except (TypeError, json.JSONDecodeError):
+        return {}
+    return d if isinstance(d, dict) else {}
+
+
+def _token(text: str) -> str:
+    """One whitespace-free token (OMPL's parser reads names as the last token of a line)."""
+    return re.sub(r"\s+", "_", text.strip()) or "unnamed"
+
+
+def _log_number(v: Any) -> str:
+    v = _value(v)
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def ompl_log(exp: dict[str, Any]) -> str:
+    """The text of one OMPL benchmark log for an experiment of :func:`experiments`."""
+    lines = [
+        f"planbench version {exp['version']}",
+        f"Experiment {_token(exp['name'])}",
+        "1 experiment properties",
+        f"family TEXT = {_token(exp['family']) if exp['family'] else 'none'}",
+        f"Running on {_token(exp['host'])}",
+        f"Starting at {exp['date']}",
+        "<<<|",
+        exp["setup"],
+        "|>>>",
+        "<<<|",
+        exp["cpuinfo"],
+        "|>>>",
+        f"{exp['seed']} is the random seed",
+        f"{exp['time_limit']!r} seconds per run",
+        f"{exp['memory_limit']!r} MB per run",
+        f"{exp['runs_per_planner']} runs per planner",
+        f"{exp['total_time']!r} seconds spent to collect the data",
+        "1 enum type",
+        "status|" + "|".join(STATUS_ENUM),
+        f"{len(exp['planners'])} planners",
+    ]
+    for label, runs in exp["planners"].items():
+        settings = runs[0].get("planner_settings") or "{}"
+        lines += [
+            _token(label),
+            "2 common properties",
+            f"planner = {runs[0].get('planner_name', label)}",
+            f"settings = {settings}",
+            f"{len(RUN_PROPERTIES)} properties for each run",
+            *(f"{name} {sql}" for name, sql, _ in RUN_PROPERTIES),
+            f"{len(runs)} runs",
+            *("".join(f"{_log_number(fn(r))}; " for _, _, fn in RUN_PROPERTIES) for r in runs),
+            ".",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def write_ompl_logs(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path]:
+    """One OMPL benchmark log per problem in ``folder``; returns the files written."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    for exp in experiments(rows):
+        f = out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", exp["name"]) + ".log")
+        f.write_text(ompl_log(exp))
+        files.append(f)
+    return files
+
+
+_ARENA_SCHEMA = """
+CREATE TABLE experiments (id INTEGER PRIMARY KEY AUTOINCREMENT, name VARCHAR(512), totaltime REAL,
+    timelimit REAL, memorylimit REAL, runcount INTEGER, version VARCHAR(128), hostname VARCHAR(1024),
+    cpuinfo TEXT, date DATETIME, seed VARCHAR(24), setup TEXT, family TEXT);
+CREATE TABLE plannerConfigs (id INTEGER PRIMARY KEY AUTOINCREMENT, name VARCHAR(512) NOT NULL, settings TEXT);
+CREATE TABLE enums (name VARCHAR(512), value INTEGER, description TEXT, PRIMARY KEY (name, value));
+CREATE TABLE runs (id INTEGER PRIMARY KEY AUTOINCREMENT, experimentid INTEGER, plannerid INTEGER,
+    FOREIGN KEY (experimentid) REFERENCES experiments(id) ON DELETE CASCADE,
+    FOREIGN KEY (plannerid) REFERENCES plannerConfigs(id) ON DELETE CASCADE);
+CREATE TABLE progress (runid INTEGER, time REAL, PRIMARY KEY (runid, time),
+    FOREIGN KEY (runid) REFERENCES runs(id) ON DELETE CASCADE);
+"""
+
+
+def _column(name: str) -> str:
+    return name.replace(" ", "_")
+
+
+def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """A Planner Arena database at ``path`` (replaced if it exists); see the module docstring."""
+    out = Path(path)
+    if out.exists():
+        out.unlink()
+    conn = sqlite3.connect(str(out))
+    try:
+        with conn:
+            conn.executescript(_ARENA_SCHEMA)
+            for name, sql, _ in RUN_PROPERTIES:
+                conn.execute(f"ALTER TABLE runs ADD {_column(name)} {sql}")
+            conn.executemany("INSERT INTO enums VALUES ('status', ?, ?)", list(enumerate(STATUS_ENUM)))
+            planner_ids: dict[tuple[str, str], int] = {}
+            cols = ["experimentid", "plannerid", *(_column(n) for n, _, _ in RUN_PROPERTIES)]
+            insert = f"INSERT INTO runs ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
+            for exp in experiments(rows):
+                cur = conn.execute(
+                    "INSERT INTO experiments (name, totaltime, timelimit, memorylimit, runcount, version, hostname,"
+                    " cpuinfo, date, seed, setup, family) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
+                    (
+                        _token(exp["name"]),
+                        exp["total_time"],
+                        exp["time_limit"],
+                        exp["memory_limit"],
+                        exp["runs_per_planner"],
+                        f"planbench {exp['version']}",
+                        _token(exp["host"]),
+                        exp["cpuinfo"],
+                        exp["date"],
+                        str(exp["seed"]),
+                        exp["setup"],
+                        exp["family"] or "none",
+                    ),
+                )
+                exp_id = cur.lastrowid
+                for label, runs in exp["planners"].items():
+                    # the same text OMPL's reader makes of the log's common properties
+                    name, conf = runs[0].get("planner_name", label), runs[0].get("planner_settings") or "{}"
+                    settings = f"planner = {name};settings = {conf};"
+                    pkey = (_token(label), settings)
+                    if pkey not in planner_ids:
+                        planner_ids[pkey] = (
+                            conn.execute("INSERT INTO plannerConfigs (name, settings) VALUES (?, ?)", pkey).lastrowid
+                            or 0
+                        )
+                    for r in runs:
+                        conn.execute(
+                            insert, [exp_id, planner_ids[pkey], *(_value(fn(r)) for _, _, fn in RUN_PROPERTIES)]
+                        )
+    finally:
+        conn.close()
+    return out
+
+
+def write_runs_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """Every run as a CSV row: all database columns but the path arrays (SI units, empty for NaN)."""
+    out = Path(path)
+    fields = [k for k in (rows[0] if rows else {}) if k not in ("path", "times")]
+    with out.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()})
+    return out

@@ -1,0 +1,88 @@
+"""One self-contained HTML report: summary tables (per planner, per planner and family), the list of
+failed runs, and every plot embedded as base64 PNG (no external files, no scripts)."""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from planbench.bench.report import FAILURE_STATUSES, METRICS, _cells, _headers, summarize
+
+__all__ = ["write_html", "render_html"]
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 2em; max-width: 1200px; }
+table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.6em; text-align: right; }
+th { background: #f3f3f3; } td.key { text-align: left; font-weight: 600; }
+img { max-width: 48%; margin: 0.5%; border: 1px solid #eee; }
+pre { background: #f8f8f8; padding: 0.5em; overflow-x: auto; font-size: 0.8em; }
+"""
+
+
+def _table(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in _headers(by, METRICS))
+    body = []
+    for s in summary:
+        keys = "".join(f'<td class="key">{html.escape(str(s[c]))}</td>' for c in by)
+        cells = "".join(f"<td>{html.escape(c)}</td>" for c in _cells(s, METRICS))
+        body.append(f"<tr>{keys}{cells}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def render_html(
+    rows: Sequence[dict[str, Any]], title: str = "planbench report", plots_dir: str | Path | None = None
+) -> str:
+    """The report as an HTML string; plots are made in ``plots_dir`` (a temporary folder if None)."""
+    from planbench.bench.plots import write_plots
+
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
+        f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>",
+    ]
+    suites = sorted({r["suite"] for r in rows})
+    planners = sorted({r["planner"] for r in rows})
+    first = rows[0] if rows else {}
+    parts.append(
+        f"<p>{len(rows)} runs; suites: {html.escape(', '.join(suites))}; planners: {html.escape(', '.join(planners))}; "
+        f"host: {html.escape(str(first.get('host', '')))}; generated "
+        f"{datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}.</p>"
+        "<p>Success is planbench's own validation of every path. Metric cells: median [q1, q3] over "
+        "validated successes; success rates with 95% Wilson intervals.</p>"
+    )
+    parts.append("<h2>Per planner</h2>" + _table(summarize(rows, ("planner",)), ("planner",)))
+    parts.append(
+        "<h2>Per planner and family</h2>" + _table(summarize(rows, ("planner", "family")), ("planner", "family"))
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(plots_dir) if plots_dir else Path(tmp)
+        files = write_plots(rows, folder)
+        parts.append("<h2>Plots</h2>")
+        order = sorted(files, key=lambda p: (not p.stem.startswith(("time_to", "success")), p.stem))
+        for f in order:
+            data = base64.b64encode(f.read_bytes()).decode("ascii")
+            parts.append(f'<img alt="{html.escape(f.stem)}" src="data:image/png;base64,{data}">')
+    bad = [r for r in rows if r["status"] in FAILURE_STATUSES]
+    if bad:
+        parts.append(f"<h2>Runs that raised, timed out or crashed ({len(bad)})</h2>")
+        for r in bad[:200]:
+            parts.append(
+                f"<details><summary>{html.escape(r['planner'])} on {html.escape(r['problem'])} seed {r['seed']}: "
+                f"{html.escape(r['status'])}: {html.escape(str(r['message']))}</summary>"
+                f"<pre>{html.escape(str(r.get('traceback') or '(no traceback)'))}</pre></details>"
+            )
+    versions = first.get("versions", "")
+    parts.append(f"<h2>Versions</h2><pre>{html.escape(str(versions))}</pre></body></html>")
+    return "\n".join(parts)
+
+
+def write_html(rows: Sequence[dict[str, Any]], path: str | Path, title: str = "planbench report") -> Path:
+    """Write :func:`render_html` to ``path``."""
+    out = Path(path)
+    out.write_text(render_html(rows, title))
+    return out

@@ -1,0 +1,172 @@
+"""Summary tables of a results database: per planner (and per family), success rate with a Wilson
+confidence interval, and the median and quartiles of each metric over the runs that succeeded.
+
+Success is planbench's validated success (the path was re-checked), never the planner's claim.
+Metrics of failed runs are left out of the medians (a failed run's path length means nothing);
+the status counts say how runs failed.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["METRICS", "Metric", "wilson_interval", "summarize", "to_markdown", "to_csv", "to_rich"]
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A column of the results: its name, a label with display unit, and the SI-to-display factor."""
+
+    name: str
+    label: str
+    scale: float = 1.0
+    short: str = ""
+    lower_is_better: bool = True
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("planning_time", "planning time [ms]", 1e3, "time [ms]"),
+    Metric("setup_time", "setup time [ms]", 1e3, "setup [ms]"),
+    Metric("joint_path_length", "joint path length [rad]", 1.0, "joint len [rad]"),
+    Metric("ee_path_length", "EE path length [m]", 1.0, "EE len [m]"),
+    Metric("min_clearance", "min clearance [mm]", 1e3, "clearance [mm]", lower_is_better=False),
+    Metric("duration", "duration at velocity limits [s]", 1.0, "duration [s]"),
+)
+TERMINAL_METRICS = tuple(m for m in METRICS if m.name != "setup_time")
+FAILURE_STATUSES = ("error", "timeout", "crash")
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for the default ``z``).
+
+    Unlike the normal approximation it stays inside [0, 1] and is sensible at 0 or n successes.
+    """
+    if n <= 0:
+        return (math.nan, math.nan)
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _quartiles(values: Sequence[float]) -> tuple[float, float, float]:
+    a = np.asarray([v for v in values if v is not None and not math.isnan(v)], dtype=float)
+    if a.size == 0:
+        return (math.nan, math.nan, math.nan)
+    q1, med, q3 = np.percentile(a, [25, 50, 75])
+    return (float(med), float(q1), float(q3))
+
+
+def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",)) -> list[dict[str, Any]]:
+    """One summary dict per group of ``rows`` (grouped by the columns ``by``), in first-seen order.
+
+    Keys: the ``by`` columns, ``runs``, ``solved``, ``success_rate``, ``success_ci_low``,
+    ``success_ci_high``, a count per failure status (``error``, ``timeout``, ``crash``), and for
+    each metric ``<name>_median``, ``<name>_q1``, ``<name>_q3`` in SI units over solved runs.
+    """
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r.get(c, "") for c in by), []).append(r)
+    out = []
+    for key, members in sorted(groups.items(), key=lambda kv: tuple(str(k) for k in kv[0])):
+        n = len(members)
+        solved = [r for r in members if r["success"]]
+        lo, hi = wilson_interval(len(solved), n)
+        s: dict[str, Any] = dict(zip(by, key, strict=True))
+        s.update(runs=n, solved=len(solved), success_rate=len(solved) / n, success_ci_low=lo, success_ci_high=hi)
+        for status in FAILURE_STATUSES:
+            s[status] = sum(1 for r in members if r["status"] == status)
+        for m in METRICS:
+            med, q1, q3 = _quartiles([r.get(m.name, math.nan) for r in solved])
+            s[f"{m.name}_median"], s[f"{m.name}_q1"], s[f"{m.name}_q3"] = med, q1, q3
+        out.append(s)
+    return out
+
+
+def _num(v: float, scale: float = 1.0) -> str:
+    if v is None or math.isnan(v):
+        return "-"
+    v = v * scale
+    return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def _cells(s: dict[str, Any], metrics: Sequence[Metric]) -> list[str]:
+    rate = f"{100 * s['success_rate']:.0f}% [{100 * s['success_ci_low']:.0f}, {100 * s['success_ci_high']:.0f}]"
+    fails = ", ".join(f"{s[k]} {k}" for k in FAILURE_STATUSES if s[k]) or "-"
+    cells = [f"{s['solved']}/{s['runs']}", rate, fails]
+    for m in metrics:
+        med = s[f"{m.name}_median"]
+        cells.append(
+            "-"
+            if math.isnan(med)
+            else f"{_num(med, m.scale)} [{_num(s[f'{m.name}_q1'], m.scale)}, {_num(s[f'{m.name}_q3'], m.scale)}]"
+        )
+    return cells
+
+
+def _headers(by: Sequence[str], metrics: Sequence[Metric], short: bool = False) -> list[str]:
+    labels = [(m.short or m.label) if short else m.label for m in metrics]
+    return [*by, "solved", "success [95% CI]", "error/timeout/crash" if short else "errors, timeouts, crashes", *labels]
+
+
+def to_markdown(
+    summary: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",), metrics: Sequence[Metric] = METRICS
+) -> str:
+    """A Markdown table; metric cells are ``median [q1, q3]`` over solved runs."""
+    head = _headers(by, metrics)
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    for s in summary:
+        lines.append("| " + " | ".join([*(str(s[c]) for c in by), *_cells(s, metrics)]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(summary: Sequence[dict[str, Any]]) -> str:
+    """The summary as CSV with one column per statistic, SI units (no display scaling)."""
+    if not summary:
+        return ""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(summary[0]), lineterminator="\n")
+    writer.writeheader()
+    for s in summary:
+        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in s.items()})
+    return buf.getvalue()
+
+
+def to_rich(
+    summary: Sequence[dict[str, Any]],
+    by: Sequence[str] = ("planner",),
+    title: str = "",
+    metrics: Sequence[Metric] = TERMINAL_METRICS,
+) -> Any:
+    """A rich Table for the terminal (short headers, no setup time)."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    table = Table(
+        title=escape(title) if title else None,
+        title_justify="left",
+        caption=escape("metrics: median [q1, q3] over validated successes"),
+        caption_justify="left",
+    )
+    for i, h in enumerate(_headers(by, metrics, short=True)):
+        table.add_column(escape(h), justify="left" if i < len(by) else "right", no_wrap=i < len(by))
+    for s in summary:
+        table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics))
+    return table
+
+
+def failures(rows: Sequence[dict[str, Any]], limit: int = 20) -> list[str]:
+    """One line per error/timeout/crash run (its key and message), at most ``limit``."""
+    out = []
+    for r in rows:
+        if r["status"] in FAILURE_STATUSES:
+            out.append(f"{r['planner']} on {r['problem']} seed {r['seed']}: {r['status']}: {r['message']}")
+    return out[:limit] + ([f"... and {len(out) - limit} more"] if len(out) > limit else [])

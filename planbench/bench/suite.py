@@ -1,0 +1,347 @@
+"""Benchmark suites: which problems, planners (with settings, under labels), seeds and limits.
+
+A suite is a small TOML file (``planbench-suite/1``)::
+
+    [suite]
+    name = "my-suite"                 # the key under which results are stored
+    description = "free text"
+    problems = ["mbm:box/0001-0010", "mbm:cage", "my_problems/"]   # selectors, see load_problems
+    seeds = [0, 1, 2]                 # a list, or a count n meaning 0 .. n-1
+    time_limit = 5.0                  # [s] planning time per run (setup is timed apart)
+    memory_limit = 0                  # [MiB] address space per worker process, 0: no limit
+    setup_timeout = 120.0             # [s] hard limit on loading the problem and planner setup
+    grace = 5.0                       # [s] slack past time_limit before a planning run is killed
+    validation_timeout = 300.0        # [s] hard limit on validating one path
+
+    [validation]                      # optional: planbench.ValidationSettings fields
+    collision_resolution = 0.01
+
+    [[planners]]
+    label = "mf-default"              # unique in the suite; defaults to the planner name
+    planner = "matrix-field"          # a registered name or a "module:Attr" entry point
+    settings = { }                    # the planner's Config fields
+    optional = false                  # true: skip (with a warning) when it cannot be loaded
+    fresh_process = false             # true: every run in a new process (process-wide RNGs, e.g. OMPL)
+
+The same planner may appear several times under different labels with different settings. The
+built-in suites (``smoke``, ``mbm``) ship in ``planbench/bench/suites``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from planbench.errors import PlanbenchError, UnknownNameError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = [
+    "PlannerEntry",
+    "ProblemRef",
+    "Suite",
+    "SuiteFileError",
+    "builtin_suites",
+    "expand_problems",
+    "load_suite",
+    "load_planner_class",
+]
+
+SUITE_FORMAT = "planbench-suite/1"
+
+
+class SuiteFileError(PlanbenchError):
+    """A suite file that cannot be used; names the file and what is wrong."""
+
+    def __init__(self, source: str, problem: str) -> None:
+        self.source = source
+        self.problem = problem
+        super().__init__(f"{source}: {problem}")
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    """One planner of a suite: ``planner`` (a registered name or ``"module:Attr"``) with
+    ``settings``, stored under ``label``."""
+
+    label: str
+    planner: str
+    settings: dict[str, Any] = field(default_factory=dict)
+    optional: bool = False
+    fresh_process: bool = False
+
+
+@dataclass(frozen=True)
+class ProblemRef:
+    """A problem as workers find it: ``ref`` is what ``load_problems`` takes (an MBM id or a file)."""
+
+    ref: str
+    id: str
+    family: str
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A benchmark definition (see the module docstring for the file format and units)."""
+
+    name: str
+    problems: tuple[str, ...]
+    planners: tuple[PlannerEntry, ...]
+    seeds: tuple[int, ...] = (0,)
+    time_limit: float = 5.0
+    memory_limit: float = 0.0
+    setup_timeout: float = 120.0
+    grace: float = 5.0
+    validation_timeout: float = 300.0
+    validation: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+    source: str = "<python>"
+
+    def __post_init__(self) -> None:
+        def bad(problem: str) -> SuiteFileError:
+            return SuiteFileError(self.source, problem)
+
+        if not self.name or not isinstance(self.name, str):
+            raise bad("[suite] name must be a non-empty string")
+        if not self.problems:
+            raise bad("[suite] problems is empty: give at least one selector, e.g. 'mbm:box/0001'")
+        if not self.planners:
+            raise bad("no [[planners]] given")
+        if not self.seeds:
+            raise bad("[suite] seeds is empty")
+        for name in ("time_limit", "setup_timeout", "grace", "validation_timeout"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise bad(f"[suite] {name} must be a number > 0 [s], got {v!r}")
+        if not (isinstance(self.memory_limit, (int, float)) and self.memory_limit >= 0):
+            raise bad(f"[suite] memory_limit must be >= 0 [MiB], got {self.memory_limit!r}")
+        labels = [p.label for p in self.planners]
+        dupes = sorted({x for x in labels if labels.count(x) > 1})
+        if dupes:
+            raise bad(f"planner label(s) {dupes} appear more than once; give each entry its own label")
+        from planbench.validate import ValidationSettings
+
+        try:
+            ValidationSettings(**self.validation)
+        except (TypeError, ValueError) as exc:
+            known = [f.name for f in dataclasses.fields(ValidationSettings)]
+            raise bad(f"[validation]: {exc} (fields: {', '.join(known)})") from exc
+
+    def with_changes(self, **changes: Any) -> Suite:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["format"] = SUITE_FORMAT
+        return d
+
+    def settings_json(self) -> str:
+        """The settings that change results (limits, validation), as canonical JSON."""
+        keys = ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout", "validation")
+        return json.dumps({k: getattr(self, k) for k in keys}, sort_keys=True)
+
+    def entry(self, label: str) -> PlannerEntry:
+        for p in self.planners:
+            if p.label == label:
+                return p
+        raise UnknownNameError("planner label in suite " + repr(self.name), label, [p.label for p in self.planners])
+
+
+_SUITE_KEYS = {
+    "name",
+    "description",
+    "problems",
+    "seeds",
+    "time_limit",
+    "memory_limit",
+    "setup_timeout",
+    "grace",
+    "validation_timeout",
+    "format",
+}
+_PLANNER_KEYS = {"label", "planner", "settings", "optional", "fresh_process"}
+
+
+def builtin_suites() -> dict[str, Path]:
+    """Names of the suites shipped with planbench, and their files."""
+    folder = resources.files("planbench.bench") / "suites"
+    return {Path(str(f)).stem: Path(str(f)) for f in folder.iterdir() if str(f).endswith(".toml")}
+
+
+def load_suite(name_or_path: str | Path) -> Suite:
+    """A built-in suite by name (``smoke``, ``mbm``) or a suite TOML file."""
+    text = str(name_or_path)
+    builtins = builtin_suites()
+    if text in builtins:
+        return parse_suite(builtins[text].read_text(), source=f"built-in suite {text!r} ({builtins[text]})")
+    path = Path(text)
+    if path.is_file():
+        try:
+            content = path.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SuiteFileError(str(path), f"cannot read: {exc}") from exc
+        return parse_suite(content, source=str(path))
+    if path.suffix in (".toml", ".tml") or "/" in text:
+        raise SuiteFileError(text, "no such file")
+    raise UnknownNameError("suite (built-in name or .toml file)", text, list(builtins))
+
+
+def parse_suite(content: str, source: str = "<string>") -> Suite:
+    """A :class:`Suite` from TOML text; errors name ``source`` and the offending key."""
+    try:
+        data = tomllib.loads(content)
+    except tomllib.TOMLDecodeError as exc:
+        raise SuiteFileError(source, f"not valid TOML: {exc}") from exc
+    unknown_tables = set(data) - {"suite", "planners", "validation"}
+    if unknown_tables:
+        raise SuiteFileError(
+            source, f"unknown table(s) {sorted(unknown_tables)}; use [suite], [[planners]], [validation]"
+        )
+    head = data.get("suite")
+    if not isinstance(head, dict):
+        raise SuiteFileError(source, "missing [suite] table (name, problems, seeds, time_limit, ...)")
+    unknown = set(head) - _SUITE_KEYS
+    if unknown:
+        raise SuiteFileError(source, f"[suite] has unknown key(s) {sorted(unknown)}; known: {sorted(_SUITE_KEYS)}")
+    if head.get("format", SUITE_FORMAT) != SUITE_FORMAT:
+        raise SuiteFileError(source, f"[suite] format {head['format']!r} is not {SUITE_FORMAT!r}")
+    problems = head.get("problems", [])
+    if isinstance(problems, str):
+        problems = [problems]
+    if not isinstance(problems, list) or not all(isinstance(p, str) for p in problems):
+        raise SuiteFileError(source, "[suite] problems must be a list of selector strings")
+    seeds = parse_seeds(head.get("seeds", [0]), source)
+    planners_raw = data.get("planners", [])
+    if not isinstance(planners_raw, list):
+        raise SuiteFileError(source, "planners must be an array of tables: [[planners]]")
+    planners = []
+    for i, entry in enumerate(planners_raw, start=1):
+        where = f"[[planners]] entry {i}"
+        if not isinstance(entry, dict):
+            raise SuiteFileError(source, f"{where} is not a table")
+        unknown = set(entry) - _PLANNER_KEYS
+        if unknown:
+            raise SuiteFileError(
+                source, f"{where} has unknown key(s) {sorted(unknown)}; known: {sorted(_PLANNER_KEYS)}"
+            )
+        if not isinstance(entry.get("planner"), str) or not entry["planner"]:
+            raise SuiteFileError(source, f'{where} needs planner = "<registered name or module:Attr>"')
+        settings = entry.get("settings", {})
+        if not isinstance(settings, dict):
+            raise SuiteFileError(source, f"{where}: settings must be a table")
+        label = entry.get("label", entry["planner"].rpartition(":")[2])
+        planners.append(
+            PlannerEntry(
+                str(label),
+                entry["planner"],
+                dict(settings),
+                bool(entry.get("optional", False)),
+                bool(entry.get("fresh_process", False)),
+            )
+        )
+    validation = data.get("validation", {})
+    if not isinstance(validation, dict):
+        raise SuiteFileError(source, "[validation] must be a table")
+    kwargs = {
+        k: head[k] for k in ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout") if k in head
+    }
+    return Suite(
+        name=head.get("name", ""),
+        description=str(head.get("description", "")),
+        problems=tuple(problems),
+        planners=tuple(planners),
+        seeds=seeds,
+        validation=dict(validation),
+        source=source,
+        **kwargs,
+    )
+
+
+def parse_seeds(value: Any, source: str = "--seeds") -> tuple[int, ...]:
+    """Seeds from a list of ints, a count ``n`` (0..n-1), or text ``"0,1,5"`` / ``"3"`` / ``"0-9"``."""
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            if "," in text:
+                value = [int(x) for x in text.split(",") if x.strip()]
+            elif "-" in text[1:]:
+                lo, _, hi = text.partition("-")
+                value = list(range(int(lo), int(hi) + 1))
+            else:
+                value = int(text)
+        except ValueError as exc:
+            raise SuiteFileError(source, f"seeds {value!r}: use a count (3), a list (0,1,5) or a range (0-9)") from exc
+    if isinstance(value, bool):
+        raise SuiteFileError(source, "seeds must be a count or a list of integers")
+    if isinstance(value, int):
+        if value < 1:
+            raise SuiteFileError(source, f"a seed count must be >= 1, got {value}")
+        return tuple(range(value))
+    if isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
+        if len(set(value)) != len(value):
+            raise SuiteFileError(source, f"seeds {value} repeat a value")
+        if any(s < 0 for s in value):
+            raise SuiteFileError(source, f"seeds {value} must be >= 0")
+        return tuple(value)
+    raise SuiteFileError(source, f"seeds must be a count or a non-empty list of integers, got {value!r}")
+
+
+def load_planner_class(planner: str) -> type:
+    """The class named by a registered planner name or a ``"module:Attr"`` entry point."""
+    if ":" in planner:
+        module_name, _, attr = planner.partition(":")
+        try:
+            obj: Any = importlib.import_module(module_name)
+            for part in attr.split("."):
+                obj = getattr(obj, part)
+        except (ImportError, AttributeError) as exc:
+            raise PlanbenchError(f"cannot load planner entry point {planner!r}: {type(exc).__name__}: {exc}") from exc
+        return obj  # type: ignore[no-any-return]
+    from planbench.registry import REGISTRY
+
+    return REGISTRY.get(planner)
+
+
+def make_planner_instance(planner: str, settings: dict[str, Any]) -> Any:
+    """An instance of ``planner`` with ``settings`` (a registered name or ``"module:Attr"``)."""
+    if ":" in planner:
+        from planbench.harness import resolve_planner
+
+        try:
+            return resolve_planner(load_planner_class(planner), **settings)
+        except (TypeError, ValueError) as exc:
+            raise PlanbenchError(f"planner {planner!r}: bad settings {settings}: {exc}") from exc
+    from planbench.registry import REGISTRY
+
+    return REGISTRY.make(planner, **settings)
+
+
+def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
+    """The problems named by ``selectors``, in order, without repeats."""
+    from planbench.datasets import load_problems
+    from planbench.problem import Problem
+
+    out: dict[str, ProblemRef] = {}
+    for sel in selectors:
+        path = Path(sel)
+        if not sel.startswith("mbm") and (path.is_dir() or path.is_file()):
+            files = sorted(path.glob("*.json")) if path.is_dir() else [path]
+            if not files:
+                raise PlanbenchError(f"{path}: folder holds no problem .json files")
+            for f in files:
+                p = Problem.load(f)
+                out.setdefault(p.id, ProblemRef(str(f.resolve()), p.id, str(p.metadata.get("family", ""))))
+        else:
+            for p in load_problems(sel):
+                out.setdefault(p.id, ProblemRef(p.id, p.id, str(p.metadata.get("family", ""))))
+    return list(out.values())

@@ -1,0 +1,105 @@
+"""Exports: OMPL benchmark logs (parsed with OMPL's own reader from the ompl wheel), the Planner
+Arena database (loaded with the plannerarena package's reader when installed), CSV of every run.
+
+Records are made in-process with the worker's own ``run_one`` (no worker processes needed here)."""
+
+import csv
+import sqlite3
+
+import pytest
+
+from planbench.bench.db import ResultsDB
+from planbench.bench.export import RUN_PROPERTIES, write_ompl_logs, write_planner_arena, write_runs_csv
+from planbench.bench.runner import failure_record
+from planbench.bench.worker import run_one
+
+PROBLEMS = {"mbm:table_pick/0001": "table_pick", "mbm:box/0001": "box"}
+
+
+@pytest.fixture(scope="module")
+def rows(tmp_path_factory):
+    db_path = tmp_path_factory.mktemp("export") / "r.db"
+    with ResultsDB(db_path) as db:
+        for problem, family in PROBLEMS.items():
+            for label, planner in (("straight-line", "straight-line"), ("noisy", "bench_planners:NoisyPlanner")):
+                for seed in (0, 1):
+                    task = dict(
+                        problem_ref=problem, planner=planner, settings={}, seed=seed, time_limit=1.0, validation={}
+                    )
+                    fields = dict(
+                        suite="s",
+                        problem=problem,
+                        family=family,
+                        planner=label,
+                        seed=seed,
+                        planner_name=planner,
+                        planner_settings={},
+                        time_limit=1.0,
+                        settings={"time_limit": 1.0},
+                    )
+                    db.add_run(fields, run_one(task))
+        fields = dict(
+            suite="s",
+            problem="mbm:box/0001",
+            family="box",
+            planner="crashy",
+            seed=0,
+            planner_name="x:Y",
+            planner_settings={},
+            time_limit=1.0,
+            settings={"time_limit": 1.0},
+        )
+        db.add_run(fields, failure_record("crash", "worker process died with signal SIGSEGV (11) during plan"))
+        return db.rows()
+
+
+def _runs(path):
+    conn = sqlite3.connect(path)
+    conn.row_factory = sqlite3.Row
+    out = conn.execute(
+        "SELECT experiments.name AS experiment, plannerConfigs.name AS planner, runs.* FROM runs "
+        "JOIN experiments ON experiments.id = runs.experimentid "
+        "JOIN plannerConfigs ON plannerConfigs.id = runs.plannerid "
+        "ORDER BY experiment, planner, seed"
+    ).fetchall()
+    conn.close()
+    return [{k: r[k] for k in r.keys() if k not in ("id", "experimentid", "plannerid")} for r in out]
+
+
+def test_ompl_log_parses_with_ompls_own_reader_and_matches_the_planner_arena_export(rows, tmp_path):
+    tools = pytest.importorskip("ompl.tools")
+    logs = write_ompl_logs(rows, tmp_path / "logs")
+    assert sorted(f.name for f in logs) == ["mbm_box_0001.log", "mbm_table_pick_0001.log"]
+    tools.readBenchmarkLog(str(tmp_path / "from_logs.db"), [str(f) for f in logs], False)
+    write_planner_arena(rows, tmp_path / "arena.db")
+    from_logs, direct = _runs(tmp_path / "from_logs.db"), _runs(tmp_path / "arena.db")
+    assert len(direct) == len(rows) == 9
+    assert from_logs == direct  # OMPL's reader of our logs gives exactly our Planner Arena tables
+    crash = [r for r in direct if r["planner"] == "crashy"][0]
+    assert crash["time"] is None and crash["solved"] == 0
+    ok = [r for r in direct if r["planner"] == "straight-line" and r["experiment"] == "mbm:table_pick/0001"]
+    assert [r["solved"] for r in ok] == [1, 1] and ok[0]["time"] > 0 and ok[0]["solution_length"] > 0
+    names = {r[1] for r in sqlite3.connect(tmp_path / "arena.db").execute("PRAGMA table_info(runs)")}
+    assert {"time", "solved", "status", "solution_length", "solution_clearance", "ee_path_length", "seed"} <= names
+    assert len(names) == 3 + len(RUN_PROPERTIES)
+
+
+def test_planner_arena_database_loads_with_plannerarenas_reader(rows, tmp_path):
+    database = pytest.importorskip("plannerarena.database", reason="pip install plannerarena")
+    write_planner_arena(rows, tmp_path / "arena.db")
+    data = database.load_database(tmp_path / "arena.db")
+    assert sorted(data["problem_names"]) == ["mbm:box/0001", "mbm:table_pick/0001"]
+    assert data["runs"].height == 9
+    assert {"time", "solved", "status", "solution length", "setup time"} <= set(data["attributes"])
+    assert data["parameters"] == ["family"]
+    assert set(data["planner_configs"]["planner"].cast(str).to_list()) == {"straight-line", "noisy", "crashy"}
+    assert "crash" in data["enums"]["description"].to_list()
+
+
+def test_runs_csv_has_every_run_and_no_path_blobs(rows, tmp_path):
+    write_runs_csv(rows, tmp_path / "runs.csv")
+    with open(tmp_path / "runs.csv") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 9
+    assert "path" not in table[0] and {"planning_time", "status", "traceback", "seed"} <= set(table[0])
+    assert [r["status"] for r in table if r["planner"] == "crashy"] == ["crash"]
