@@ -13,7 +13,9 @@ Schema (``planbench-results/1``)::
           joint_path_length [rad], ee_path_length [m], min_clearance [m], duration [s], ...>,
          checks (JSON), info (JSON planner diagnostics),
          path BLOB, times BLOB,       -- float64 .npy bytes (shape and dtype included), NULL without
-         wall_time [s] (plan + validate in the worker), worker_pid, host,
+         wall_time [s] (problem loading + setup + plan + validate, in the worker),
+         validation_time [s] (planbench.evaluate), elapsed [s] (dispatch to record, seen by the parent),
+         worker_pid, host,
          versions (JSON: python, planbench, numpy, scipy, pin, coal, ompl, ...),
          settings (JSON: limits and validation of the run), finished (ISO time UTC))
 
@@ -61,6 +63,8 @@ _RUN_COLS: tuple[tuple[str, str], ...] = (
     ("path", "BLOB"),
     ("times", "BLOB"),
     ("wall_time", "REAL"),
+    ("validation_time", "REAL"),
+    ("elapsed", "REAL"),
     ("worker_pid", "INTEGER"),
     ("host", "TEXT"),
     ("versions", "TEXT"),
@@ -217,6 +221,8 @@ class ResultsDB:
             path=array_to_blob(record.get("path")),
             times=array_to_blob(record.get("times")),
             wall_time=record.get("wall_time"),
+            validation_time=record.get("validation_time"),
+            elapsed=record.get("elapsed"),
             worker_pid=record.get("pid"),
             host=record.get("host") or self.host,
             versions=self.versions,
@@ -255,7 +261,12 @@ class ResultsDB:
 
 
 def _float_columns() -> set[str]:
-    return {n for n, sql in _evaluation_columns() if sql == "REAL"} | {"time_limit", "wall_time"}
+    return {n for n, sql in _evaluation_columns() if sql == "REAL"} | {
+        "time_limit",
+        "wall_time",
+        "validation_time",
+        "elapsed",
+    }
 
 
 _FLOAT_COLUMNS = _float_columns()

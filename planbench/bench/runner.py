@@ -20,6 +20,9 @@ Design (asv's and OMPL Benchmark's idea, our own code):
   there). An exception in the planner is the harness's ``error`` record with its traceback.
   ``memory_limit`` [MiB] caps a worker's address space (``RLIMIT_AS``), so exhausting it raises
   ``MemoryError`` in the planner (an ``error``) instead of taking the machine down.
+- **One thread per worker by default** (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
+  ``MKL_NUM_THREADS``, ``NUMBA_NUM_THREADS`` set in the worker): ``--jobs`` workers use ``--jobs``
+  cores, and results do not depend on how many threads a parallel reduction had.
 - The parent is the only database writer: it hands each record to ``on_record`` as soon as the run
   ends.
 """
@@ -71,6 +74,8 @@ def failure_record(status: str, message: str, traceback: str = "", planning_time
         "times": None,
         "info": {},
         "wall_time": math.nan,
+        "validation_time": math.nan,
+        "elapsed": math.nan,
         "pid": None,
         "host": "",
     }
@@ -96,8 +101,9 @@ class _Slot:
 class Runner:
     """Runs tasks (dicts built by :mod:`planbench.bench.benchmark`) on ``jobs`` worker processes."""
 
-    def __init__(self, jobs: int | None = None, start_method: str = "spawn") -> None:
+    def __init__(self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1) -> None:
         self.jobs = default_jobs() if not jobs else int(jobs)
+        self.threads = int(threads_per_worker)
         if self.jobs < 1:
             raise PlanbenchError(f"--jobs must be >= 1, got {jobs}")
         self.ctx = mp.get_context(start_method)
@@ -133,12 +139,16 @@ class Runner:
                     now = time.monotonic()
                     if slot.task is not None and now > slot.deadline:
                         self._kill(slot, dump_stack=True)
-                        on_record(slot.task, self._timeout_record(slot, now))
+                        record = self._timeout_record(slot, now)
+                        record["elapsed"] = now - slot.dispatched
+                        on_record(slot.task, record)
                         slot.task = None
                     elif not slot.proc.is_alive():
                         self._drain(slot, on_record)
                         if slot.task is not None:
-                            on_record(slot.task, self._crash_record(slot))
+                            record = self._crash_record(slot)
+                            record["elapsed"] = now - slot.dispatched
+                            on_record(slot.task, record)
                             slot.task = None
                         elif not slot.ready:
                             start_failures += 1
@@ -169,7 +179,7 @@ class Runner:
         path = os.path.join(self._tmp, f"worker-{self._count}.stderr")
         parent, child = self.ctx.Pipe(duplex=True)
         proc = self.ctx.Process(  # type: ignore[attr-defined]
-            target=worker_main, args=(child, path), daemon=True, name=f"planbench-worker-{self._count}"
+            target=worker_main, args=(child, path, self.threads), daemon=True, name=f"planbench-worker-{self._count}"
         )
         proc.start()
         child.close()
@@ -215,7 +225,9 @@ class Runner:
                 elif msg[0] == "done" and slot.task is not None and msg[1] == slot.task["key"]:
                     task, slot.task = slot.task, None
                     slot.deadline = math.inf
-                    on_record(task, msg[2])
+                    record = msg[2]
+                    record["elapsed"] = time.monotonic() - slot.dispatched
+                    on_record(task, record)
         except (EOFError, OSError):
             pass  # the worker died; its slot is handled by the caller
 

@@ -98,6 +98,7 @@ def run_one(task: dict[str, Any], notify: Any = lambda phase: None) -> dict[str,
         )
         tb = str(result.info.get("traceback", ""))
     notify("validate")
+    t1 = time.perf_counter()
     if problem is not None:
         evaluation = planbench.evaluate(problem, result, ValidationSettings(**task["validation"])).as_dict()
     else:
@@ -112,6 +113,7 @@ def run_one(task: dict[str, Any], notify: Any = lambda phase: None) -> dict[str,
         "times": None if result.times is None else np.asarray(result.times),
         "info": _jsonable({k: v for k, v in result.info.items() if k != "traceback"}),
         "wall_time": time.perf_counter() - t0,
+        "validation_time": time.perf_counter() - t1,
         "pid": os.getpid(),
         "host": socket.gethostname(),
     }
@@ -134,8 +136,18 @@ def _jsonable(x: Any) -> Any:
     return repr(x)
 
 
-def worker_main(conn: Any, stderr_path: str) -> None:
-    """Entry point of a worker process (see the module docstring)."""
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+def worker_main(conn: Any, stderr_path: str, threads: int = 1) -> None:
+    """Entry point of a worker process (see the module docstring).
+
+    ``threads`` caps the thread pools of OpenMP, BLAS and numba in this worker (set before any of
+    them is imported), so parallel workers do not oversubscribe the cores and a run's arithmetic
+    (e.g. the order of a parallel reduction) does not depend on ``--jobs``.
+    """
+    for name in THREAD_VARIABLES:
+        os.environ[name] = str(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     fd = os.open(stderr_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 2)
