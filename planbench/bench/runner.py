@@ -96,6 +96,7 @@ class _Slot:
     deadline: float = math.inf
     dispatched: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    closed: bool = False
 
 
 class Runner:
@@ -154,8 +155,9 @@ class Runner:
                             start_failures += 1
                             if start_failures > 3:
                                 raise PlanbenchError(
-                                    "benchmark worker processes die before they start; last stderr:\n"
-                                    + _tail(slot.stderr_path)
+                                    "benchmark worker processes die before they start (a script that runs a "
+                                    "benchmark needs an `if __name__ == '__main__':` guard: workers are "
+                                    "spawned and import the main module); last stderr:\n" + _tail(slot.stderr_path)
                                 )
                     else:
                         kept.append(slot)
@@ -274,6 +276,8 @@ class Runner:
         slot.proc.join(5)
 
     def _stop(self, slot: _Slot) -> None:
+        if slot.closed:
+            return
         if slot.proc.is_alive() and slot.task is None and slot.ready:
             try:
                 slot.conn.send(None)
@@ -284,6 +288,9 @@ class Runner:
         self._close(slot)
 
     def _close(self, slot: _Slot) -> None:
+        if slot.closed:
+            return
+        slot.closed = True
         try:
             slot.conn.close()
         except OSError:
