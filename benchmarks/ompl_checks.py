@@ -1,0 +1,136 @@
+"""OMPL baselines: collision checks per second, where a check's time goes, and MBM success/time.
+
+Usage::
+
+    python benchmarks/ompl_checks.py checks [--problems mbm:*/0001-0003] [--n 2000]
+    python benchmarks/ompl_checks.py mbm [--problems mbm:*/0001-0010] [--planner ompl-rrtconnect] [--time-limit 5]
+
+``checks`` times, in one run and on the same random configurations: the checker without broadphase
+(every pair to coal), with broadphase (``CollisionChecker.in_collision``), against the occupancy
+grid as an octree and as boxes, the Python validity-callback overhead (state -> array), and the rate
+reached inside an OMPL RRTConnect solve (checks / solve time). Medians over problems.
+
+``mbm`` plans each problem once in this process (the planner reseeds OMPL per query, see
+plugins/ompl_planners/base.py) and validates each path with planbench.evaluate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+import planbench
+from planbench.collision import CollisionChecker
+from planbench.datasets import load_problems
+
+
+def _per_call(fn, Q) -> float:  # type: ignore[no-untyped-def]
+    t = time.perf_counter()
+    for q in Q:
+        fn(q)
+    return (time.perf_counter() - t) / len(Q) * 1e6
+
+
+def checks(selector: str, n: int, with_boxes: bool) -> None:
+    from ompl import base as ob
+
+    from planbench_plugins.ompl_planners import RRTConnectPlanner
+    from planbench_plugins.ompl_planners.grid import grid_checker, grid_for_scene
+
+    rows = []
+    space = ob.RealVectorStateSpace(7)
+    state = space.allocState()
+    for problem in load_problems(selector):
+        robot = problem.robot
+        checker = CollisionChecker(robot, problem.scene)
+        grid = grid_for_scene(problem.scene, 0.02, padding=0.02)
+        octree = grid_checker(robot, grid, "octree")
+        boxes = grid_checker(robot, grid, "boxes") if with_boxes else None
+        Q = np.random.default_rng(0).uniform(robot.lower, robot.upper, size=(n, robot.nq))
+        row = {
+            "all_pairs": _per_call(checker.in_collision_all_pairs, Q),
+            "broadphase": _per_call(checker.in_collision, Q),
+            "octree": _per_call(octree.in_collision, Q),
+            "boxes": _per_call(boxes.in_collision, Q[:100]) if boxes else float("nan"),
+            "callback": _per_call(lambda q: np.array([state[i] for i in range(7)]), Q),
+            "collide_frac": float(np.mean([checker.in_collision(q) for q in Q[:500]])),
+        }
+        result = planbench.plan(problem, RRTConnectPlanner(simplify=False, verify=False), seed=0, time_limit=5.0)
+        if "solve_time" in result.info and result.info["solve_time"] > 0.01:
+            row["ompl_rate"] = result.info["collision_checks"] / result.info["solve_time"]
+        rows.append(row)
+        print(
+            f"{problem.id:28s} all pairs {row['all_pairs']:6.1f} us  broadphase {row['broadphase']:5.1f} us  "
+            f"octree {row['octree']:5.1f} us  boxes {row['boxes']:5.1f} us  callback {row['callback']:4.1f} us  "
+            f"in OMPL {row.get('ompl_rate', float('nan')):8.0f} checks/s  "
+            f"({row['collide_frac']:.0%} of random q collide)"
+        )
+
+    def med(key: str) -> float:
+        return statistics.median(r[key] for r in rows if key in r)
+
+    print(f"\nmedians over {len(rows)} problems, {n} random configurations each:")
+    for key in ("all_pairs", "broadphase", "octree", "boxes") if with_boxes else ("all_pairs", "broadphase", "octree"):
+        print(f"  {key:10s} {med(key):6.1f} us/check = {1e6 / med(key):8.0f} checks/s")
+    print(
+        f"  broadphase speed-up over all pairs (median of per-problem ratios): "
+        f"{statistics.median(r['all_pairs'] / r['broadphase'] for r in rows):.1f}x"
+    )
+    print(f"  Python callback (OMPL state -> numpy array): {med('callback'):.1f} us")
+    print(f"  inside an OMPL RRTConnect solve (incl. OMPL's own work): {med('ompl_rate'):.0f} checks/s")
+
+
+def mbm(selector: str, planner: str, time_limit: float) -> None:
+    from planbench_plugins import ompl_planners
+
+    classes = {c.name: c for c in (getattr(ompl_planners, n) for n in ompl_planners.__all__) if hasattr(c, "name")}
+    cls = classes[planner]
+    by_family: dict[str, list[tuple[bool, float, float]]] = {}
+    for problem in load_problems(selector):
+        result = planbench.plan(problem, cls, seed=0, time_limit=time_limit)
+        ev = planbench.evaluate(problem, result)
+        fam = problem.metadata.get("family", "?")
+        by_family.setdefault(fam, []).append((ev.success, result.planning_time, ev.joint_path_length))
+        print(
+            f"{problem.id:28s} {result.status.value:10s} valid={ev.success!s:5s} {result.planning_time:6.3f} s "
+            f"solve {result.info.get('solve_time', float('nan')):.3f} s "
+            f"simplify {result.info.get('simplify_time', float('nan')):.3f} s"
+            + (f"  {ev.failure[:60]}" if not ev.success else "")
+        )
+    print(f"\n{planner}, time limit {time_limit} s")
+    print("family              solved   median time [s] (solved)   median joint length [rad]")
+    everything = []
+    for fam, rows in sorted(by_family.items()):
+        everything += rows
+        ok = [r for r in rows if r[0]]
+        t = statistics.median(r[1] for r in ok) if ok else float("nan")
+        length = statistics.median(r[2] for r in ok) if ok else float("nan")
+        print(f"{fam:20s} {len(ok):3d}/{len(rows):<3d}  {t:10.3f}                 {length:8.2f}")
+    ok = [r for r in everything if r[0]]
+    t_all = statistics.median(r[1] for r in ok) if ok else float("nan")
+    print(f"{'all':20s} {len(ok):3d}/{len(everything):<3d}  {t_all:10.3f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    c = sub.add_parser("checks")
+    c.add_argument("--problems", default="mbm:*/0001-0003")
+    c.add_argument("--n", type=int, default=2000)
+    c.add_argument("--boxes", action="store_true", help="also time the grid as boxes (slow: thousands of objects)")
+    m = sub.add_parser("mbm")
+    m.add_argument("--problems", default="mbm:*/0001-0010")
+    m.add_argument("--planner", default="ompl-rrtconnect")
+    m.add_argument("--time-limit", type=float, default=5.0)
+    args = parser.parse_args()
+    if args.command == "checks":
+        checks(args.problems, args.n, args.boxes)
+    else:
+        mbm(args.problems, args.planner, args.time_limit)
+
+
+if __name__ == "__main__":
+    main()
