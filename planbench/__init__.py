@@ -21,7 +21,16 @@ from planbench.validate import Evaluation, ValidationSettings, evaluate
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str) -> object:
+    if name == "benchmark":  # imported on use: the benchmark pulls in sqlite, plotting, workers
+        from planbench.bench import benchmark
+
+        return benchmark
+    raise AttributeError(f"module 'planbench' has no attribute {name!r}")
+
 __all__ = [
+    "benchmark",
     "Evaluation",
     "Goal",
     "Obstacle",

@@ -15,7 +15,7 @@ from planbench.errors import PlanbenchError
 log = logging.getLogger("planbench")
 
 # Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
-COMMAND_MODULES = ("planbench.field.commands",)
+COMMAND_MODULES = ("planbench.bench.commands", "planbench.field.commands")
 
 
 def parse_setting(text: str) -> tuple[str, Any]:

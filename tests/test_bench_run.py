@@ -180,8 +180,6 @@ def test_resume_refuses_changed_settings(tmp_path):
 
 
 def _main(argv):
-    if "planbench.bench.commands" not in cli.COMMAND_MODULES:
-        cli.COMMAND_MODULES = (*cli.COMMAND_MODULES, "planbench.bench.commands")
     return cli.main(argv)
 
 
@@ -195,7 +193,11 @@ def test_cli_bench_report_and_library_table(tmp_path, capsys, monkeypatch):
     )
     out = capsys.readouterr().out
     assert "4 runs" in out and "straight-line" in out and "noisy" in out
-    assert _main(["bench", "--suite", str(suite_file), "--out", str(db), "--seeds", "1"]) == 2
+    # the same command again: every run is stored, so it only reports them
+    assert _main(["bench", "--suite", str(suite_file), "--out", str(db), "--seeds", "1", "--no-progress"]) == 0
+    assert "0 to run" in capsys.readouterr().out
+    # more runs asked for than stored: an interrupted or extended benchmark needs an explicit --resume
+    assert _main(["bench", "--suite", str(suite_file), "--out", str(db), "--seeds", "0,1"]) == 2
     assert "--resume" in capsys.readouterr().err
     md, csv_file, html, plots = tmp_path / "t.md", tmp_path / "t.csv", tmp_path / "r.html", tmp_path / "plots"
     args = ["report", str(db), "--by", "family", "--markdown", str(md), "--csv", str(csv_file)]

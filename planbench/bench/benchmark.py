@@ -97,6 +97,20 @@ def _with_fresh(entry: PlannerEntry) -> PlannerEntry:
     return replace(entry, fresh_process=True)
 
 
+def _complete(suite: Suite, db: ResultsDB, planners: list[PlannerEntry], refs: list[Any], stored: Any) -> bool:
+    """Whether the database already holds every run of this suite, with the same settings: then
+    running the same command again just reports them (nothing to resume, nothing lost)."""
+    if stored is None or stored[1] != json.loads(suite.settings_json()):
+        return False
+    old = {p["label"]: (p["planner"], p["settings"]) for p in stored[0].get("planners", [])}
+    if any(old.get(p.label) != (p.planner, p.settings) for p in planners):
+        return False
+    done = db.done_keys(suite.name)
+    return all(
+        (suite.name, ref.id, p.label, int(seed)) in done for p in planners for ref in refs for seed in suite.seeds
+    )
+
+
 def prepare(
     suite: Suite, db: ResultsDB, resume: bool = False, overwrite: bool = False
 ) -> tuple[list[dict[str, Any]], int, list[str]]:
@@ -110,7 +124,7 @@ def prepare(
     if n_before and overwrite:
         db.delete_suite_runs(suite.name)
         n_before = 0
-    elif n_before and not resume:
+    elif n_before and not resume and not _complete(suite, db, planners, refs, stored):
         raise PlanbenchError(
             f"{db.path} already holds {n_before} runs of suite {suite.name!r}: pass --resume to run only the "
             "missing ones, --overwrite to replace them, or choose another --out"
