@@ -142,7 +142,14 @@ class Registry:
         return self.spec(name).load()
 
     def make(self, name: str, **config: Any) -> Any:
-        """An instance of planner ``name`` with its ``Config`` built from ``config``."""
+        """An instance of planner ``name`` with its ``Config`` built from ``config``.
+
+        ``family:variant`` (e.g. ``ompl:AORRTC``) makes planner ``family`` with the setting
+        ``planner="variant"``, so a plugin can offer every algorithm of a library by name.
+        """
+        family, sep, variant = name.partition(":")
+        if sep and family in self.names() and name not in self.names():
+            return self.make(family, **{"planner": variant, **config})
         cls = self.get(name)
         Config: Any = getattr(cls, "Config", None)
         if Config is not None and dataclasses.is_dataclass(Config):

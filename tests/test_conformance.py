@@ -8,10 +8,17 @@ from planbench import PlanResult, PlanStatus
 from planbench.conformance import check_planner
 from planbench_plugins.straight_line import StraightLinePlanner
 
+# OMPL's PRM* grows its roadmap while a second thread searches it: same seed, possibly another path
+# (documented in its README section). Nothing else may be wrong with it.
+NOT_REPRODUCIBLE = {"ompl-prmstar"}
+
 
 @pytest.mark.parametrize("name", planbench.REGISTRY.names())
 def test_every_registered_planner_conforms(name):
-    assert check_planner(name) == []
+    problems = check_planner(name)
+    if name in NOT_REPRODUCIBLE:
+        problems = [p for p in problems if "gave different paths" not in p]
+    assert problems == []
 
 
 class Good(StraightLinePlanner):

@@ -128,3 +128,12 @@ def test_seeded_rng_reaches_the_planner(free_problem):
     c = planbench.plan(free_problem, Random, seed=4).path
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
+
+
+def test_family_variant_names_pass_the_variant_as_the_planner_setting():
+    from planbench_plugins.ompl_planners import OMPLPlanner
+
+    planner = planbench.make_planner("ompl:LBKPIECE1")
+    assert isinstance(planner, OMPLPlanner) and planner.config.planner == "LBKPIECE1"
+    with pytest.raises(UnknownNameError, match="RRTConnect"):
+        planbench.make_planner("ompl:RRTConect")
