@@ -123,7 +123,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     console.print(f"{outcome.ran} runs in {outcome.wall_time:.1f} s (wall), results in {escape(args.out)}")
     with ResultsDB(args.out, create=False) as db:
         rows = db.rows(suite.name)
-    console.print(to_rich(summarize(rows, _by(args.by)), _by(args.by), title=f"suite {suite.name}"))
+    console.print(
+        to_rich(summarize(rows, _by(args.by)), _by(args.by), title=f"suite {suite.name}", width=console.width)
+    )
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     console.print(f"more: planbench report {escape(args.out)} --by family --html report.html")
@@ -194,7 +196,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 1
     by = _by(args.by)
     summary = summarize(rows, by)
-    console.print(to_rich(summary, by, title=f"{args.db}: {len(rows)} runs"))
+    console.print(to_rich(summary, by, title=f"{args.db}: {len(rows)} runs", width=console.width))
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     if args.markdown:

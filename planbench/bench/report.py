@@ -98,17 +98,17 @@ def _num(v: float, scale: float = 1.0) -> str:
     return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
 
 
-def _cells(s: dict[str, Any], metrics: Sequence[Metric]) -> list[str]:
+def _cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True) -> list[str]:
     rate = f"{100 * s['success_rate']:.0f}% [{100 * s['success_ci_low']:.0f}, {100 * s['success_ci_high']:.0f}]"
     fails = ", ".join(f"{s[k]} {k}" for k in FAILURE_STATUSES if s[k]) or "-"
     cells = [f"{s['solved']}/{s['runs']}", rate, fails]
     for m in metrics:
         med = s[f"{m.name}_median"]
-        cells.append(
-            "-"
-            if math.isnan(med)
-            else f"{_num(med, m.scale)} [{_num(s[f'{m.name}_q1'], m.scale)}, {_num(s[f'{m.name}_q3'], m.scale)}]"
-        )
+        if math.isnan(med) or not quartiles:
+            cells.append(_num(med, m.scale))
+        else:
+            q1, q3 = _num(s[f"{m.name}_q1"], m.scale), _num(s[f"{m.name}_q3"], m.scale)
+            cells.append(f"{_num(med, m.scale)} [{q1}, {q3}]")
     return cells
 
 
@@ -145,21 +145,28 @@ def to_rich(
     by: Sequence[str] = ("planner",),
     title: str = "",
     metrics: Sequence[Metric] = TERMINAL_METRICS,
+    width: int | None = None,
 ) -> Any:
-    """A rich Table for the terminal (short headers, no setup time)."""
+    """A rich Table for the terminal (short headers, no setup time). In a terminal narrower than
+    140 columns the metric cells show medians only, so that the rows stay short."""
+    quartiles = width is None or width >= 140
     from rich.markup import escape
     from rich.table import Table
 
     table = Table(
         title=escape(title) if title else None,
         title_justify="left",
-        caption=escape("metrics: median [q1, q3] over validated successes"),
+        caption=escape(
+            "metrics: median [q1, q3] over validated successes"
+            if quartiles
+            else "metrics: median over validated successes (quartiles: a wider terminal, or --markdown)"
+        ),
         caption_justify="left",
     )
     for i, h in enumerate(_headers(by, metrics, short=True)):
         table.add_column(escape(h), justify="left" if i < len(by) else "right", no_wrap=i < len(by))
     for s in summary:
-        table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics))
+        table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics, quartiles))
     return table
 
 
