@@ -138,7 +138,7 @@ class Obstacle:
             q = np.stack(
                 [
                     np.hypot(local[:, 0], local[:, 1]) - self.radius,  # type: ignore[operator]
-                    np.abs(local[:, 2]) - 0.5 * self.length,
+                    np.abs(local[:, 2]) - 0.5 * self.length,  # type: ignore[operator]
                 ],
                 axis=1,
             )  # type: ignore[operator]

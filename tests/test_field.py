@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planbench.errors import InvalidConfigError
-from planbench.field import KernelSpec, Kernels, full_field, lazy_field, surface_grid
+from planbench.field import Kernels, KernelSpec, full_field, lazy_field, surface_grid
 from planbench.field.backend import have_numba
 from planbench.field.reference import brute_force_field, dense_field, fft_field, window_sums
 from planbench.occupancy import OccupancyGrid

@@ -15,7 +15,7 @@ pre-pass), ``reference`` (brute-force checks), ``plots``, ``bench`` and ``comman
 """
 
 from planbench.field.full import MatrixField, full_field
-from planbench.field.kernels import PROFILES, TAPERS, KernelSpec, Kernels
+from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.field.lazy import lazy_field
 from planbench.field.surface import surface_grid
 

@@ -17,7 +17,7 @@ __all__ = ["BACKENDS", "have_numba", "resolve", "compiled"]
 BACKENDS = ("auto", "numba", "numpy")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def have_numba() -> bool:
     """Whether numba can be imported."""
     return importlib.util.find_spec("numba") is not None

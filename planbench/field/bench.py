@@ -28,7 +28,7 @@ import argparse
 import gc
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -71,7 +71,7 @@ class Row:
     extrapolated: set[str] = field(default_factory=set)
 
 
-def median_times(fns: dict[str, Callable[[], object]], repeat: int, min_repeat: int,
+def median_times(fns: Mapping[str, Callable[[], object]], repeat: int, min_repeat: int,
                  budget: float, before: Callable[[], object] | None = None) -> dict[str, float]:
     """Median wall time [s] of each function, run round-robin so that the machine's noise hits
     them alike; up to ``repeat`` rounds, fewer once ``budget`` [s] is spent (at least

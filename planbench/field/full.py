@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from planbench.errors import InvalidConfigError
 from planbench.field import backend as _backend
@@ -67,7 +68,7 @@ class MatrixField:
         return self.components[:, m:-m, m:-m, m:-m]
 
 
-def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: type = np.float32,
+def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float32,
                margin: int | None = None, backend: str = "auto") -> MatrixField:
     """The matrix field of ``grid`` for ``kernels``, computed in ``dtype`` (float32 or float64).
 
@@ -88,7 +89,7 @@ def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: type = np.float32,
     else:
         g = np.zeros(tuple(n + 2 * m for n in grid.shape), dtype=dt)
         inner = g[m:m + grid.shape[0], m:m + grid.shape[1], m:m + grid.shape[2]]
-        np.subtract(grid.data, dt.type(grid.outside), out=inner, casting="unsafe")
+        np.subtract(grid.data, grid.outside, out=inner, casting="unsafe")
         components = correlate_separable(g, kernels, backend="numpy")
     components.setflags(write=False)
     return MatrixField(components, grid.origin.copy(), grid.resolution, m, m >= kernels.support)

@@ -33,9 +33,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Union
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from planbench.errors import InvalidConfigError
 
@@ -57,9 +57,9 @@ class KernelSpec:
     """Influence distance along the axis [m]: the kernel spans ``-reach .. +reach``."""
     width: float | None = None
     """Half-width across the axis [m]; ``None`` = same as ``reach`` (a cubic kernel)."""
-    profile: Union[str, ProfileFn] = "linear"
+    profile: str | ProfileFn = "linear"
     """Profile along the axis: one of :data:`PROFILES` or a callable (see module docstring)."""
-    taper: Union[str, ProfileFn] = "linear"
+    taper: str | ProfileFn = "linear"
     """Taper across the axis: one of :data:`TAPERS` or a callable."""
     gain: float = 1.0
     """Multiplies the profile (the field's scale) [-]."""
@@ -120,8 +120,8 @@ class Kernels:
 
     @classmethod
     def from_cells(cls, length: int, width: int | None = None, *, resolution: float = 1.0,
-                   profile: Union[str, ProfileFn] = "linear",
-                   taper: Union[str, ProfileFn] = "linear",
+                   profile: str | ProfileFn = "linear",
+                   taper: str | ProfileFn = "linear",
                    gain: float = 1.0, sigma: float | None = None, taper_sigma: float | None = None,
                    power: float = 2.0) -> Kernels:
         """Kernels of ``length`` cells along the axis and ``width`` across (default: ``length``).
@@ -177,7 +177,7 @@ class Kernels:
                 f"kernels were built for resolution {self.resolution:g} m but the grid has "
                 f"{resolution:g} m; build them with KernelSpec.build(grid.resolution)")
 
-    def factors(self, dtype: type) -> tuple[np.ndarray, np.ndarray]:
+    def factors(self, dtype: DTypeLike) -> tuple[np.ndarray, np.ndarray]:
         """``(along, across)`` cast to ``dtype`` (cached: the hot paths call this every tick)."""
         key = np.dtype(dtype)
         cache = self.__dict__.setdefault("_factors", {})
@@ -225,7 +225,7 @@ def _vector(arr: np.ndarray, name: str) -> np.ndarray:
     return v
 
 
-def _profile_magnitude(profile: Union[str, ProfileFn], d: np.ndarray, c: int, resolution: float,
+def _profile_magnitude(profile: str | ProfileFn, d: np.ndarray, c: int, resolution: float,
                        sigma: float | None, power: float) -> np.ndarray:
     if callable(profile):
         return _user_values(profile, d, "profile")
@@ -240,7 +240,7 @@ def _profile_magnitude(profile: Union[str, ProfileFn], d: np.ndarray, c: int, re
                              "function of the distance [m]")
 
 
-def _taper_values(taper: Union[str, ProfileFn], d: np.ndarray, w: int, resolution: float,
+def _taper_values(taper: str | ProfileFn, d: np.ndarray, w: int, resolution: float,
                   taper_sigma: float | None) -> np.ndarray:
     if callable(taper):
         return _user_values(taper, d, "taper")

@@ -17,7 +17,7 @@ from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 
 from planbench.field.full import MatrixField
-from planbench.field.kernels import PROFILES, TAPERS, KernelSpec, Kernels
+from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.occupancy import OccupancyGrid
 
 __all__ = ["plot_profiles", "plot_kernel", "plot_field_slice", "parse_slice"]

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from planbench.field.kernels import Kernels
 from planbench.occupancy import OccupancyGrid
@@ -26,7 +27,7 @@ def window_sums(grid: OccupancyGrid, kernels: Kernels, cells: np.ndarray) -> np.
     # A padded copy of G covering every window: grid cells where they exist, `outside` elsewhere.
     pad_lo = np.maximum(0, -lo)
     pad_hi = np.maximum(0, hi - np.array(grid.shape))
-    padded = np.pad(grid.data.astype(np.float64), list(zip(pad_lo, pad_hi)), mode="constant",
+    padded = np.pad(grid.data.astype(np.float64), list(zip(pad_lo, pad_hi, strict=True)), mode="constant",
                     constant_values=grid.outside)
     shift = pad_lo
     dense = [_centred3(kernels.dense(a), m) for a in range(3)]
@@ -62,7 +63,7 @@ def dense_field(grid: OccupancyGrid, kernels: Kernels,
                      for a in components])
 
 
-def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: type = np.float64,
+def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float64,
               workers: int = -1) -> np.ndarray:
     """Field (3, nx, ny, nz) on the grid's cells by FFT: one forward transform of ``G - outside``
     (zero-padded so nothing wraps around), one per kernel, and three inverse transforms."""

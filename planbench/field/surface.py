@@ -16,8 +16,6 @@ erase the noisy inner cells a sensor reports) and when thicker obstacles should 
 
 from __future__ import annotations
 
-import numpy as np
-
 from planbench.occupancy import OccupancyGrid
 
 __all__ = ["surface_grid"]
