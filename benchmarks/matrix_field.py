@@ -48,7 +48,7 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     import pinocchio as pin
 
     problem = planbench.load_problems(problem_id)[0]
-    cfg = MatrixFieldConfig(stall_ratio=0.0, max_steps=steps, collision_check_every=0,
+    cfg = MatrixFieldConfig(stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False,
                             goal_tolerance_scale=1e-9)
     planner = MatrixFieldPlanner(cfg)
     planner.setup(problem)
@@ -73,9 +73,9 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
         pin.updateFramePlacement(model, data, fid)
         pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
 
-    field = prep["field"]
+    field = prep["repulsion"].field
     pts = kin.points.copy()
-    F = field.sample(pts) * prep["gain"]
+    F = field.sample(pts) * prep["repulsion"].gain
     goal = problem.goal.pose
     lower, upper, vmax = np.asarray(robot.lower), np.asarray(robot.upper), np.asarray(robot.velocity_limit)
     tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)

@@ -7,6 +7,7 @@ import pytest
 
 import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
+from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.robot import load_robot
 from planbench_plugins.matrix_field import MatrixFieldPlanner
@@ -138,3 +139,22 @@ def test_numba_and_numpy_backends_give_the_same_path(robot):
     b = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0, backend="numpy")
     assert a.status is b.status and a.path.shape == b.path.shape
     assert np.allclose(a.path, b.path, atol=1e-7)
+
+
+def test_success_is_never_claimed_on_a_colliding_path(robot):
+    """Blind to the wall (no repulsion, no periodic checks), the arm reaches the goal pose through
+    it: with the dense path check the planner says COLLISION, not SUCCESS; without it, it claims
+    success and the harness disagrees."""
+    problem = wall_problem(robot)
+    blind = dict(repulsion_gain=0.0, collision_check_every=0)
+    unchecked = planbench.plan(problem, MatrixFieldPlanner, verify_path=False, **blind)
+    assert unchecked.status is PlanStatus.SUCCESS
+    assert not planbench.evaluate(problem, unchecked).success
+    checked = planbench.plan(problem, MatrixFieldPlanner, **blind)
+    assert checked.status is PlanStatus.COLLISION, checked.message
+    assert "dense path check" in checked.message
+    hit = len(checked.path) - 1
+    assert hit < len(unchecked.path) - 1  # the path ends where the collision was found
+    checker = CollisionChecker(robot, problem.scene)
+    assert checker.first_collision(unchecked.path, 0.01) == hit
+    assert checker.first_collision(unchecked.path[:hit], 0.01) is None

@@ -1,4 +1,8 @@
-"""Settings of the matrix-field planner (METHOD.md section 4): every gain and threshold, with units.
+"""Settings of the field planners' IK loop and of the matrix-field planner (METHOD.md section 4).
+
+:class:`IKLoopConfig` holds what every loop planner shares (time step, attraction, damping,
+secondary tasks, limits, endings, the stand-off); :class:`MatrixFieldConfig` adds the matrix
+field's grid and kernels. The baselines that share the loop subclass :class:`IKLoopConfig`.
 
 Units: metres, radians, seconds. Field values are dimensionless sums of occupancy times kernel
 weight; ``repulsion_gain`` turns them into a speed [m/s].
@@ -13,24 +17,21 @@ from typing import Any
 
 from planbench.errors import InvalidConfigError
 
-__all__ = ["MatrixFieldConfig", "FIELD_MODES", "DAMPING_MODES"]
+__all__ = ["IKLoopConfig", "MatrixFieldConfig", "FIELD_MODES", "DAMPING_MODES", "check_number"]
 
 FIELD_MODES = ("full", "lazy")
 DAMPING_MODES = ("fixed", "adaptive")
 
 
 @dataclass(frozen=True)
-class MatrixFieldConfig:
-    """Settings of :class:`~planbench_plugins.matrix_field.MatrixFieldPlanner`.
+class IKLoopConfig:
+    """Settings of the IK loop shared by the field planners (:mod:`.loop`).
 
-    Stand-off: the field is exactly zero farther than ``kernel_reach`` from every occupied cell,
-    so nothing pushes a control point beyond that distance. Closer in, ``standoff`` fixes the gain:
-    ``repulsion_gain = speed_max / F_wall(standoff)``, where ``F_wall(d)`` is the field of a flat,
-    one-cell-thick wall at distance ``d`` (computed from the kernels themselves). A control point
-    ``standoff`` from a wall is therefore pushed away at the attraction's cruising speed
-    ``speed_max``: closer than that, the push beats the pull. Control points sit on the link axes,
-    so the link *surface* keeps about ``standoff`` minus the link radius (~0.05-0.09 m on the
-    Panda). Set ``repulsion_gain`` to use a gain directly (``standoff`` is then ignored).
+    Stand-off: every repulsion source derives its gain from ``standoff``, so that a point on the
+    arm ``standoff`` from a flat wall is pushed away at the attraction's cruising speed
+    ``speed_max``: closer than that, the push beats the pull. Set ``repulsion_gain`` to use a gain
+    directly (``standoff`` is then ignored). One stand-off, whatever the field, keeps the
+    comparison between fields fair.
     """
 
     # --- time and budget -----------------------------------------------------------------
@@ -62,24 +63,12 @@ class MatrixFieldConfig:
     manipulability_threshold: float = 0.02
     """``m0`` [m^3]: adaptive damping switches on below it."""
 
-    # --- repulsion -----------------------------------------------------------------------
-    field_mode: str = "full"
-    """``"full"``: precompute the field in ``setup`` (static scenes); ``"lazy"``: window sums at
-    the control points every step (for grids that change). Both give the same path."""
-    grid_resolution: float = 0.02
-    """Occupancy grid cell size [m]."""
-    kernel_reach: float = 0.15
-    """Influence distance of the repulsion [m] (the kernel spans ``-reach .. +reach``)."""
-    kernel_profile: str = "linear"
-    """Profile along the kernel axis: ``linear``, ``gaussian`` or ``inverse-power``."""
-    kernel_taper: str = "linear"
-    """Taper across the kernel axis: ``linear``, ``gaussian`` or ``constant``."""
-    surface_only: bool = True
-    """Keep only surface cells before the field (thin walls and solid blocks repel alike)."""
+    # --- repulsion (gain, tool, control points) ----------------------------------------
     standoff: float = 0.10
-    """Distance [m] from a flat wall at which a control point is pushed at ``speed_max``."""
+    """Distance [m] from a flat wall at which a point on the arm is pushed at ``speed_max``."""
     repulsion_gain: float | None = None
-    """``k_rep`` [m/s per field unit]; ``None`` = derived from ``standoff`` (see class docstring)."""
+    """The repulsion's gain in its own units (see the planner's settings); ``None`` = derived from
+    ``standoff``."""
     tool_repulsion_gain: float = 0.0
     """Weight [-] of the repulsion added to the primary task: the strongest ``f_i`` among the
     control points carried by the goal frame's joint (hand, fingers) is added to the attraction's
@@ -114,44 +103,47 @@ class MatrixFieldConfig:
 
     # --- failure detection ---------------------------------------------------------------
     stall_window: float = 1.0
-    """Local-minimum window [s] (see :func:`~planbench_plugins.matrix_field.planner.stalled`)."""
+    """Local-minimum window [s] (see :func:`~planbench_plugins.matrix_field.loop.stalled`)."""
     stall_ratio: float = 0.02
     """Smallest relative decrease of the best goal error over one window [-]."""
     rotation_weight: float = 0.1
     """``rho`` [m/rad]: goal error ``e = |p_g - p| + rho * angle`` used for progress."""
     collision_check_every: int = 25
-    """Check the robot against the true scene every this many steps (coal); 0 = never."""
+    """Check the robot against the true scene every this many steps while planning (coal; an
+    early exit); 0 = never."""
+    verify_path: bool = True
+    """Before claiming success, check the whole trajectory against the true scene at the harness's
+    collision resolution (0.01 rad), so that success is never claimed on a colliding path."""
 
     def __post_init__(self) -> None:
+        if self.control_points is not None:
+            object.__setattr__(self, "control_points", _freeze_points(self.control_points))
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
         positive = ("dt", "speed_max", "sigmoid_gain", "position_gain", "orientation_gain",
-                    "angular_speed_max", "goal_tolerance_scale", "grid_resolution", "kernel_reach",
-                    "standoff", "control_point_spacing", "tool_fade_distance", "velocity_scale", "stall_window",
-                    "rotation_weight", "slowdown_min", "damping_factor", "manipulability_threshold")
+                    "angular_speed_max", "goal_tolerance_scale", "standoff", "control_point_spacing",
+                    "tool_fade_distance", "velocity_scale", "stall_window", "rotation_weight", "slowdown_min",
+                    "damping_factor", "manipulability_threshold")
         for name in positive:
-            _check(self, name, lambda v: v > 0, "finite and > 0")
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
         for name in ("tool_repulsion_gain", "manipulability_gain", "mid_joint_gain", "slowdown_gain", "stall_ratio"):
-            _check(self, name, lambda v: v >= 0, "finite and >= 0")
+            check_number(self, name, lambda v: v >= 0, "finite and >= 0")
         for name, hi in (("goal_tolerance_scale", 1.0), ("slowdown_min", 1.0), ("velocity_scale", 1.0)):
-            _check(self, name, lambda v, hi=hi: v <= hi, f"<= {hi}")
+            check_number(self, name, lambda v, hi=hi: v <= hi, f"<= {hi}")
         if self.repulsion_gain is not None:
-            _check(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0 (or None)")
-        if self.standoff >= self.kernel_reach:
-            raise InvalidConfigError(
-                f"standoff {self.standoff} m must be below kernel_reach {self.kernel_reach} m: the "
-                "field is zero beyond the reach, so no gain can push there")
+            check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0 (or None)")
         for name in ("max_steps", "collision_check_every"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "max_steps" else 0):
                 raise InvalidConfigError(f"{name} must be a whole number >= "
                                          f"{1 if name == 'max_steps' else 0}, got {v!r}")
-        for name, choices in (("field_mode", FIELD_MODES), ("backend", ("auto", "numba", "numpy")),
-                              ("damping", DAMPING_MODES),
-                              ("kernel_profile", ("linear", "gaussian", "inverse-power")),
-                              ("kernel_taper", ("linear", "gaussian", "constant"))):
+        if not isinstance(self.verify_path, bool):
+            raise InvalidConfigError(f"verify_path must be true or false, got {self.verify_path!r}")
+        for name, choices in (("backend", ("auto", "numba", "numpy")), ("damping", DAMPING_MODES)):
             if getattr(self, name) not in choices:
                 raise InvalidConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
-        if self.control_points is not None:
-            object.__setattr__(self, "control_points", _freeze_points(self.control_points))
 
     @property
     def stall_steps(self) -> int:
@@ -159,7 +151,51 @@ class MatrixFieldConfig:
         return max(1, int(round(self.stall_window / self.dt)))
 
 
-def _check(cfg: MatrixFieldConfig, name: str, ok: Any, what: str) -> None:
+@dataclass(frozen=True)
+class MatrixFieldConfig(IKLoopConfig):
+    """Settings of :class:`~planbench_plugins.matrix_field.MatrixFieldPlanner`: the loop's
+    (:class:`IKLoopConfig`) plus the grid and the kernels.
+
+    Stand-off: the field is exactly zero farther than ``kernel_reach`` from every occupied cell,
+    so nothing pushes a control point beyond that distance. Closer in, ``standoff`` fixes the gain:
+    ``repulsion_gain = speed_max / F_wall(standoff)`` [m/s per field unit], where ``F_wall(d)`` is
+    the field of a flat, one-cell-thick wall at distance ``d`` (computed from the kernels
+    themselves). Control points sit on the link axes, so the link *surface* keeps about
+    ``standoff`` minus the link radius (~0.05-0.09 m on the Panda).
+    """
+
+    # --- the matrix field ----------------------------------------------------------------
+    field_mode: str = "full"
+    """``"full"``: precompute the field in ``setup`` (static scenes); ``"lazy"``: window sums at
+    the control points every step (for grids that change). Both give the same path."""
+    grid_resolution: float = 0.02
+    """Occupancy grid cell size [m]."""
+    kernel_reach: float = 0.15
+    """Influence distance of the repulsion [m] (the kernel spans ``-reach .. +reach``)."""
+    kernel_profile: str = "linear"
+    """Profile along the kernel axis: ``linear``, ``gaussian`` or ``inverse-power``."""
+    kernel_taper: str = "linear"
+    """Taper across the kernel axis: ``linear``, ``gaussian`` or ``constant``."""
+    surface_only: bool = True
+    """Keep only surface cells before the field (thin walls and solid blocks repel alike)."""
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("grid_resolution", "kernel_reach"):
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
+        if self.standoff >= self.kernel_reach:
+            raise InvalidConfigError(
+                f"standoff {self.standoff} m must be below kernel_reach {self.kernel_reach} m: the "
+                "field is zero beyond the reach, so no gain can push there")
+        for name, choices in (("field_mode", FIELD_MODES),
+                              ("kernel_profile", ("linear", "gaussian", "inverse-power")),
+                              ("kernel_taper", ("linear", "gaussian", "constant"))):
+            if getattr(self, name) not in choices:
+                raise InvalidConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
+
+
+def check_number(cfg: Any, name: str, ok: Any, what: str) -> None:
+    """Raise :class:`InvalidConfigError` unless ``cfg.name`` is a finite number with ``ok(value)``."""
     value = getattr(cfg, name)
     try:
         v = float(value)

@@ -25,7 +25,8 @@ class ArmKinematics:
     After :meth:`update`: ``p`` (3,) and ``R`` (3, 3) goal-frame pose, ``J`` (6, n) its Jacobian
     (LOCAL_WORLD_ALIGNED: ``[v; omega]`` of the frame origin in world axes), ``S`` (6, n) the
     spatial Jacobian, ``points`` (N, 3) control-point world positions [m].
-    ``support`` (N, n): 1.0 where joint ``k`` moves point ``i``; ``descendants`` (n, n): True
+    ``cp_joint`` (N,) the joint carrying each control point, ``support`` (N, n): 1.0 where joint
+    ``k`` moves point ``i``; ``descendants`` (n, n): True
     where joint ``i`` strictly descends from joint ``k``.
     """
 
@@ -57,7 +58,7 @@ class ArmKinematics:
         self._tbuf = np.empty((njoints, 3))
         self._aliased = self._alias_placements(njoints)
         self.cp = points
-        self._cp_joint = np.asarray(points.joint, dtype=int)
+        self._cp_joint = self.cp_joint = np.asarray(points.joint, dtype=int)
         self._cp_local = np.ascontiguousarray(points.local, dtype=float)
         self.points = np.empty((len(points), 3))
         idx_v = [model.joints[j].idx_v for j in range(njoints)]

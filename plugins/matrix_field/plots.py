@@ -1,7 +1,10 @@
-"""Plots of a matrix-field plan (matplotlib, headless; every function returns a Figure).
+"""Plots of a field planner's plan (matplotlib, headless; every function returns a Figure).
 
-- :func:`plot_arm_field`: the arm at one configuration, its control points and the repulsive
-  vectors acting on them (the paper's "kernel on robot" figure), the kernel's reach as a sphere.
+Any planner built on the shared IK loop (:class:`~planbench_plugins.matrix_field.loop.IKLoopPlanner`:
+``matrix-field``, ``matrix-field-qp``, ``edt-field``, ``distance-field``) can be drawn.
+
+- :func:`plot_arm_field`: the arm at one configuration, the points where the repulsion acts and
+  the repulsive vectors there (the paper's "kernel on robot" figure).
 - :func:`plot_ee_path`: the end-effector path among the obstacles.
 - :func:`plot_diagnostics`: pose errors, repulsion, slow-down and manipulability over time.
 - :func:`plot_result`: the three side by side (what ``planbench plan ... --plot out.png`` draws).
@@ -18,6 +21,7 @@ from matplotlib.figure import Figure
 from planbench.planner import PlanResult
 from planbench.problem import Problem
 from planbench_plugins.matrix_field.config import MatrixFieldConfig
+from planbench_plugins.matrix_field.loop import IKLoopPlanner
 from planbench_plugins.matrix_field.planner import MatrixFieldPlanner
 
 __all__ = ["plot_result", "plot_arm_field", "plot_ee_path", "plot_diagnostics"]
@@ -51,28 +55,29 @@ def _equal(ax: Any, pts: np.ndarray) -> None:
            xlabel="x [m]", ylabel="y [m]", zlabel="z [m]")
 
 
-def _prepared(problem: Problem, config: MatrixFieldConfig | None) -> MatrixFieldPlanner:
-    planner = MatrixFieldPlanner(config or MatrixFieldConfig())
-    planner.setup(problem)
+def _prepared(problem: Problem, config: MatrixFieldConfig | None, planner: IKLoopPlanner | None) -> IKLoopPlanner:
+    if planner is None:
+        planner = MatrixFieldPlanner(config or MatrixFieldConfig())
+    if planner.control_points is None or planner._prepared["problem"] is not problem:  # type: ignore[index]
+        planner.setup(problem)
     return planner
 
 
 def plot_arm_field(problem: Problem, q: np.ndarray, config: MatrixFieldConfig | None = None,
-                   ax: Any = None, out: str | Path | None = None, planner: MatrixFieldPlanner | None = None) -> Figure:
-    """The arm at ``q`` (joint chain), control points, repulsive vectors ``f_i = k_rep F(p_i)``
-    [m/s] (drawn as 0.2 s of motion) and the obstacles' boxes."""
-    planner = planner or _prepared(problem, config)
+                   ax: Any = None, out: str | Path | None = None, planner: IKLoopPlanner | None = None) -> Figure:
+    """The arm at ``q`` (joint chain), the points where the repulsion acts, the repulsive
+    velocities ``f_i`` [m/s] there (drawn as 0.2 s of motion) and the obstacles' boxes.
+    ``planner``: any loop planner (default: a matrix-field planner with ``config``)."""
+    planner = _prepared(problem, config, planner)
     fig = ax.figure if ax is not None else Figure(figsize=(6, 6), layout="constrained")
     ax = ax if ax is not None else fig.add_subplot(projection="3d")
     q = np.asarray(q, dtype=float)
     chain = _joint_chain(problem, q)
-    cp = planner.control_points
-    pts = cp.world(problem.robot, q)
-    f = planner.field_at(pts) * planner._prepared["gain"]  # type: ignore[index]
+    pts, f = planner.repulsion_at(q)
     _obstacles(ax, problem)
     ax.plot(*chain.T, "-o", color="tab:blue", ms=3, lw=2, label="arm (joint origins)")
-    ax.scatter(*pts.T, color="tab:orange", s=14, label=f"{len(pts)} control points")
-    mag = np.linalg.norm(f, axis=1)
+    ax.scatter(*pts.T, color="tab:orange", s=14, label=f"{len(pts)} repulsion points")
+    mag = np.linalg.norm(f, axis=1) if len(f) else np.zeros(1)
     if mag.max() > 0:
         ax.quiver(*pts.T, *(0.2 * f).T, color="tab:red", lw=1.2, label="repulsion (0.2 s of motion)")
     ax.set_title(f"arm, control points, repulsion (max {mag.max():.2f} m/s)")
@@ -119,7 +124,8 @@ def plot_diagnostics(result: PlanResult, ax: Any = None, out: str | Path | None 
 
 
 def plot_result(problem: Problem, result: PlanResult, path_png: str | Path | None = None,
-                config: MatrixFieldConfig | None = None, step: int | None = None) -> Figure:
+                config: MatrixFieldConfig | None = None, step: int | None = None,
+                planner: IKLoopPlanner | None = None) -> Figure:
     """Arm with control points and repulsion at ``step`` (default: the step of strongest
     repulsion), the end-effector path, and the diagnostics; written to ``path_png`` when given."""
     fig = Figure(figsize=(17, 5.5), layout="constrained")
@@ -130,7 +136,7 @@ def plot_result(problem: Problem, result: PlanResult, path_png: str | Path | Non
     if step is None:
         rep = np.asarray(result.info.get("repulsion", np.zeros(len(path))), dtype=float)
         step = int(np.nanargmax(rep)) if np.any(np.nan_to_num(rep) > 0) else 0
-    plot_arm_field(problem, path[min(step, len(path) - 1)], config, ax=ax1)
+    plot_arm_field(problem, path[min(step, len(path) - 1)], config, ax=ax1, planner=planner)
     ax1.set_title(f"step {step}: " + ax1.get_title())
     plot_ee_path(problem, result, ax=ax2)
     plot_diagnostics(result, ax=ax3)

@@ -1,0 +1,279 @@
+"""The IK loop shared by every field planner: attraction, null-space repulsion, limits, endings.
+
+METHOD.md section 4. Per step ``k`` (``t = k dt``), from ``q``:
+
+1. kinematics: goal-frame pose ``(p, R)``, its Jacobian ``J`` (LOCAL_WORLD_ALIGNED), the spatial
+   Jacobian ``S`` and the control points ``p_i`` (:mod:`.kinematics`);
+2. repulsion: the planner's :class:`Repulsion` gives repulsive velocities ``f_i`` [m/s] at points
+   on the arm (the matrix field at the control points, a distance field's gradient, coal's witness
+   points...), mapped to ``qd_rep = sum_i J_i^T f_i``. This is the only part that differs between
+   ``matrix-field``, ``edt-field`` and ``distance-field``, so comparing them compares the fields;
+3. attraction ``v_att`` (arctan speed profile, quaternion-log orientation error); the strongest
+   ``f_i`` on the tool (points carried by the goal frame's joint), times ``tool_repulsion_gain``
+   (fading to 0 within ``tool_fade_distance`` of the goal), may be added to its linear part;
+4. manipulability gradient ``qd_m``, mid-joint task ``qd_c``;
+5. ``qd_1 = J_dls^+ v_att`` and ``N (qd_rep + qd_m + qd_c)`` with one factorisation;
+6. ``qd = s qd_1 + N (...)``, ``s`` the slow-down factor;
+7. velocity limits (one factor, direction kept), then position limits (per joint);
+8. ``q <- q + qd dt``.
+
+Steps 3-7 are :meth:`IKLoopPlanner.solve_step`; ``matrix-field-qp`` replaces only that method.
+
+Endings (:class:`~planbench.planner.PlanStatus`):
+
+- ``SUCCESS``: both pose errors under ``goal_tolerance_scale`` times the problem's tolerances, and
+  the whole trajectory free of collision with the true geometry (checked densely, see below);
+- ``LOCAL_MINIMUM``: progress stalls, see :func:`stalled`;
+- ``STEP_LIMIT``: ``max_steps`` steps taken;
+- ``TIMEOUT``: the time limit passed (checked every 16 steps);
+- ``COLLISION``: the exact checker (coal, the scene's true geometry) finds the arm in collision.
+  A field sees the voxel grid (or only nearby points), not the true geometry, so the planner
+  checks the true geometry every ``collision_check_every`` steps while it runs (an early exit) and,
+  before it claims success, along the whole trajectory at the harness's collision resolution
+  (``verify_path``). The returned path then ends at the first configuration found in collision.
+
+The result is a trajectory: ``path[k]`` at ``times[k] = k dt``, with velocities within the limits
+by construction, and ``target="pose"``. ``info`` holds per-step diagnostics as arrays (one entry
+per path row): ``position_error`` [m], ``orientation_error`` [rad], ``repulsion`` (largest
+``|f_i|`` [m/s]), ``manipulability`` [m^3], ``slowdown`` [-], ``damping`` [m], plus what
+:attr:`IKLoopPlanner.extra_diagnostics` adds; and ``steps``, ``repulsion_gain``,
+``n_control_points``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Protocol
+
+import numpy as np
+
+from planbench.planner import Planner, PlanResult, PlanStatus
+from planbench.problem import Problem
+from planbench_plugins.matrix_field import fast
+from planbench_plugins.matrix_field.config import IKLoopConfig
+from planbench_plugins.matrix_field.control_points import ControlPoints, place_control_points
+from planbench_plugins.matrix_field.kinematics import ArmKinematics
+
+__all__ = ["IKLoopPlanner", "Repulsion", "StepInputs", "stalled", "DIAGNOSTICS"]
+
+DIAGNOSTICS = ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown", "damping")
+"""The per-step diagnostics every loop planner records, in the order of the step's ``diag`` array."""
+
+
+def stalled(best_error: np.ndarray, k: int, window: int, ratio: float) -> bool:
+    """The local-minimum test: True when progress stalls over a window.
+
+    ``best_error[k]`` is the smallest goal error ``e = |p_g - p| + rho * angle`` [m] seen in steps
+    ``0..k``. Progress stalls when, over the last ``window`` steps, that best error fell by less
+    than ``ratio`` of its value at the window's start: ``best[k - window] - best[k] <
+    ratio * best[k - window]``. The test is relative so the exponential approach to the goal
+    (error shrinking by a constant factor per second) never counts as a stall, while an arm held
+    by the repulsion far from the goal does. Never True before ``window`` steps.
+    """
+    if k < window:
+        return False
+    before = best_error[k - window]
+    return bool(before - best_error[k] < ratio * before)
+
+
+class Repulsion(Protocol):
+    """Where one step's repulsion comes from.
+
+    ``forces(kin)`` returns ``(points, F, support, joint)`` for the arm at ``kin``'s configuration:
+    ``points`` (M, 3) world points on the arm [m], ``F`` (M, 3) repulsive velocities there [m/s],
+    ``support`` (M, n) 1.0 where joint ``k`` moves point ``i``, ``joint`` (M,) the pinocchio joint
+    carrying each point. Returned arrays may be reused buffers: they are read before the next call.
+    ``gain`` is the gain in use (reported in the result's ``info``).
+    """
+
+    gain: float
+
+    def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+class ZeroRepulsion:
+    """No obstacles in reach: no repulsion."""
+
+    gain = 0.0
+
+    def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return kin.points, np.zeros_like(kin.points), kin.support, kin.cp_joint
+
+
+class StepInputs:
+    """What :meth:`IKLoopPlanner.solve_step` reads besides the kinematics (fixed for one query)."""
+
+    def __init__(self, p_goal: np.ndarray, R_goal: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 qd_max: np.ndarray, tool_joint: int, params: np.ndarray) -> None:
+        self.p_goal, self.R_goal = p_goal, R_goal
+        self.lower, self.upper, self.qd_max = lower, upper, qd_max
+        self.tool_joint = tool_joint
+        self.params = params
+
+
+class IKLoopPlanner(Planner):
+    """Base of the field planners: the loop of the module docstring around a :class:`Repulsion`.
+
+    Subclasses give :meth:`make_repulsion` (and may replace :meth:`solve_step`).
+    """
+
+    name = "ik-loop"
+    Config = IKLoopConfig
+    extra_diagnostics: tuple[str, ...] = ()
+    """Names of per-step diagnostics a subclass's ``solve_step`` writes after :data:`DIAGNOSTICS`."""
+
+    def __init__(self, config: Any = None, **settings: Any) -> None:
+        super().__init__(config, **settings)
+        self._prepared: dict[str, Any] | None = None
+
+    # --- for subclasses ---------------------------------------------------------------------
+    def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
+        """Build the repulsion source for ``problem`` (untimed setup)."""
+        raise NotImplementedError
+
+    def solve_step(self, kin: ArmKinematics, q: np.ndarray, inputs: StepInputs, points: np.ndarray, F: np.ndarray,
+                   support: np.ndarray, tool: np.ndarray, qd_out: np.ndarray, diag: np.ndarray) -> None:
+        """Steps 3-7 of the module docstring: write the joint velocity into ``qd_out`` and the
+        diagnostics into ``diag``. Default: the closed-form DLS step (compiled or numpy)."""
+        self._step(kin.S, kin.J, kin.p, kin.R, inputs.p_goal, inputs.R_goal, q, inputs.lower, inputs.upper,
+                   inputs.qd_max, points, F, support, kin.descendants, tool, inputs.params, qd_out, diag)
+
+    # --- setup (untimed by the harness, reported as setup time) ------------------------------
+    @property
+    def use_numba(self) -> bool:
+        return self.config.backend == "numba" or (self.config.backend == "auto" and fast.have_numba())
+
+    def setup(self, problem: Problem) -> None:
+        """Place control points, build the repulsion source and the collision checker."""
+        cfg = self.config
+        points = place_control_points(problem.robot, cfg.control_point_spacing, cfg.control_points)
+        checker = None
+        if cfg.collision_check_every > 0 or cfg.verify_path:
+            from planbench.collision import CollisionChecker
+
+            checker = CollisionChecker(problem.robot, problem.scene)
+        self._step = fast.step_compiled if self.use_numba else fast.step_numpy
+        self._prepared = {"problem": problem, "points": points, "checker": checker}
+        self._prepared["repulsion"] = self.make_repulsion(problem, points)
+        self._warm_up(problem)
+
+    def _warm_up(self, problem: Problem) -> None:
+        """One step and one repulsion query here, in the untimed setup, so that compilation (or
+        loading numba's cache) and first-call costs stay out of the timed query."""
+        robot = problem.robot
+        frame_id = robot.frame_id(problem.goal.pose.frame)
+        kin = ArmKinematics(robot, frame_id, self._prepared["points"], compiled=self.use_numba)
+        q = np.array(problem.start, dtype=float)
+        kin.update(q)
+        inputs = self._inputs(problem, frame_id)
+        points, F, support, _ = self._prepared["repulsion"].forces(kin)
+        self.solve_step(kin, q, inputs, points, np.zeros_like(F), support, np.zeros(0, dtype=np.intp),
+                        np.zeros(robot.nq), np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics)))
+
+    def _inputs(self, problem: Problem, frame_id: int) -> StepInputs:
+        robot = problem.robot
+        goal = problem.goal.pose
+        return StepInputs(np.asarray(goal.position, dtype=float), np.asarray(goal.rotation, dtype=float),
+                          np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float),
+                          self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
+                          int(robot.model.frames[frame_id].parentJoint), fast.pack_params(self.config))
+
+    @property
+    def control_points(self) -> ControlPoints | None:
+        return None if self._prepared is None else self._prepared["points"]
+
+    def repulsion_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(points, F)``: the points on the arm at ``q`` where the repulsion acts [m] and the
+        repulsive velocities there [m/s] (for plots and inspection)."""
+        prep = self._prepared
+        assert prep is not None, "call setup(problem) first"
+        problem = prep["problem"]
+        kin = ArmKinematics(problem.robot, problem.robot.frame_id(problem.goal.pose.frame), prep["points"])
+        kin.update(np.asarray(q, dtype=float))
+        points, F, _, _ = prep["repulsion"].forces(kin)
+        return points.copy(), F.copy()
+
+    # --- the timed query ---------------------------------------------------------------------
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        if self._prepared is None or self._prepared["problem"] is not problem:
+            self.setup(problem)
+        prep = self._prepared
+        assert prep is not None
+        cfg = self.config
+        robot = problem.robot
+        t_start = time.perf_counter()
+        frame_id = robot.frame_id(problem.goal.pose.frame)
+        inputs = self._inputs(problem, frame_id)
+        tol_p = cfg.goal_tolerance_scale * problem.tolerances.position
+        tol_r = cfg.goal_tolerance_scale * problem.tolerances.orientation
+        lower, upper = inputs.lower, inputs.upper
+        dt = cfg.dt
+        repulsion: Repulsion = prep["repulsion"]
+        checker = prep["checker"]
+        check_every = cfg.collision_check_every
+        window = cfg.stall_steps
+        n_max = cfg.max_steps + 1
+        names = DIAGNOSTICS + self.extra_diagnostics
+        path = np.empty((n_max, robot.nq))
+        diag = np.full((n_max, len(names)), np.nan)
+        best = np.empty(n_max)
+        q = np.array(problem.start, dtype=float)
+        status, message = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
+        kin = ArmKinematics(robot, frame_id, prep["points"], compiled=self.use_numba)
+        qd = np.zeros(robot.nq)
+        dg = np.zeros(len(names))
+        rho = cfg.rotation_weight
+        last_joint: Any = None
+        tool = np.zeros(0, dtype=np.intp)
+        k = 0
+        while True:
+            path[k] = q
+            kin.update(q)
+            points, F, support, joint = repulsion.forces(kin)
+            if joint is not last_joint:  # sources on fixed control points return the same array
+                tool, last_joint = np.flatnonzero(joint == inputs.tool_joint), joint
+            self.solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+            diag[k] = dg
+            err_p, err_r = dg[0], dg[1]
+            e = err_p + rho * err_r
+            best[k] = e if k == 0 else min(e, best[k - 1])
+            if checker is not None and check_every > 0 and k % check_every == 0 and k > 0 \
+                    and checker.in_collision(q):
+                status, message = PlanStatus.COLLISION, f"the arm is in collision at step {k} (t = {k * dt:.2f} s)"
+                break
+            if err_p <= tol_p and err_r <= tol_r:
+                status, message = PlanStatus.SUCCESS, f"goal reached in {k} steps"
+                break
+            if stalled(best, k, window, cfg.stall_ratio):
+                status = PlanStatus.LOCAL_MINIMUM
+                message = (f"local minimum: the goal error fell by less than {cfg.stall_ratio:.0%} over "
+                           f"{cfg.stall_window:g} s (position error {err_p * 1000:.1f} mm, "
+                           f"orientation error {err_r:.3f} rad)")
+                break
+            if k >= cfg.max_steps:
+                break
+            if k % 16 == 0 and time.perf_counter() - t_start > time_limit:
+                status, message = PlanStatus.TIMEOUT, f"time limit of {time_limit:g} s reached after {k} steps"
+                break
+            q = q + qd * dt
+            np.clip(q, lower, upper, out=q)
+            k += 1
+        n = k + 1
+        if checker is not None and status is not PlanStatus.COLLISION:
+            hit = self._first_collision(checker, path[:n])
+            if hit is not None:
+                n = hit + 1
+                status, message = PlanStatus.COLLISION, (f"the arm is in collision at step {hit} "
+                                                         f"(t = {hit * dt:.2f} s), found by the dense path check")
+        info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
+        info.update(steps=n - 1, dt=dt, repulsion_gain=repulsion.gain, n_control_points=len(prep["points"]))
+        return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
+
+    def _first_collision(self, checker: Any, path: np.ndarray) -> int | None:
+        """The first step whose segment (or end) collides, or None. With ``verify_path`` the whole
+        trajectory at the harness's collision resolution, else only the last configuration."""
+        if not self.config.verify_path:
+            return len(path) - 1 if checker.in_collision(path[-1]) else None
+        from planbench.validate import ValidationSettings
+
+        return checker.first_collision(path, ValidationSettings().collision_resolution)  # type: ignore[no-any-return]
