@@ -16,6 +16,9 @@ Settings file keys (units: m, rad, s)::
     [fixed_joints]      name = value     # optional: joints held fixed [rad or m]
     [position_limits]   name = [lo, hi]  # optional: override the URDF's [rad or m]
     [velocity_limits]   name = value     # optional: override the URDF's [rad/s or m/s]
+    [control_points]    link = [[x, y, z], ...]  # optional: where field planners sample their
+                                         # repulsion on that link, in the link frame [m]; replaces
+                                         # the automatic placement for that link ([] = none)
 
 Relative file paths are looked up beside the settings file first, then in example-robot-data's
 ``robots/`` folder (found through the installed distribution, never a machine path).
@@ -85,6 +88,9 @@ class RobotSettings:
     position_limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     velocity_limits: Mapping[str, float] = field(default_factory=dict)
     ignore_collision_pairs: tuple[tuple[str, str], ...] = ()
+    control_points: Mapping[str, tuple[tuple[float, float, float], ...]] = field(default_factory=dict)
+    """Per link, points [m] in the link frame where field planners sample their repulsion,
+    replacing their automatic placement on that link (an empty list: no point on the link)."""
     description: str = ""
     source: str = "arguments"  # the settings file, for error messages and provenance
 
@@ -104,6 +110,11 @@ def _resolve(path: str | Path, base: Path | None) -> Path:
         if c.exists():
             return c.resolve()
     return candidates[-1]
+
+
+def _point3(p: Any) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in p)
+    return x, y, z
 
 
 def _read_settings(path: Path) -> RobotSettings:
@@ -131,6 +142,8 @@ def _read_settings(path: Path) -> RobotSettings:
             position_limits={k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()},
             velocity_limits={k: float(v) for k, v in raw.get("velocity_limits", {}).items()},
             ignore_collision_pairs=tuple((str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])),
+            control_points={str(link): tuple(_point3(p) for p in pts)
+                            for link, pts in raw.get("control_points", {}).items()},
             description=str(raw.get("description", "")),
             source=str(path),
         )
@@ -222,6 +235,10 @@ class Robot:
             frames = [f.name for f in model.frames]
             raise UnknownNameError(f"end-effector frame of robot {settings.name!r}", settings.ee_frame, frames)
         self.ee_frame_id = model.getFrameId(settings.ee_frame)
+        for link in settings.control_points:
+            if not model.existFrame(link):
+                raise UnknownNameError(f"link of control_points of robot {settings.name!r}", link,
+                                       [f.name for f in model.frames])
         if settings.home is not None:
             if len(settings.home) != self.nq:
                 raise RobotFileError(src, f"home has {len(settings.home)} values, the robot plans {self.nq} joints")
@@ -352,6 +369,8 @@ def _hashable(s: RobotSettings) -> RobotSettings:
         fixed_joints=_FrozenDict(s.fixed_joints),
         position_limits=_FrozenDict({k: tuple(v) for k, v in s.position_limits.items()}),
         velocity_limits=_FrozenDict(s.velocity_limits),
+        control_points=_FrozenDict({k: tuple(tuple(float(x) for x in p) for p in v)
+                                    for k, v in s.control_points.items()}),
     )
 
 

@@ -9,6 +9,7 @@ import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
 from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
+from planbench.errors import UnknownNameError
 from planbench.robot import load_robot
 from planbench_plugins.matrix_field import MatrixFieldPlanner
 
@@ -158,3 +159,28 @@ def test_success_is_never_claimed_on_a_colliding_path(robot):
     checker = CollisionChecker(robot, problem.scene)
     assert checker.first_collision(unchecked.path, 0.01) == hit
     assert checker.first_collision(unchecked.path[:hit], 0.01) is None
+
+
+def test_control_points_from_the_robot_file_and_from_settings(tmp_path):
+    """A robot's TOML places control points per link; the planner's settings override it per link."""
+    from planbench.robot import _settings_dir
+
+    text = (_settings_dir() / "panda.toml").read_text()
+    text = text.replace("[fixed_joints]", '[control_points]\npanda_hand = [[0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]\n'
+                                          'panda_link1 = []\n\n[fixed_joints]')
+    path = tmp_path / "panda_cp.toml"
+    path.write_text(text)
+    robot = load_robot(path)
+    assert robot.settings.control_points["panda_hand"] == ((0.0, 0.0, 0.05), (0.0, 0.0, 0.1))
+    problem = Problem.create(robot, Scene(()), robot.home, goal_q=robot.home, id="test:cp")
+    planner = MatrixFieldPlanner()
+    planner.setup(problem)
+    links = planner.control_points.link
+    assert links.count("panda_hand") == 2 and "panda_link1" not in links
+    planner = MatrixFieldPlanner(control_points={"panda_hand": [[0.0, 0.0, 0.02]]})
+    planner.setup(problem)
+    assert planner.control_points.link.count("panda_hand") == 1
+    bad = tmp_path / "panda_badcp.toml"
+    bad.write_text(text.replace("panda_link1 = []", "panda_lnk1 = []"))
+    with pytest.raises(UnknownNameError, match="panda_link1"):
+        load_robot(bad)

@@ -146,7 +146,7 @@ class IKLoopPlanner(Planner):
     def setup(self, problem: Problem) -> None:
         """Place control points, build the repulsion source and the collision checker."""
         cfg = self.config
-        points = place_control_points(problem.robot, cfg.control_point_spacing, cfg.control_points)
+        points = place_control_points(problem.robot, cfg.control_point_spacing, self.control_point_overrides(problem))
         checker = None
         if cfg.collision_check_every > 0 or cfg.verify_path:
             from planbench.collision import CollisionChecker
@@ -177,6 +177,14 @@ class IKLoopPlanner(Planner):
                           np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float),
                           self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
                           int(robot.model.frames[frame_id].parentJoint), fast.pack_params(self.config))
+
+    def control_point_overrides(self, problem: Problem) -> list[tuple[str, Any]]:
+        """Per-link control points: the robot's (``[control_points]`` in ``robots/<name>.toml``),
+        then the planner settings' ``control_points`` on top (a link named in both takes the
+        settings' points)."""
+        merged = dict(problem.robot.settings.control_points)
+        merged.update(dict(self.config.control_points or ()))
+        return list(merged.items())
 
     @property
     def control_points(self) -> ControlPoints | None:
