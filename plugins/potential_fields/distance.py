@@ -4,7 +4,9 @@ Per step, at the arm's configuration (placements from the loop's own forward kin
 
 1. every moving robot geometry's world placement (``pinocchio.updateGeometryPlacements``);
 2. cheap culling: a geometry's bounding sphere against an obstacle's world AABB gives a lower
-   bound of their distance; pairs with that bound ``>= d0`` are skipped (no push possible);
+   bound of their distance; pairs with that bound ``>= d0`` are skipped (no push possible), and
+   the rest are visited in order of their bound, skipping a pair whose bound is not below its
+   link's nearest distance found so far (only the nearest obstacle per link is needed);
 3. coal's distance (GJK, EPA when penetrating) for the remaining pairs, through
    ``pinocchio.computeDistance``: signed distance ``d``, witness point ``p`` on the robot, and the
    separating normal ``n`` (from the robot towards the obstacle, also when they overlap);
@@ -137,22 +139,27 @@ class DistanceFieldRepulsion:
         gap = np.maximum(self._obs_lo[None] - c, 0.0) + np.maximum(c - self._obs_hi[None], 0.0)
         bound = np.sqrt(np.einsum("goa,goa->go", gap, gap)) - self._radius[:, None]
         near = np.argwhere(bound < self.d0)
-        self.n_pairs_checked = len(near)
+        near = near[np.argsort(bound[near[:, 0], near[:, 1]], kind="stable")]  # nearest bound first
         best = self.distance
         best.fill(np.inf)
         F, points = self.F, self.points
         F.fill(0.0)
         normals = np.zeros((len(best), 3))
         first = np.ones(len(best), dtype=bool)
+        checked = 0
         for r, o in near:
-            res = pin.computeDistance(gm, gd, int(self._pair[r, o]))
-            d = res.min_distance
             link = self._link_of_geom[r]
+            if bound[r, o] >= best[link]:  # cannot beat this link's nearest so far
+                continue
+            res = pin.computeDistance(gm, gd, int(self._pair[r, o]))
+            checked += 1
+            d = res.min_distance
             if d < best[link]:
                 best[link] = d
                 points[link] = res.getNearestPoint1()
                 normals[link] = res.normal
                 first[link] = False
+        self.n_pairs_checked = checked
         for link in np.flatnonzero(first):
             points[link] = centre[int(np.argmax(self._link_of_geom == link))]
         mag = khatib_magnitude(best, self.gain, self.d0, self.floor)
