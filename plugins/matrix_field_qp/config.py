@@ -1,0 +1,113 @@
+"""Settings of the ``matrix-field-qp`` planner: the matrix-field planner's, plus the QP's.
+
+Everything of :class:`~planbench_plugins.matrix_field.config.MatrixFieldConfig` (time step,
+attraction, field, secondary-task gains, endings) keeps its meaning; what is added here are the
+weights of the QP's objective (see :mod:`.formulation`), the velocity dampers, and the solver.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from planbench.errors import InvalidConfigError
+from planbench_plugins.matrix_field.config import MatrixFieldConfig, check_number
+
+__all__ = ["MatrixFieldQPConfig", "installed_solvers"]
+
+
+def installed_solvers() -> list[str]:
+    """The qpsolvers backends importable here (``qpsolvers.available_solvers``)."""
+    import qpsolvers
+
+    return list(qpsolvers.available_solvers)
+
+
+@dataclass(frozen=True)
+class MatrixFieldQPConfig(MatrixFieldConfig):
+    """Settings of :class:`~planbench_plugins.matrix_field_qp.MatrixFieldQPPlanner`.
+
+    Objective (one step, decision variable ``qd`` [rad/s]; :mod:`.formulation`)::
+
+        1/2 w_task |W (J qd - s v_att)|^2 + 1/2 w_sec |qd - (qd_rep + qd_m + qd_c)|^2 + 1/2 mu |qd|^2
+
+    with ``W = diag(1, 1, 1, r, r, r)``, ``r = orientation_weight``, and ``mu = w_task lambda^2 +
+    damping_weight`` (``lambda`` the loop's damping, adaptive by default). Without active
+    constraints the minimiser is the matrix-field step before its limits, with damped least
+    squares at ``lambda_eff^2 = lambda^2 + (w_sec + damping_weight) / w_task``.
+    """
+
+    # --- objective -----------------------------------------------------------------------
+    task_weight: float = 1.0
+    """``w_task`` [s^2/m^2]: weight of the primary (end-effector) task. Only ratios matter."""
+    orientation_weight: float = 1.0
+    """``r`` [m^2/rad^2]: weight of the angular rows of the primary task relative to the linear
+    ones (1 = the same balance as the matrix-field step's damped least squares)."""
+    secondary_weight: float = 1e-3
+    """``w_sec`` [s^2/rad^2]: weight of the secondary target ``qd_rep + qd_m + qd_c``. Small
+    against ``w_task``, so the secondary tasks act (almost) only in the primary task's null space;
+    it also damps the primary task like a fixed ``lambda^2 = w_sec / w_task`` (0.03 m)."""
+    damping_weight: float = 1e-9
+    """``mu_0`` [s^2/rad^2]: smallest weight of ``|qd|^2``, keeping the Hessian positive definite
+    whatever the other weights."""
+
+    # --- velocity dampers (obstacle avoidance as a constraint) -----------------------------
+    velocity_dampers: bool = True
+    """One linear constraint per control point inside the field: its velocity towards the
+    obstacle (against ``f_i``) is at most ``a_i`` (:func:`.formulation.velocity_dampers`)."""
+    damper_speed: float = 1.0
+    """``xi`` [m/s]: approach speed allowed where the field starts (``|f_i|`` -> 0)."""
+    damper_stop: float = 1.5
+    """``k_stop`` [-]: the approach speed falls linearly with ``|f_i|`` and reaches 0 where
+    ``|f_i| = k_stop * speed_max`` (1 = at the stand-off; larger = closer to the obstacle)."""
+    damper_tool: bool = False
+    """Also constrain the points carried by the goal frame's joint (hand, fingers). Off: the
+    goal pose is collision-free but often within a few centimetres of a shelf, where a damper
+    on the hand would stop it short."""
+
+    # --- solver --------------------------------------------------------------------------
+    solver: str = "osqp"
+    """qpsolvers backend by name (any of ``qpsolvers.available_solvers``)."""
+    solver_options: Any = None
+    """Extra keyword arguments for the backend (``{"eps_abs": 1e-8}``), over the defaults of
+    :data:`.solve.SOLVER_DEFAULTS`."""
+    residual_tolerance: float = 1e-5
+    """Largest constraint violation [rad/s, m/s] accepted from the solver before the step is
+    refused (``INFEASIBLE``). Smaller violations of the joint limits are then removed exactly by
+    projecting onto the bounds, so the returned trajectory never breaks them."""
+
+    def __post_init__(self) -> None:
+        if self.solver_options is not None:
+            object.__setattr__(self, "solver_options", _freeze_options(self.solver_options))
+        super().__post_init__()
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("task_weight", "orientation_weight", "damping_weight", "damper_speed", "damper_stop",
+                     "residual_tolerance"):
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
+        check_number(self, "secondary_weight", lambda v: v >= 0, "finite and >= 0")
+        for name in ("velocity_dampers", "damper_tool"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        installed = installed_solvers()
+        if self.solver not in installed:
+            raise InvalidConfigError(
+                f"solver {self.solver!r} is not an installed qpsolvers backend; installed: {installed}. "
+                f"Install it with e.g. `pip install qpsolvers[{self.solver}]`, or choose one of those.")
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The solver options as a dict."""
+        return dict(self.solver_options or ())
+
+
+def _freeze_options(options: Any) -> tuple[tuple[str, Any], ...]:
+    if not isinstance(options, Mapping | tuple | list):
+        raise InvalidConfigError(f"solver_options must map option names to values, got {options!r}")
+    try:
+        items = dict(options).items()
+    except (TypeError, ValueError):
+        raise InvalidConfigError(f"solver_options must map option names to values, got {options!r}") from None
+    return tuple(sorted((str(k), v) for k, v in items))

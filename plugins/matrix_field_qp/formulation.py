@@ -1,0 +1,105 @@
+"""One planner step as a quadratic program in the joint velocity ``qd`` (METHOD.md section 5).
+
+The QP of a step, in qpsolvers' form ``min 1/2 x^T P x + c^T x  s.t.  G x <= h,  lb <= x <= ub``::
+
+    minimise   1/2 w_task |W (J qd - s v_att)|^2                 primary task (end effector)
+             + 1/2 w_sec  |qd - (qd_rep + qd_m + qd_c)|^2        repulsion, manipulability, mid-joint
+             + 1/2 mu     |qd|^2                                 damping
+    subject to max(-qd_max, (q_min - q)/dt) <= qd <= min(qd_max, (q_max - q)/dt)   hard limits
+               -u_i^T J_i qd <= a_i   for every damped control point i          velocity dampers
+
+so ``P = w_task J^T W^2 J + (w_sec + mu) I`` and ``c = -(w_task s J^T W^2 v_att + w_sec x_sec)``.
+The task terms (``v_att``, ``s``, ``qd_rep``, ``qd_m``, ``qd_c``, ``lambda``) are the matrix-field
+planner's own functions (:mod:`planbench_plugins.matrix_field.tasks`); only the way they are
+combined differs. Unconstrained and with ``W = I``, the minimiser is
+``J^T (J J^T + l^2 I)^-1 s v_att + w_sec / (w_sec + mu) N_l x_sec`` with ``l^2 = (w_sec + mu) /
+w_task``: the matrix-field step before its limits, with damped least squares and a damped
+null-space projector ``N_l``.
+
+Velocity damper (after Faverjon and Tournassoud 1987, with the field in place of a distance):
+``u_i = f_i / |f_i|`` points away from the obstacles, ``J_i`` is the point's translational
+Jacobian, and the allowed approach speed ``a_i = xi max(0, 1 - |f_i| / (k_stop v_max))`` [m/s]
+falls as the field grows. It never asks for a retreat (``a_i >= 0``), so ``qd = 0`` satisfies
+every damper: with ``q`` inside its limits the QP is always feasible, and the repulsion term of
+the objective does the pushing away.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from planbench_plugins.matrix_field import tasks as T
+
+__all__ = ["StepQP", "objective", "limit_bounds", "velocity_dampers", "infeasible_joints"]
+
+
+@dataclass
+class StepQP:
+    """One step's QP: ``min 1/2 x^T P x + c^T x`` s.t. ``G x <= h``, ``lb <= x <= ub``."""
+
+    P: np.ndarray
+    c: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    G: np.ndarray | None = None
+    h: np.ndarray | None = None
+
+    def unconstrained(self) -> np.ndarray:
+        """The minimiser without constraints, ``-P^-1 c`` (for tests and diagnostics)."""
+        return np.linalg.solve(self.P, -self.c)  # type: ignore[no-any-return]
+
+    def violation(self, x: np.ndarray) -> float:
+        """Largest constraint violation of ``x`` (0 when feasible) [rad/s, m/s]."""
+        v = max(float(np.max(self.lb - x)), float(np.max(x - self.ub)), 0.0)
+        if self.G is not None and self.h is not None and len(self.h):
+            v = max(v, float(np.max(self.G @ x - self.h)))
+        return v
+
+    def active(self, x: np.ndarray, tol: float = 1e-7) -> int:
+        """Number of constraints active at ``x`` (within ``tol``)."""
+        n = int(np.sum(x <= self.lb + tol) + np.sum(x >= self.ub - tol))
+        if self.G is not None and self.h is not None and len(self.h):
+            n += int(np.sum(self.G @ x >= self.h - tol))
+        return n
+
+
+def objective(J: np.ndarray, v: np.ndarray, x_sec: np.ndarray, *, task_weight: float, orientation_weight: float,
+              secondary_weight: float, damping: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(P, c)`` of the objective above; ``v`` is the primary target ``s v_att`` (6,), ``damping``
+    is ``mu`` [s^2/rad^2]."""
+    w2 = np.array([1.0, 1.0, 1.0, orientation_weight, orientation_weight, orientation_weight])
+    JW = J.T * (task_weight * w2)  # J^T w_task W^2, (n, 6)
+    P = JW @ J
+    P.flat[:: P.shape[0] + 1] += secondary_weight + damping
+    c = -(JW @ v + secondary_weight * x_sec)
+    return P, c
+
+
+def limit_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, qd_max: np.ndarray,
+                 dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(lb, ub)``: velocity limits and the position limits over one step, ``q + qd dt`` in
+    ``[lower, upper]``. ``lb > ub`` on a joint means no velocity keeps it within both."""
+    return np.maximum(-qd_max, (lower - q) / dt), np.minimum(qd_max, (upper - q) / dt)
+
+
+def infeasible_joints(lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
+    """Indices of joints whose bounds are inconsistent (``lb > ub``)."""
+    return np.flatnonzero(lb > ub)
+
+
+def velocity_dampers(S: np.ndarray, points: np.ndarray, F: np.ndarray, support: np.ndarray, rows: np.ndarray,
+                     *, speed: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(G, h)`` of the velocity dampers of control points ``rows`` (those with ``f_i != 0``).
+
+    Row ``i``: ``-u_i^T J_i qd <= a_i`` with ``u_i = f_i / |f_i|`` and ``a_i = speed * max(0, 1 -
+    |f_i| / stop)``; ``speed`` [m/s] is ``xi``, ``stop`` [m/s] the field at which the approach stops.
+    """
+    f = F[rows]
+    mag = np.sqrt(np.einsum("ij,ij->i", f, f))
+    u = f / mag[:, None]
+    Jp = T.point_jacobians(S, points[rows], support[rows])  # (M, 3, n)
+    G = -np.einsum("mjn,mj->mn", Jp, u)
+    h = speed * np.maximum(0.0, 1.0 - mag / stop)
+    return G, h

@@ -1,0 +1,113 @@
+"""Solving a step's QP with qpsolvers: backend choice, options, timing, and refusal of bad answers.
+
+A step is either a velocity that satisfies the joint limits exactly, or a :class:`QPFailure` that
+names the solver and its status; never an exception from the backend, never a silently wrong
+step. The solver's answer is checked (finite, constraint violation under ``residual_tolerance``)
+and then projected onto the velocity and position bounds, which removes the remaining round-off
+violation of the limits (the projection moves ``qd`` by at most that violation).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+
+from planbench.planner import PlanStatus
+from planbench_plugins.matrix_field_qp.formulation import StepQP, infeasible_joints
+
+__all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS"]
+
+SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
+    "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "polish": False, "max_iter": 20000},
+}
+"""Options given to a backend unless ``solver_options`` overrides them. OSQP's own tolerances
+(1e-3) leave steps up to 0.3 rad/s from the optimum on planning QPs; at 1e-8 they agree with an
+active-set solver (daqp) to 1e-5 rad/s (median 2e-8). Polishing is off: OSQP 1.x prints a line on
+every solve that polishes nothing, even with ``verbose=False`` (osqp/osqp#785)."""
+
+try:  # the loop's hook, when it has one: the loop then ends the plan with the failure's status
+    from planbench_plugins.matrix_field.loop import StepFailure as _FailureBase  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - until loop.py has the hook
+    _FailureBase = Exception
+
+
+class QPFailure(_FailureBase):  # type: ignore[misc, valid-type]
+    """No valid step: the QP is infeasible or the solver failed. ``status`` is the plan status
+    (``INFEASIBLE``), ``solver_status`` the backend's own word for it, ``info`` a JSON-friendly
+    summary for the result."""
+
+    def __init__(self, message: str, solver: str, solver_status: str) -> None:
+        Exception.__init__(self, message)
+        self.status = PlanStatus.INFEASIBLE
+        self.message = message
+        self.solver = solver
+        self.solver_status = solver_status
+        self.info = {"qp_failure": {"solver": solver, "solver_status": solver_status, "message": message}}
+
+
+class QPSolver:
+    """One qpsolvers backend with its options; :meth:`solve` returns ``(qd, residual, seconds)``."""
+
+    def __init__(self, name: str, options: dict[str, Any] | None = None, residual_tolerance: float = 1e-5) -> None:
+        import qpsolvers
+
+        self._qpsolvers = qpsolvers
+        self.name = name
+        self.options = {**SOLVER_DEFAULTS.get(name, {}), **(options or {})}
+        self.residual_tolerance = residual_tolerance
+        self._sparse = name in qpsolvers.sparse_solvers and name not in qpsolvers.dense_solvers
+        if self._sparse:
+            from scipy.sparse import csc_matrix
+
+            self._csc = csc_matrix
+
+    def solve(self, qp: StepQP, joint_names: Any = None) -> tuple[np.ndarray, float, float]:
+        """``(qd, violation before the projection, solver wall time [s])``; raises :class:`QPFailure`."""
+        bad = infeasible_joints(qp.lb, qp.ub)
+        if len(bad):
+            j = int(bad[0])
+            name = joint_names[j] if joint_names is not None else f"joint {j}"
+            raise QPFailure(
+                f"infeasible QP: no velocity of {name} keeps it within its velocity limit and inside its "
+                f"position limits after one step (needs {qp.lb[j]:.4g} <= qd <= {qp.ub[j]:.4g} rad/s); "
+                "the configuration is outside the joint limits by more than one step at full speed: "
+                "start inside the limits", self.name, "infeasible (inconsistent bounds, found before the solver)")
+        P, G = qp.P, qp.G
+        if self._sparse:  # a sparse-only backend: convert here, silently, instead of in qpsolvers
+            P = self._csc(P)
+            G = None if G is None else self._csc(G)
+        problem = self._qpsolvers.Problem(P, qp.c, G, qp.h, None, None, qp.lb, qp.ub)
+        t0 = time.perf_counter()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                solution = self._qpsolvers.solve_problem(problem, solver=self.name, **self.options)
+        except Exception as exc:  # any backend error is a named failure, not an escaping exception
+            raise QPFailure(f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name,
+                            f"error: {exc}") from exc
+        seconds = time.perf_counter() - t0
+        x = solution.x
+        if not solution.found or x is None or not np.all(np.isfinite(x)):
+            status = _status(solution)
+            raise QPFailure(f"QP solver {self.name!r} found no solution (status: {status})", self.name, status)
+        violation = qp.violation(x)
+        if violation > self.residual_tolerance:
+            raise QPFailure(f"QP solver {self.name!r} returned a step that breaks the constraints by {violation:.3g} "
+                            f"(tolerance {self.residual_tolerance:g}); tighten its tolerances through solver_options",
+                            self.name, f"{_status(solution)}, violation {violation:.3g}")
+        return np.clip(x, qp.lb, qp.ub), violation, seconds
+
+
+def _status(solution: Any) -> str:
+    """The backend's status, as far as qpsolvers passes it on."""
+    extras = getattr(solution, "extras", None) or {}
+    info = extras.get("info") if isinstance(extras, dict) else None
+    for source in (info, extras):
+        for key in ("status", "exitflag", "status_val"):
+            value = source.get(key) if isinstance(source, dict) else getattr(source, key, None)
+            if value is not None:
+                return str(value)
+    return "no solution found" if not getattr(solution, "found", False) else "solved"
