@@ -110,15 +110,15 @@ def test_goal_faster_than_the_velocity_limits_is_followed_at_exactly_the_limit(r
     qp, qd, _ = planner.step_at(start)
     qd_max = np.asarray(robot.velocity_limit)
     assert np.max(np.abs(qp.unconstrained()) / qd_max) > 1.5  # the task asks for too much
-    assert np.max(np.abs(qd) / qd_max) == pytest.approx(1.0, abs=1e-12)  # saturated, exactly
+    assert np.max(np.abs(qd) / qd_max) == pytest.approx(1.0, abs=2e-9)  # saturated (1e-9 margin)
     assert np.all(np.abs(qd) <= qd_max)
     assert np.allclose(qd, box_lsq(qp), atol=1e-5)  # and the best step within the limits
     result = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, **fast)
     ev = planbench.evaluate(problem, result)
     assert ev.success, ev.failure
-    assert ev.max_velocity_ratio == pytest.approx(1.0, abs=1e-9)
+    assert ev.max_velocity_ratio == pytest.approx(1.0, abs=2e-9) and ev.max_velocity_ratio <= 1.0
     speed = np.abs(np.diff(result.path, axis=0)) / np.diff(result.times)[:, None]
-    assert np.all(speed <= qd_max * (1 + 1e-12))
+    assert np.all(speed <= qd_max)
 
 
 def test_infeasible_start_gives_the_named_failure(robot):
@@ -188,3 +188,4 @@ def test_limit_bounds_keep_one_step_inside():
     q = np.array([0.0, 0.99, -0.99])
     lb, ub = limit_bounds(q, -np.ones(3), np.ones(3), np.full(3, 2.0), 0.01)
     assert np.allclose(ub, [2.0, 1.0, 2.0]) and np.allclose(lb, [-2.0, -2.0, -1.0])
+    assert np.all(ub <= 2.0 * (1 - 1e-9))

@@ -32,7 +32,10 @@ import numpy as np
 
 from planbench_plugins.matrix_field import tasks as T
 
-__all__ = ["StepQP", "objective", "limit_bounds", "velocity_dampers", "infeasible_joints"]
+__all__ = ["StepQP", "objective", "limit_bounds", "velocity_dampers", "infeasible_joints", "VELOCITY_MARGIN"]
+
+VELOCITY_MARGIN = 1e-9
+"""Relative margin under the velocity limits (see :func:`limit_bounds`)."""
 
 
 @dataclass
@@ -80,8 +83,13 @@ def objective(J: np.ndarray, v: np.ndarray, x_sec: np.ndarray, *, task_weight: f
 def limit_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, qd_max: np.ndarray,
                  dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``(lb, ub)``: velocity limits and the position limits over one step, ``q + qd dt`` in
-    ``[lower, upper]``. ``lb > ub`` on a joint means no velocity keeps it within both."""
-    return np.maximum(-qd_max, (lower - q) / dt), np.minimum(qd_max, (upper - q) / dt)
+    ``[lower, upper]``. ``lb > ub`` on a joint means no velocity keeps it within both.
+
+    The velocity limits are shrunk by :data:`VELOCITY_MARGIN` (relative): the harness measures
+    velocities as ``(q_k+1 - q_k) / dt`` of the stored trajectory, and that difference, rounded in
+    floating point, can exceed the commanded velocity by ~1e-14 relative."""
+    vmax = qd_max * (1.0 - VELOCITY_MARGIN)
+    return np.maximum(-vmax, (lower - q) / dt), np.minimum(vmax, (upper - q) / dt)
 
 
 def infeasible_joints(lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
