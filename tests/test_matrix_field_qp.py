@@ -133,6 +133,7 @@ def test_infeasible_start_gives_the_named_failure(robot):
     assert planbench.plan(problem, MatrixFieldQPPlanner).status is PlanStatus.INVALID_START
 
 
+@pytest.mark.filterwarnings("ignore:OSQP exited")
 def test_solver_failure_is_a_named_status_and_options_pass_through(robot):
     problem = trivial_problem()
     result = planbench.plan(problem, MatrixFieldQPPlanner, solver_options={"max_iter": 1}, time_limit=5.0)
@@ -151,15 +152,21 @@ def test_settings_are_validated():
     assert MatrixFieldQPConfig(solver_options={"eps_abs": 1e-9}).options == {"eps_abs": 1e-9}
 
 
-def test_velocity_dampers_hold_near_an_obstacle(robot):
+def elbow_wall_problem(robot):
+    """A wall 13 cm beside the elbow at the ready pose; the goal swings the elbow towards it."""
     from planbench import Obstacle
 
     q = np.array(robot.home)
     elbow = robot.frame_pose(q, "panda_link4").translation
     wall = Obstacle("wall", "box", position=(elbow[0], elbow[1] + 0.13, elbow[2]), size=(0.4, 0.02, 0.4))
     goal = q.copy()
-    goal[0] += 0.8  # swings the elbow towards the wall
-    problem = problem_from(robot, q, goal, Scene((wall,), name="wall"))
+    goal[0] += 0.8
+    return problem_from(robot, q, goal, Scene((wall,), name="wall"))
+
+
+def test_velocity_dampers_hold_near_an_obstacle(robot):
+    problem = elbow_wall_problem(robot)
+    q = problem.start
     planner = prepared(problem)
     qp, qd, diag = planner.step_at(q)
     assert qp.G is not None and len(qp.h) >= 1
@@ -178,9 +185,12 @@ def test_backends_give_the_same_step(robot, solver):
     goal[0] -= 1.5
     goal[1] += 0.5
     problem = problem_from(robot, start, goal)
-    for q, fast in ((start, {"speed_max": 5.0}), (start + 0.05, {})):  # velocity limits active, then none
-        a = prepared(problem, solver=SOLVERS[0], **fast).step_at(q)[1]
-        b = prepared(problem, solver=solver, **fast).step_at(q)[1]
+    wall = elbow_wall_problem(robot)
+    # velocity limits active; no constraint active; velocity dampers in the QP
+    for prob, q, fast in ((problem, start, {"speed_max": 5.0}), (problem, start + 0.05, {}),
+                          (wall, wall.start, {})):
+        a = prepared(prob, solver=SOLVERS[0], **fast).step_at(q)[1]
+        b = prepared(prob, solver=solver, **fast).step_at(q)[1]
         assert np.allclose(a, b, atol=1e-5), (SOLVERS[0], solver, a, b)
 
 

@@ -10,7 +10,6 @@ violation of the limits (the projection moves ``qd`` by at most that violation).
 from __future__ import annotations
 
 import time
-import warnings
 from typing import Any
 
 import numpy as np
@@ -21,11 +20,11 @@ from planbench_plugins.matrix_field_qp.formulation import StepQP, infeasible_joi
 __all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS"]
 
 SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
-    "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "polish": False, "max_iter": 20000},
+    "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "polishing": False, "max_iter": 20000, "raise_error": False},
 }
 """Options given to a backend unless ``solver_options`` overrides them. OSQP's own tolerances
 (1e-3) leave steps up to 0.3 rad/s from the optimum on planning QPs; at 1e-8 they agree with an
-active-set solver (daqp) to 1e-5 rad/s (median 2e-8). Polishing is off: OSQP 1.x prints a line on
+active-set solver (daqp) to 1e-5 rad/s (median 2e-8). Polishing is off: OSQP 1.1 prints a line on
 every solve that polishes nothing, even with ``verbose=False`` (osqp/osqp#785)."""
 
 try:  # the loop's hook, when it has one: the loop then ends the plan with the failure's status
@@ -82,9 +81,7 @@ class QPSolver:
         problem = self._qpsolvers.Problem(P, qp.c, G, qp.h, None, None, qp.lb, qp.ub)
         t0 = time.perf_counter()
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                solution = self._qpsolvers.solve_problem(problem, solver=self.name, **self.options)
+            solution = self._qpsolvers.solve_problem(problem, solver=self.name, **self.options)
         except Exception as exc:  # any backend error is a named failure, not an escaping exception
             raise QPFailure(f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name,
                             f"error: {exc}") from exc
