@@ -4,11 +4,20 @@ Usage::
 
     python benchmarks/ompl_checks.py checks [--problems mbm:*/0001-0003] [--n 2000]
     python benchmarks/ompl_checks.py mbm [--problems mbm:*/0001-0010] [--planner ompl-rrtconnect] [--time-limit 5]
+    python benchmarks/ompl_checks.py sweep [--problems mbm:*/0001-0010] [--ranges 0,0.25,0.5,1]
 
 ``checks`` times, in one run and on the same random configurations: the checker without broadphase
-(every pair to coal), with broadphase (``CollisionChecker.in_collision``), against the occupancy
-grid as an octree and as boxes, the Python validity-callback overhead (state -> array), and the rate
-reached inside an OMPL RRTConnect solve (checks / solve time). Medians over problems.
+(every pair to coal), with broadphase (``CollisionChecker.in_collision``), the same configurations
+as one batch (``SegmentChecker``: how the OMPL planners check motions, one pinocchio call per
+motion), against the occupancy grid as an octree and as merged boxes, the Python validity-callback
+overhead (state -> array), and the rate reached inside an OMPL RRTConnect solve (checks / solve
+time). Where a check's time goes, in pinocchio's own steps on the same configurations: forward
+kinematics, + geometry placements, + the broadphase's AABB-tree update, and the rest (the
+broadphase traversal and coal's narrowphase) = the full batch check minus those. Medians over
+problems.
+
+``sweep`` runs ``ompl-rrtconnect`` (seed 0, 5 s) with each ``range`` (0: OMPL's own default) on the
+problems, one range after the other, and prints validated successes and the median planning time.
 
 ``mbm`` plans each problem once in this process (the planner reseeds OMPL per query, see
 plugins/ompl_planners/base.py) and validates each path with planbench.evaluate.
@@ -34,11 +43,34 @@ def _per_call(fn, Q) -> float:  # type: ignore[no-untyped-def]
     return (time.perf_counter() - t) / len(Q) * 1e6
 
 
+def split(checker: CollisionChecker, Q: np.ndarray) -> dict[str, float]:
+    """Cumulative cost [us per configuration] of pinocchio's steps of a broadphase check."""
+    import pinocchio as pin
+
+    model, geom = checker.robot.model, checker.geometry_model
+    data, gdata = model.createData(), pin.GeometryData(geom)
+    manager = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(model, geom, gdata)
+
+    def placements(q: np.ndarray) -> None:
+        pin.updateGeometryPlacements(model, data, geom, gdata, q)
+
+    def update(q: np.ndarray) -> None:
+        pin.updateGeometryPlacements(model, data, geom, gdata, q)
+        manager.update(False)
+
+    return {
+        "fk": _per_call(lambda q: pin.forwardKinematics(model, data, q), Q),
+        "placements": _per_call(placements, Q),
+        "bp_update": _per_call(update, Q),
+    }
+
+
 def checks(selector: str, n: int, with_boxes: bool) -> None:
     from ompl import base as ob
 
     from planbench_plugins.ompl_planners import RRTConnectPlanner
     from planbench_plugins.ompl_planners.grid import grid_checker, grid_for_scene
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
 
     rows = []
     space = ob.RealVectorStateSpace(7)
@@ -50,13 +82,23 @@ def checks(selector: str, n: int, with_boxes: bool) -> None:
         octree = grid_checker(robot, grid, "octree")
         boxes = grid_checker(robot, grid, "boxes") if with_boxes else None
         Q = np.random.default_rng(0).uniform(robot.lower, robot.upper, size=(n, robot.nq))
+        segments = SegmentChecker(checker, 0.01)
+        batch = segments._pool  # the batch check without stopping, for timing every configuration
+        QT = np.asfortranarray(Q.T)
+        import pinocchio as pin
+
+        t = time.perf_counter()
+        pin.computeCollisionsInParallel(1, batch, QT, True, False)
+        batch_us = (time.perf_counter() - t) / len(Q) * 1e6
         row = {
             "all_pairs": _per_call(checker.in_collision_all_pairs, Q),
             "broadphase": _per_call(checker.in_collision, Q),
+            "batch": batch_us,
             "octree": _per_call(octree.in_collision, Q),
-            "boxes": _per_call(boxes.in_collision, Q[:100]) if boxes else float("nan"),
+            "boxes": _per_call(boxes.in_collision, Q[:300]) if boxes else float("nan"),
             "callback": _per_call(lambda q: np.array([state[i] for i in range(7)]), Q),
             "collide_frac": float(np.mean([checker.in_collision(q) for q in Q[:500]])),
+            **split(checker, Q),
         }
         result = planbench.plan(problem, RRTConnectPlanner(simplify=False, verify=False), seed=0, time_limit=5.0)
         if "solve_time" in result.info and result.info["solve_time"] > 0.01:
@@ -64,8 +106,8 @@ def checks(selector: str, n: int, with_boxes: bool) -> None:
         rows.append(row)
         print(
             f"{problem.id:28s} all pairs {row['all_pairs']:6.1f} us  broadphase {row['broadphase']:5.1f} us  "
-            f"octree {row['octree']:5.1f} us  boxes {row['boxes']:5.1f} us  callback {row['callback']:4.1f} us  "
-            f"in OMPL {row.get('ompl_rate', float('nan')):8.0f} checks/s  "
+            f"batch {row['batch']:5.1f} us  octree {row['octree']:5.1f} us  boxes {row['boxes']:6.1f} us  "
+            f"callback {row['callback']:4.1f} us  in OMPL {row.get('ompl_rate', float('nan')):8.0f} checks/s  "
             f"({row['collide_frac']:.0%} of random q collide)"
         )
 
@@ -73,8 +115,15 @@ def checks(selector: str, n: int, with_boxes: bool) -> None:
         return statistics.median(r[key] for r in rows if key in r)
 
     print(f"\nmedians over {len(rows)} problems, {n} random configurations each:")
-    for key in ("all_pairs", "broadphase", "octree", "boxes") if with_boxes else ("all_pairs", "broadphase", "octree"):
+    keys = ["all_pairs", "broadphase", "batch", "octree"] + (["boxes"] if with_boxes else [])
+    for key in keys:
         print(f"  {key:10s} {med(key):6.1f} us/check = {1e6 / med(key):8.0f} checks/s")
+    fk, pl, up, full = med("fk"), med("placements"), med("bp_update"), med("batch")
+    print(
+        f"  split of a batch check ({full:.1f} us): forward kinematics {fk:.1f} us, geometry placements "
+        f"{pl - fk:.1f} us, broadphase AABB-tree update {up - pl:.1f} us, broadphase traversal + "
+        f"narrowphase {full - up:.1f} us; in_collision's Python call adds {med('broadphase') - full:.1f} us"
+    )
     print(
         f"  broadphase speed-up over all pairs (median of per-problem ratios): "
         f"{statistics.median(r['all_pairs'] / r['broadphase'] for r in rows):.1f}x"
@@ -114,20 +163,42 @@ def mbm(selector: str, planner: str, time_limit: float) -> None:
     print(f"{'all':20s} {len(ok):3d}/{len(everything):<3d}  {t_all:10.3f}")
 
 
+def sweep(selector: str, ranges: list[float], time_limit: float) -> None:
+    from planbench_plugins.ompl_planners import RRTConnectPlanner
+
+    problems = load_problems(selector)
+    for value in ranges:
+        times, failed = [], []
+        for problem in problems:
+            result = planbench.plan(problem, RRTConnectPlanner(params={"range": value}), seed=0, time_limit=time_limit)
+            if planbench.evaluate(problem, result).success:
+                times.append(result.planning_time)
+            else:
+                failed.append(f"{problem.id} ({result.status.value})")
+        median = statistics.median(times) if times else float("nan")
+        print(f"range {value:g}: {len(times)}/{len(problems)} validated, median {median:.3f} s; failed: {failed}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     c = sub.add_parser("checks")
     c.add_argument("--problems", default="mbm:*/0001-0003")
     c.add_argument("--n", type=int, default=2000)
-    c.add_argument("--boxes", action="store_true", help="also time the grid as boxes (slow: thousands of objects)")
+    c.add_argument("--boxes", action="store_true", help="also time the grid as merged boxes (slower than the octree)")
     m = sub.add_parser("mbm")
     m.add_argument("--problems", default="mbm:*/0001-0010")
     m.add_argument("--planner", default="ompl-rrtconnect")
     m.add_argument("--time-limit", type=float, default=5.0)
+    w = sub.add_parser("sweep")
+    w.add_argument("--problems", default="mbm:*/0001-0010")
+    w.add_argument("--ranges", default="0,0.25,0.5,1")
+    w.add_argument("--time-limit", type=float, default=5.0)
     args = parser.parse_args()
     if args.command == "checks":
         checks(args.problems, args.n, args.boxes)
+    elif args.command == "sweep":
+        sweep(args.problems, [float(x) for x in args.ranges.split(",")], args.time_limit)
     else:
         mbm(args.problems, args.planner, args.time_limit)
 

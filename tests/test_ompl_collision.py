@@ -53,3 +53,61 @@ def test_broadphase_agrees_on_random_configurations():
     assert fast == [checker.in_collision_all_pairs(q) for q in Q]
     assert 0 < sum(fast) < len(fast)
     assert checker.n_checks == 600
+
+
+# --- OMPL motion validation: the harness's check points, in one batch -----------------------------
+
+pytest.importorskip("ompl")
+
+
+def test_bisection_order_is_a_permutation_with_the_end_state_first():
+    from planbench_plugins.ompl_planners.motion import bisection_order
+
+    for n in (1, 2, 3, 7, 64, 101):
+        order = bisection_order(n)
+        assert order[0] == n - 1
+        assert sorted(order.tolist()) == list(range(n))
+    assert bisection_order(9).tolist()[:3] == [8, 3, 1]
+
+
+def test_motion_checks_agree_with_the_harness_on_every_segment():
+    # SegmentChecker.motion_free must answer exactly what planbench.evaluate's dense check answers:
+    # the same configurations (densify's), the same broadphase and geometry.
+    from planbench.metrics import densify
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+    (problem,) = load_problems("mbm:bookshelf_small/0002")
+    robot = problem.robot
+    checker = CollisionChecker(robot, problem.scene)
+    segments = SegmentChecker(checker, 0.01)
+    rng = np.random.default_rng(2)
+    free = [q for q in rng.uniform(robot.lower, robot.upper, size=(200, 7)) if not checker.in_collision(q)]
+    answers, early_stops = [], 0
+    for a in free[:40]:
+        b = np.clip(a + rng.normal(0.0, 0.4, size=7), robot.lower, robot.upper)
+        dense, _ = densify(np.array([a, b]), 0.01)
+        reference = not any(checker.in_collision(q) for q in dense[1:])
+        before = segments.n_checks
+        assert segments.motion_free(a, b) == reference
+        checked = segments.n_checks - before
+        assert checked == len(dense) - 1 if reference else 1 <= checked <= len(dense) - 1
+        early_stops += checked < len(dense) - 1
+        answers.append(reference)
+    assert any(answers) and not all(answers)
+    assert early_stops > 0  # a blocked motion stops at its first collision
+
+
+def test_first_collision_of_a_path_matches_the_collision_checker():
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+    (problem,) = load_problems("mbm:cage/0002")
+    checker = CollisionChecker(problem.robot, problem.scene)
+    segments = SegmentChecker(checker, 0.01)
+    from planbench.metrics import densify
+
+    path = np.array([problem.start, 0.5 * (problem.start + problem.goal.q), problem.goal.q])
+    dense, segment = densify(path, 0.01)
+    hits = [k for k, q in enumerate(dense) if checker.in_collision(q)]
+    assert hits  # the straight line runs through the cage
+    assert segments.first_collision(path) == int(segment[hits[0]]) + 1
+    assert segments.first_collision(path[:1]) is None

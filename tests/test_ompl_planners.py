@@ -158,11 +158,52 @@ def test_pose_only_goal_uses_ik_samples(panda, blocked):
     assert result.info["ik_goals"] >= 1
 
 
-def test_invalid_goal_configuration_is_a_status(panda):
-    problem = Problem.create(panda, Scene((), name="empty"), trivial_problem().start, panda.upper + 0.1)
+def test_goal_configuration_in_collision_is_an_invalid_goal(blocked):
+    obstacle = Obstacle("on-goal", "sphere", position=tuple(blocked.goal.pose.position), radius=0.05)
+    scene = Scene((*blocked.scene.obstacles, obstacle), name="goal-blocked")
+    problem = Problem.create(blocked.robot, scene, blocked.start, blocked.goal.q, id="test:goal-blocked")
     result = planbench.plan(problem, RRTConnectPlanner, time_limit=1.0)
     assert result.status is PlanStatus.INVALID_GOAL
-    assert "limits" in result.message
+    assert "in collision" in result.message
+
+
+def test_goal_configuration_outside_the_limits_plans_to_its_pose():
+    # MotionBenchMaker's goal configuration has joint 4 just outside the Panda's limits; its pose is
+    # reachable within them: the IK sampler (seeded with the clipped configuration) gives the goal.
+    (problem,) = planbench.load_problems("mbm:table_under_pick/0003")
+    assert problem.check().goal_configuration  # really outside the limits
+    result = solved(problem, RRTConnectPlanner, time_limit=2.0)
+    assert result.target == "pose"
+    assert "panda_joint4" in result.info["goal_outside_limits"]
+    assert result.info["ik_goals"] >= 1
+
+
+# --- motion validation and the path that is returned ----------------------------------------------
+
+
+def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path(blocked, monkeypatch):
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+    calls = []
+    original = SegmentChecker.first_collision
+
+    def first_collision_rejecting_the_first_path(self, path):
+        calls.append(len(path))
+        return 1 if len(calls) == 1 else original(self, path)
+
+    monkeypatch.setattr(SegmentChecker, "first_collision", first_collision_rejecting_the_first_path)
+    result = solved(blocked, RRTConnectPlanner)
+    assert result.info["path_source"] == "reduced" and len(calls) == 2
+
+
+def test_a_path_that_fails_every_check_is_a_collision(blocked, monkeypatch):
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+    monkeypatch.setattr(SegmentChecker, "first_collision", lambda self, path: 1)
+    result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=5.0)
+    assert result.status is PlanStatus.COLLISION
+    assert result.info["path_source"] == "none"
+    assert result.path is not None
 
 
 # --- occupancy-grid collision mode ---------------------------------------------------------------
@@ -198,3 +239,18 @@ def test_grid_mode_agrees_with_primitives_on_an_aligned_scene(panda, geometry):
 def test_grid_mode_plans_a_valid_path(blocked):
     # the grid inflates obstacles by at most a cell: a path free in the grid is free in the scene
     solved(blocked, RRTConnectPlanner, collision="grid", grid_resolution=0.02)
+
+
+def test_merged_boxes_cover_exactly_the_occupied_cells():
+    from planbench_plugins.ompl_planners.grid import merge_cells
+
+    rng = np.random.default_rng(0)
+    for density in (0.1, 0.5, 0.9):
+        occupied = rng.random((7, 6, 9)) < density
+        cover = np.zeros(occupied.shape, dtype=int)
+        for lo, hi in merge_cells(occupied):
+            cover[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] += 1
+        np.testing.assert_array_equal(cover, occupied)  # every cell once, nothing else
+    solid = np.zeros((10, 10, 10), dtype=bool)
+    solid[2:7, 1:9, 3:5] = True
+    assert merge_cells(solid) == [((2, 1, 3), (7, 9, 5))]  # a voxelized box is one box

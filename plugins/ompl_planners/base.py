@@ -6,14 +6,20 @@ One class, :class:`OMPLPlanner`, runs any OMPL geometric planner by its OMPL cla
 How a query runs (all inside ``plan()``, so all of it is timed by the harness):
 
 1. The goal: the problem's goal configuration when it has one (``target="configuration"``); for a
-   pose-only goal, goal configurations from the IK sampler in :mod:`.ik` (``target="pose"``).
+   pose-only goal, or a goal configuration outside the robot's joint limits (the goal pose is still a
+   valid target), goal configurations from the IK sampler in :mod:`.ik` (``target="pose"``; a goal
+   configuration outside the limits, clipped to them, is the sampler's first initial guess).
 2. OMPL's random generator is reseeded from the ``rng`` handed in (see *Seeding* below), then a fresh
    state space (the joint limits as bounds), ``SimpleSetup``, planner and problem are built.
 3. ``solve`` runs for what is left of the time limit. Only an exact solution counts.
 4. The path is simplified (``simplify=True``, OMPL's ``PathSimplifier`` via ``simplifySolution``)
    for at most what is left of the time limit; its time is reported apart in ``info``.
-5. The returned path is checked once more like the harness checks it (no joint moves more than
-   ``resolution`` between checked configurations); a collision there gives ``COLLISION``.
+5. The path is checked once more exactly as the harness checks it (``verify=True``). The simplifier
+   cuts segments at points in between the checked ones (shortcuts start and end inside segments), so
+   a simplified path can graze an obstacle between check points (seen on MotionBenchMaker: 0.03 to
+   0.15 mm). Then the raw path with only OMPL's ``reduceVertices`` (which joins existing vertices,
+   each new segment checked at the harness's points) is taken, then the raw path itself
+   (``info["path_source"]``: ``simplified``, ``reduced`` or ``raw``). Only if all fail: ``COLLISION``.
 
 Collision checking: a plain Python function is OMPL's state validity checker; it calls
 :meth:`planbench.collision.CollisionChecker.in_collision` (coal, robot against the scene's
@@ -21,11 +27,11 @@ primitives plus self-collision with the robot's ignore list, through a broadphas
 ``collision="grid"``, the same checker against the voxelized scene (:mod:`.grid`). States are
 sampled within the joint limits, so the checker does not test limits.
 
-Motion validation: OMPL's discrete motion validator checks a segment at points at most
-``resolution`` [rad] apart in the Euclidean joint-space distance. No joint moves more than the
-Euclidean distance, so no joint moves more than ``resolution`` between checks: at least as dense as
-the harness's validation (0.01 rad on the largest joint by default), up to sqrt(nq) times denser.
-The check points differ from the harness's, which is why step 5 exists.
+Motion validation (:mod:`.motion`): a segment ``a -> b`` is checked at exactly the configurations
+the harness checks, ``a + (j / n)(b - a)`` with ``n = ceil(max_i |b_i - a_i| / resolution)``: no joint
+moves more than ``resolution`` [rad] (default 0.01, the harness's) between checked configurations.
+The segments of the planner's raw path are therefore checked at the harness's points (RRT-Connect
+checks the goal tree's edges in the path's direction too), in one pinocchio batch per motion.
 
 Seeding: OMPL has one process-wide seed generator; every OMPL object with randomness draws its own
 seed from it when it is created. ``ompl.util.RNG.setSeed`` before each query (with a seed drawn from
@@ -50,7 +56,7 @@ import math
 import re
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -58,9 +64,11 @@ import numpy as np
 
 from planbench.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
-from planbench.metrics import densify
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
+from planbench.validate import ValidationSettings
+
+from .motion import SegmentChecker, make_motion_validator
 
 __all__ = ["OMPLConfig", "OMPLAnyConfig", "OMPLPlanner", "geometric_planners", "planner_parameters"]
 
@@ -75,7 +83,8 @@ class OMPLConfig:
     params: Mapping[str, Any] = field(default_factory=dict)
     """The OMPL planner's own parameters by OMPL's names, e.g. ``{"range": 1.0}`` or
     ``{"goal_bias": 0.1, "rewire_factor": 1.1}``; each calls the planner's setter (``setRange``,
-    ``setGoalBias`` ...). Unset parameters keep OMPL's defaults."""
+    ``setGoalBias`` ...). They are applied over the planner's planbench defaults (``ompl-rrtconnect``:
+    ``{"range": 0.5}``; ``{"range": 0}`` gives OMPL's own choice back); others keep OMPL's defaults."""
     collision: str = "primitives"
     """``"primitives"``: the scene's exact obstacles; ``"grid"``: its occupancy grid (see ``grid_*``)."""
     grid_resolution: float = 0.02
@@ -83,14 +92,16 @@ class OMPLConfig:
     grid_geometry: str = "octree"
     """How the grid's occupied cells are given to coal: ``"octree"`` or ``"boxes"``."""
     resolution: float = 0.01
-    """Motion validation: largest Euclidean joint-space step between checked states [rad]."""
+    """Motion validation: largest joint motion between checked configurations [rad]; at the
+    harness's 0.01 the check points are exactly the harness's (see :mod:`.motion`)."""
     simplify: bool = True
     """Shortcut and smooth the path with OMPL's PathSimplifier (time reported in ``info``)."""
     optimize: bool = False
     """Asymptotically optimal planners: keep improving until the time limit (not reproducible)
     instead of stopping at the first exact solution."""
     verify: bool = True
-    """Check the returned path densely, as the harness does, and report ``COLLISION`` if it fails."""
+    """Check the returned path as the harness does (its default 0.01 rad); if the simplified path
+    fails, fall back to the raw path (vertices reduced, then as found); ``COLLISION`` if all fail."""
     ik_goals: int = 4
     """Pose-only goals: how many goal configurations to sample with IK."""
     ik_time_fraction: float = 0.2
@@ -179,6 +190,7 @@ class OMPLPlanner(Planner):
     name = "ompl"
     Config: Any = OMPLAnyConfig
     ompl_planner: str | None = None  # fixed by the named subclasses
+    default_params: Mapping[str, Any] = {}  # planbench's defaults for the planner's own parameters
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
@@ -192,6 +204,7 @@ class OMPLPlanner(Planner):
                 raise UnknownNameError(f"parameter of OMPL planner {planner}", key, accepted)
         self._checker: CollisionChecker | None = None
         self._checker_key: tuple[Any, ...] | None = None
+        self._segments: dict[float, SegmentChecker] = {}
 
     @property
     def planner_name(self) -> str:
@@ -213,8 +226,15 @@ class OMPLPlanner(Planner):
 
                 grid = grid_for_scene(problem.scene, c.grid_resolution, padding=c.grid_resolution)
                 self._checker = grid_checker(problem.robot, grid, c.grid_geometry)
+            self._segments = {}
             self._checker_key = key
         return self._checker
+
+    def _segments_for(self, checker: CollisionChecker, resolution: float) -> SegmentChecker:
+        segments = self._segments.get(resolution)
+        if segments is None:
+            segments = self._segments[resolution] = SegmentChecker(checker, resolution)
+        return segments
 
     # --- plan (timed) ------------------------------------------------------------------------
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
@@ -223,29 +243,40 @@ class OMPLPlanner(Planner):
         c = self.config
         robot = problem.robot
         checker = self._checker_for(problem)
-        checks_before = checker.n_checks
-        info: dict[str, Any] = {"ompl_planner": self.planner_name, "collision": c.collision}
+        motions = self._segments_for(checker, c.resolution)
+        harness = self._segments_for(checker, ValidationSettings().collision_resolution)
+        counted = [checker, *{id(x): x for x in (motions, harness)}.values()]
+        checks_before = sum(x.n_checks for x in counted)
+        params = {**self.default_params, **c.params}
+        info: dict[str, Any] = {"ompl_planner": self.planner_name, "collision": c.collision, "ompl_params": params}
 
         def result(status: PlanStatus, path: Any = None, message: str = "") -> PlanResult:
-            info["collision_checks"] = checker.n_checks - checks_before
+            info["collision_checks"] = sum(x.n_checks for x in counted) - checks_before
             return PlanResult(status, path, None, target, message, info)
 
         # 1. goal configurations
+        seeds: list[np.ndarray] = []
+        target = "configuration"
         if problem.goal.q is not None:
-            target = "configuration"
-            goals = [np.array(problem.goal.q)]
-            bad = robot.limit_violations(goals[0])
+            goal_q = np.array(problem.goal.q)
+            bad = robot.limit_violations(goal_q)
             if bad:
-                return result(PlanStatus.INVALID_GOAL, message="goal outside joint limits: " + "; ".join(bad))
-            if checker.in_collision(goals[0]):
+                # the goal pose stays a valid target: plan to IK configurations of it instead
+                info["goal_outside_limits"] = "; ".join(bad)
+                seeds = [np.clip(goal_q, robot.lower, robot.upper)]
+                target = "pose"
+            elif checker.in_collision(goal_q):
                 return result(PlanStatus.INVALID_GOAL, message=f"goal configuration in collision ({c.collision} mode)")
+        else:
+            target = "pose"
+        if target == "configuration":
+            goals = [goal_q]
         else:
             from .ik import sample_goal_configurations
 
-            target = "pose"
             t_ik = time.perf_counter()
             goals = sample_goal_configurations(
-                problem, checker.in_collision, rng, c.ik_goals, c.ik_time_fraction * time_limit
+                problem, checker.in_collision, rng, c.ik_goals, c.ik_time_fraction * time_limit, seeds=seeds
             )
             info["ik_time"] = time.perf_counter() - t_ik
             info["ik_goals"] = len(goals)
@@ -256,43 +287,59 @@ class OMPLPlanner(Planner):
         if checker.in_collision(problem.start):
             return result(PlanStatus.INVALID_START, message=f"start in collision ({c.collision} mode)")
 
+        def finish(path: np.ndarray) -> np.ndarray:
+            path[0] = problem.start
+            if target == "configuration" and np.abs(path[-1] - goals[0]).max() < 1e-9:
+                path[-1] = goals[0]
+            return path
+
+        verify_time = [0.0]
+
+        def accept(path: np.ndarray) -> bool:
+            if not c.verify:
+                return True
+            t0 = time.perf_counter()
+            ok = harness.first_collision(finish(path)) is None
+            verify_time[0] += time.perf_counter() - t0
+            return ok
+
         seed = int(rng.integers(1, 2**31 - 1))
         info["ompl_seed"] = seed
-        path, status_text, times = _solve(self.planner_name, c, problem.start, goals, checker, seed, deadline)
-        info.update(times)
+        path, status_text, extra = _solve(
+            self.planner_name, c, params, problem.start, goals, checker, motions, seed, deadline, accept
+        )
+        info.update(extra)
         info["ompl_status"] = status_text
+        if c.verify:
+            info["verify_time"] = verify_time[0]
         if path is None:
             status, message = _STATUS_MESSAGES.get(status_text, (PlanStatus.TIMEOUT, f"OMPL: {status_text}"))
             return result(status, message=message)
-
-        path[0] = problem.start
-        if target == "configuration" and np.abs(path[-1] - goals[0]).max() < 1e-9:
-            path[-1] = goals[0]
-        if c.verify:
-            t_verify = time.perf_counter()
-            dense, segment = densify(path, c.resolution)
-            for k, q in enumerate(dense):
-                if checker.in_collision(q):
-                    info["verify_time"] = time.perf_counter() - t_verify
-                    return result(
-                        PlanStatus.COLLISION,
-                        path,
-                        f"OMPL's path collides on segment {int(segment[k])} when checked at the harness's resolution",
-                    )
-            info["verify_time"] = time.perf_counter() - t_verify
+        path = finish(path)
+        if info.get("path_source") == "none":
+            return result(
+                PlanStatus.COLLISION,
+                path,
+                "OMPL's path (simplified, reduced and raw) collides when checked at the harness's resolution",
+            )
         return result(PlanStatus.SUCCESS, path)
 
 
 def _solve(
     planner_name: str,
     c: OMPLConfig,
+    params: Mapping[str, Any],
     start: np.ndarray,
     goals: list[np.ndarray],
     checker: CollisionChecker,
+    motions: SegmentChecker,
     seed: int,
     deadline: float,
-) -> tuple[np.ndarray | None, str, dict[str, float]]:
-    """One OMPL query; every OMPL object is created and freed here."""
+    accept: Callable[[np.ndarray], bool],
+) -> tuple[np.ndarray | None, str, dict[str, Any]]:
+    """One OMPL query; every OMPL object is created and freed here. Returns the first path of
+    simplified, reduced, raw that ``accept`` takes (``info["path_source"]``; ``"none"`` and the raw
+    path when it takes none)."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
@@ -308,7 +355,7 @@ def _solve(
         bounds.setLow(i, float(lower[i]))
         bounds.setHigh(i, float(upper[i]))
     space.setBounds(bounds)
-    # Motion validation: states at most `resolution` apart (Euclidean); OMPL takes a fraction of the extent.
+    # What OMPL uses besides the motion validator (e.g. some planners' step sizes): the same resolution.
     space.setLongestValidSegmentFraction(c.resolution / space.getMaximumExtent())
 
     in_collision = checker.in_collision
@@ -321,6 +368,8 @@ def _solve(
     ss = og.SimpleSetup(space)
     ss.setStateValidityChecker(is_valid)
     si = ss.getSpaceInformation()
+    validator = make_motion_validator(si, motions, nq)
+    si.setMotionValidator(validator)
     s = space.allocState()
     for i in index:
         s[i] = float(start[i])
@@ -344,28 +393,44 @@ def _solve(
         objective.setCostThreshold(ob.Cost(sys.float_info.max))
     ss.setOptimizationObjective(objective)
     planner = getattr(og, planner_name)(si)
-    for key, value in c.params.items():
+    for key, value in params.items():
         getattr(planner, _setter(key))(value)
     ss.setPlanner(planner)
     ss.setup()
 
-    times: dict[str, float] = {}
+    def as_array(path: Any) -> np.ndarray:
+        return np.array([[path.getState(k)[i] for i in index] for k in range(path.getStateCount())])
+
+    info: dict[str, Any] = {}
     remaining = deadline - time.perf_counter()
     if remaining <= 0:
-        return None, "Timeout", times
+        return None, "Timeout", info
     t0 = time.perf_counter()
     status = ss.solve(remaining)
-    times["solve_time"] = time.perf_counter() - t0
+    info["solve_time"] = time.perf_counter() - t0
     text = status.asString()
     if text != "Exact solution" or not ss.haveExactSolutionPath():
-        return None, text, times
-    times["simplify_time"] = 0.0
+        return None, text, info
+    info["simplify_time"] = 0.0
+    raw = og.PathGeometric(ss.getSolutionPath())
     if c.simplify:
         remaining = deadline - time.perf_counter()
         if remaining > 0:
             t1 = time.perf_counter()
             ss.simplifySolution(remaining)
-            times["simplify_time"] = time.perf_counter() - t1
-    solution = ss.getSolutionPath()
-    path = np.array([[solution.getState(k)[i] for i in index] for k in range(solution.getStateCount())])
-    return path, text, times
+            info["simplify_time"] = time.perf_counter() - t1
+        path = as_array(ss.getSolutionPath())
+        if accept(path):
+            info["path_source"] = "simplified"
+            return path, text, info
+        t1 = time.perf_counter()
+        reduced = og.PathGeometric(raw)
+        og.PathSimplifier(si).reduceVertices(reduced)
+        info["simplify_time"] += time.perf_counter() - t1
+        path = as_array(reduced)
+        if accept(path):
+            info["path_source"] = "reduced"
+            return path, text, info
+    path = as_array(raw)
+    info["path_source"] = "raw" if accept(path) else "none"
+    return path, text, info

@@ -1,0 +1,118 @@
+"""Motion validation at exactly the configurations planbench's harness checks.
+
+:func:`planbench.evaluate` checks a path segment ``a -> b`` at ``a + (j / n) (b - a)``,
+``j = 1 .. n``, with ``n = ceil(max_i |b_i - a_i| / resolution)`` (:func:`planbench.metrics.densify`,
+``resolution`` = ``ValidationSettings.collision_resolution``, 0.01 rad): no joint moves more than
+``resolution`` between checked configurations. :class:`SegmentChecker` checks a motion at those same
+configurations, computed with the same floating-point operations, so a segment it passes is a
+segment the harness passes (up to coal's contact answers within about a micrometre, which depend on
+earlier queries). OMPL's own ``DiscreteMotionValidator`` checks at points a Euclidean distance apart
+instead, which never coincide with the harness's: a path could graze an obstacle between them.
+
+The configurations of one motion go to pinocchio in one batch (``computeCollisionsInParallel`` on a
+one-thread broadphase pool, the same dynamic AABB tree and geometry as
+:meth:`planbench.collision.CollisionChecker.in_collision`), in bisection order (the end state first,
+then midpoints of ever smaller intervals, as OMPL's validator does), stopping at the first collision:
+one call from Python per motion instead of one per configuration.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from planbench.collision import CollisionChecker
+
+__all__ = ["SegmentChecker", "bisection_order"]
+
+
+def bisection_order(n: int) -> np.ndarray:
+    """Indices ``0 .. n-1`` of a segment's ``n`` check points (point ``n - 1`` is the end state),
+    end state first, then the midpoints of ever smaller intervals (breadth first)."""
+    order = [n - 1]
+    queue = deque([(-1, n - 1)])  # points strictly between two checked ones (-1: the segment's start)
+    while queue:
+        lo, hi = queue.popleft()
+        if hi - lo < 2:
+            continue
+        mid = (lo + hi) // 2
+        order.append(mid)
+        queue.append((lo, mid))
+        queue.append((mid, hi))
+    return np.array(order, dtype=np.intp)
+
+
+class SegmentChecker:
+    """Collision checks of whole motions and paths at the harness's check points (module docstring).
+
+    ``n_checks`` counts the configurations actually checked (a batch stops at its first collision).
+    """
+
+    def __init__(self, checker: CollisionChecker, resolution: float) -> None:
+        import pinocchio as pin
+
+        self.checker = checker
+        self.resolution = float(resolution)
+        self._pin = pin
+        self._pool = pin.BroadPhaseManagerPool_DynamicAABBTreeCollisionManager(
+            checker.robot.model, checker.geometry_model, 1
+        )
+        self._orders: dict[int, np.ndarray] = {}
+        self.n_checks = 0
+        self.n_motions = 0
+
+    def _order(self, n: int) -> np.ndarray:
+        order = self._orders.get(n)
+        if order is None:
+            order = self._orders[n] = bisection_order(n)
+        return order
+
+    def _first_hit(self, states: np.ndarray) -> int:
+        """Index (in ``states``' order) of the first colliding configuration, or -1; checks in order."""
+        hits = self._pin.computeCollisionsInParallel(1, self._pool, np.asfortranarray(states.T), True, True)
+        k = int(np.argmax(hits)) if len(hits) else 0
+        if len(hits) and hits[k]:
+            self.n_checks += k + 1
+            return k
+        self.n_checks += len(states)
+        return -1
+
+    def motion_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """True when every harness check point of the segment ``a -> b`` (``a`` itself excluded) is
+        collision-free."""
+        self.n_motions += 1
+        # the same operations as planbench.metrics.densify on the path [a, b]
+        d = b - a
+        n = max(1, math.ceil(float(np.abs(d).max()) / self.resolution - 1e-12))
+        s = (np.arange(1, n + 1) / n)[:, None]
+        states = a + s * d
+        return self._first_hit(states[self._order(n)]) < 0
+
+    def first_collision(self, path: np.ndarray) -> int | None:
+        """Like :meth:`CollisionChecker.first_collision`: the index of the first waypoint at or after
+        the first collision along ``path`` (densified as the harness does), or None when it is free."""
+        from planbench.metrics import densify
+
+        dense, segment = densify(np.asarray(path, dtype=float), self.resolution)
+        k = self._first_hit(dense)
+        if k < 0:
+            return None
+        return 0 if k == 0 else int(segment[k]) + 1
+
+
+def make_motion_validator(si: Any, segments: SegmentChecker, nq: int) -> Any:
+    """An OMPL ``MotionValidator`` (Python subclass) that checks motions with ``segments``."""
+    from ompl import base as ob
+
+    index = range(nq)
+
+    class _HarnessMotionValidator(ob.MotionValidator):
+        def checkMotion(self, s1: Any, s2: Any, *rest: Any) -> bool:  # noqa: N802 (OMPL's name)
+            a = np.array([s1[i] for i in index])
+            b = np.array([s2[i] for i in index])
+            return segments.motion_free(a, b)
+
+    return _HarnessMotionValidator(si)
