@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("-v", action="store_true")
     tu = sub.add_parser("tune")
     tu.add_argument("--selector", default="mbm:*/0001-0020")
-    tu.add_argument("--grid", default='[{"velocity_dampers": false}, {}, {"damper_stop": 2.5}, {"damper_tool": true}]',
+    tu.add_argument("--grid", default='[{"solver": "daqp"}, {"solver": "daqp", "velocity_dampers": true}]',
                     help="JSON list of MatrixFieldQPConfig settings to compare")
     args = ap.parse_args(argv)
     if args.cmd == "step":

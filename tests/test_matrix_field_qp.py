@@ -167,7 +167,7 @@ def elbow_wall_problem(robot):
 def test_velocity_dampers_hold_near_an_obstacle(robot):
     problem = elbow_wall_problem(robot)
     q = problem.start
-    planner = prepared(problem)
+    planner = prepared(problem, velocity_dampers=True)
     qp, qd, diag = planner.step_at(q)
     assert qp.G is not None and len(qp.h) >= 1
     assert np.all(qp.G @ qd <= qp.h + 1e-6)
@@ -188,7 +188,7 @@ def test_backends_give_the_same_step(robot, solver):
     wall = elbow_wall_problem(robot)
     # velocity limits active; no constraint active; velocity dampers in the QP
     for prob, q, fast in ((problem, start, {"speed_max": 5.0}), (problem, start + 0.05, {}),
-                          (wall, wall.start, {})):
+                          (wall, wall.start, {"velocity_dampers": True})):
         a = prepared(prob, solver=SOLVERS[0], **fast).step_at(q)[1]
         b = prepared(prob, solver=solver, **fast).step_at(q)[1]
         assert np.allclose(a, b, atol=1e-5), (SOLVERS[0], solver, a, b)
