@@ -6,7 +6,7 @@ The QP of a step, in qpsolvers' form ``min 1/2 x^T P x + c^T x  s.t.  G x <= h, 
              + 1/2 w_sec  |qd - (qd_rep + qd_m + qd_c)|^2        repulsion, manipulability, mid-joint
              + 1/2 mu     |qd|^2                                 damping
     subject to max(-qd_max, (q_min - q)/dt) <= qd <= min(qd_max, (q_max - q)/dt)   hard limits
-               -u_i^T J_i qd <= a_i   for every damped control point i          velocity dampers
+               -u_i^T J_i qd <= a_i   for every damped control point i          velocity dampers (optional)
 
 so ``P = w_task J^T W^2 J + (w_sec + mu) I`` and ``c = -(w_task s J^T W^2 v_att + w_sec x_sec)``.
 The task terms (``v_att``, ``s``, ``qd_rep``, ``qd_m``, ``qd_c``, ``lambda``) are the matrix-field
