@@ -3,7 +3,7 @@ process (run it on a quiet machine for timings; ratios come from the same run).
 
     python benchmarks/potential_fields.py step                      # per-step repulsion cost
     python benchmarks/potential_fields.py sweep                     # stand-off sweep on mbm:*/0001-0020
-    python benchmarks/potential_fields.py mbm "mbm:*" --json out.json   # all 700 problems, 5 s limit
+    python benchmarks/potential_fields.py mbm "mbm:*" --planners edt-field,distance-field --jsonl rows.jsonl
 
 ``step``: the cost of one repulsion query ``forces(kin)`` (after ``kin.update(q)``, untimed) of
 ``matrix-field``, ``edt-field`` and ``distance-field`` at the configurations of matrix-field
@@ -83,17 +83,36 @@ def _reason(result: Any, ev: Any) -> str:
 
 
 def run_mbm(selector: str, planners: dict[str, tuple[type, dict[str, Any]]], time_limit: float = 5.0,
-            verbose: bool = False) -> list[dict[str, Any]]:
-    """One row per (problem, planner label), all validated by ``planbench.evaluate``."""
-    rows = []
-    for problem in planbench.load_problems(selector):
+            verbose: bool = False, jsonl: str | None = None) -> list[dict[str, Any]]:
+    """One row per (problem, planner label), all validated by ``planbench.evaluate``.
+
+    Problems run interleaved across families (0001 of every family, then 0002, ...), so that a run
+    cut short still covers every family alike. ``jsonl``: every row is appended to this file as
+    it ends, and rows already there are not run again (resume).
+    """
+    rows: list[dict[str, Any]] = []
+    done: set[tuple[str, str]] = set()
+    if jsonl:
+        try:
+            with open(jsonl) as fh:
+                rows = [json.loads(line) for line in fh if line.strip()]
+        except FileNotFoundError:
+            pass
+        done = {(r["id"], r["planner"]) for r in rows}
+    problems = sorted(planbench.load_problems(selector), key=lambda p: (p.id.rpartition("/")[2], p.id))
+    for problem in problems:
         fam = problem.metadata.get("family", "?")
         for label, (cls, settings) in planners.items():
+            if (problem.id, label) in done:
+                continue
             r = planbench.plan(problem, cls, time_limit=time_limit, **settings)
             ev = planbench.evaluate(problem, r)
             rows.append(dict(planner=label, family=fam, id=problem.id, ok=bool(ev.success), reason=_reason(r, ev),
                              time=r.planning_time, setup=r.setup_time, qlen=ev.joint_path_length,
                              eelen=ev.ee_path_length, clearance=ev.min_clearance, steps=r.info.get("steps", 0)))
+            if jsonl:
+                with open(jsonl, "a") as fh:
+                    fh.write(json.dumps(rows[-1], default=float) + "\n")
             if verbose:
                 print(problem.id, label, rows[-1]["reason"], f"{r.planning_time * 1e3:.1f} ms", flush=True)
     return rows
@@ -145,9 +164,11 @@ def main(argv: list[str] | None = None) -> int:
                    help='JSON {planner: {setting: value}}, e.g. {"edt-field": {"standoff": 0.1}}')
     m.add_argument("--time-limit", type=float, default=5.0)
     m.add_argument("--json", help="write the rows and summary to this file")
+    m.add_argument("--jsonl", help="append each row here as it ends; rows already there are skipped (resume)")
     m.add_argument("-v", action="store_true")
     sw = sub.add_parser("sweep")
     sw.add_argument("--selector", default="mbm:*/0001-0020")
+    sw.add_argument("--jsonl", help="append each row here as it ends (resume)")
     sw.add_argument("--grid", default='{"edt-field": [0.07, 0.1, 0.12], "distance-field": [0.03, 0.05, 0.1]}',
                     help="JSON {planner: [standoff, ...]}")
     args = ap.parse_args(argv)
@@ -161,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
         config = json.loads(args.config)
         planners = {name: (PLANNERS[name], config.get(name, {})) for name in args.planners.split(",")}
         t0 = time.perf_counter()
-        rows = run_mbm(args.selector, planners, args.time_limit, verbose=args.v)
+        rows = run_mbm(args.selector, planners, args.time_limit, verbose=args.v, jsonl=args.jsonl)
         summary = summarize(rows)
         print_summary(summary)
         print(f"\nwall time {time.perf_counter() - t0:.0f} s")
@@ -172,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         grid = json.loads(args.grid)
         planners = {f"{name} standoff={s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items()
                     for s in values}
-        summary = summarize(run_mbm(args.selector, planners))
+        summary = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl))
         fams = [f for f in next(iter(summary.values())) if f != "all"]
         print("| planner | success | " + " | ".join(fams) + " |")
         print("| --- | --- | " + " | ".join("---" for _ in fams) + " |")
