@@ -170,12 +170,27 @@ def test_goal_configuration_in_collision_is_an_invalid_goal(blocked):
 def test_goal_configuration_outside_the_limits_plans_to_its_pose():
     # MotionBenchMaker's goal configuration has joint 4 just outside the Panda's limits; its pose is
     # reachable within them: the IK sampler (seeded with the clipped configuration) gives the goal.
-    (problem,) = planbench.load_problems("mbm:table_under_pick/0003")
+    (problem,) = planbench.load_problems("mbm:table_under_pick/0097")
     assert problem.check().goal_configuration  # really outside the limits
     result = solved(problem, RRTConnectPlanner, time_limit=2.0)
     assert result.target == "pose"
     assert "panda_joint4" in result.info["goal_outside_limits"]
     assert result.info["ik_goals"] >= 1
+
+
+def test_ik_from_a_goal_just_outside_the_limits_stays_next_to_it():
+    from planbench.problem import pose_error
+    from planbench_plugins.ompl_planners.ik import sample_goal_configurations
+
+    (problem,) = planbench.load_problems("mbm:table_under_pick/0097")
+    robot, checker = problem.robot, CollisionChecker(problem.robot, problem.scene)
+    seed = np.clip(problem.goal.q, robot.lower, robot.upper)
+    rng = np.random.default_rng(0)
+    (q,) = sample_goal_configurations(problem, checker.in_collision, rng, 1, 1.0, seeds=[seed], iterations=200)
+    assert robot.limit_violations(q) == [] and not checker.in_collision(q)
+    assert np.abs(q - problem.goal.q).max() < 0.1  # the seeded attempt, not a random restart
+    position, orientation = pose_error(robot, q, problem.goal.pose)
+    assert position <= 0.5 * problem.tolerances.position and orientation <= 0.5 * problem.tolerances.orientation
 
 
 # --- motion validation and the path that is returned ----------------------------------------------
