@@ -14,6 +14,12 @@ one-thread broadphase pool, the same dynamic AABB tree and geometry as
 :meth:`planbench.collision.CollisionChecker.in_collision`), in bisection order (the end state first,
 then midpoints of ever smaller intervals, as OMPL's validator does), stopping at the first collision:
 one call from Python per motion instead of one per configuration.
+
+Threads: OMPL's PRM checks motions from a second thread too. The pinocchio call holds the GIL for
+the whole batch (checked: no other Python thread runs meanwhile), so the one pool is never used by
+two threads at once. OMPL 2.0.1's Python ``MotionValidator`` forwards the ``checkMotion`` overload
+that reports the last valid state to the plain one without filling it in: planners that keep the
+valid part of a blocked motion (KPIECE1, LBKPIECE1) then drop it, as with any Python validator there.
 """
 
 from __future__ import annotations
