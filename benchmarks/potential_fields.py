@@ -4,6 +4,7 @@ process (run it on a quiet machine for timings; ratios come from the same run).
     python benchmarks/potential_fields.py step                      # per-step repulsion cost
     python benchmarks/potential_fields.py sweep                     # stand-off sweep on mbm:*/0001-0020
     python benchmarks/potential_fields.py mbm "mbm:*" --planners edt-field,distance-field --jsonl rows.jsonl
+    python benchmarks/potential_fields.py summary rows.jsonl        # the tables of a (partial) run
 
 ``step``: the cost of one repulsion query ``forces(kin)`` (after ``kin.update(q)``, untimed) of
 ``matrix-field``, ``edt-field`` and ``distance-field`` at the configurations of matrix-field
@@ -149,8 +150,10 @@ def print_summary(summary: dict[str, dict[str, dict[str, Any]]]) -> None:
         print("| --- | --- | --- | --- | --- | --- | --- | --- |")
         for fam, s in fams.items():
             reasons = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in s["reasons"].items()) or "-"
+            qlen, eelen, clear = (f"{v:.{n}f}" if np.isfinite(v) else "-"
+                                  for v, n in ((s["qlen"], 2), (s["eelen"], 2), (s["clearance"], 3)))
             print(f"| {fam} | {s['success']:.0%} ({s['solved']}/{s['n']}) | {s['time_ms']:.1f} | {s['setup_ms']:.0f} | "
-                  f"{s['qlen']:.2f} | {s['eelen']:.2f} | {s['clearance']:.3f} | {reasons} |")
+                  f"{qlen} | {eelen} | {clear} | {reasons} |")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--json", help="write the rows and summary to this file")
     m.add_argument("--jsonl", help="append each row here as it ends; rows already there are skipped (resume)")
     m.add_argument("-v", action="store_true")
+    su = sub.add_parser("summary", help="the tables of an mbm or sweep --jsonl file")
+    su.add_argument("jsonl")
     sw = sub.add_parser("sweep")
     sw.add_argument("--selector", default="mbm:*/0001-0020")
     sw.add_argument("--jsonl", help="append each row here as it ends (resume)")
@@ -178,6 +183,9 @@ def main(argv: list[str] | None = None) -> int:
         print("| --- | --- | --- | --- |")
         for name, s in res.items():
             print(f"| {name} | {s['repulsion']:.1f} | {s['step']:.1f} | {s['pairs']:.1f} |")
+    elif args.cmd == "summary":
+        with open(args.jsonl) as fh:
+            print_summary(summarize([json.loads(line) for line in fh if line.strip()]))
     elif args.cmd == "mbm":
         config = json.loads(args.config)
         planners = {name: (PLANNERS[name], config.get(name, {})) for name in args.planners.split(",")}
