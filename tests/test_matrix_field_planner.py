@@ -12,6 +12,7 @@ from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import UnknownNameError
 from planbench.robot import load_robot
 from planbench_plugins.matrix_field import MatrixFieldPlanner
+from planbench_plugins.matrix_field.loop import StepFailure
 
 
 @pytest.fixture(scope="module")
@@ -88,6 +89,25 @@ def test_named_failures(robot):
 
     checker = CollisionChecker(robot, problem.scene)
     assert checker.in_collision(crash.path[-1]) and not checker.in_collision(crash.path[-2])
+
+
+class _FailsAtStepTen(MatrixFieldPlanner):
+    """A step solver that has no valid step from the tenth step on (e.g. an infeasible QP)."""
+
+    def solve_step(self, kin, q, inputs, points, F, support, tool, qd_out, diag):
+        self._calls = getattr(self, "_calls", 0) + 1
+        if self._calls > 10:  # the untimed warm-up step in setup is call 1
+            raise StepFailure(PlanStatus.INFEASIBLE, "no step", {"why": "test"})
+        super().solve_step(kin, q, inputs, points, F, support, tool, qd_out, diag)
+
+
+def test_a_step_failure_ends_the_plan_with_the_path_so_far():
+    problem = trivial_problem()
+    result = planbench.plan(problem, _FailsAtStepTen, time_limit=5.0)
+    assert result.status is PlanStatus.INFEASIBLE and result.message == "step 9: no step"
+    assert len(result.path) == 10 and result.info["why"] == "test"  # steps 0-8 moved, step 9 had none
+    assert np.all(np.isfinite(result.info["position_error"][:9])) and np.isnan(result.info["position_error"][9])
+    assert not np.allclose(result.path[-1], problem.start)
 
 
 def test_local_minimum_is_reported(robot):

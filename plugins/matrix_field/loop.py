@@ -54,7 +54,7 @@ from planbench_plugins.matrix_field.config import IKLoopConfig
 from planbench_plugins.matrix_field.control_points import ControlPoints, place_control_points
 from planbench_plugins.matrix_field.kinematics import ArmKinematics
 
-__all__ = ["IKLoopPlanner", "Repulsion", "StepInputs", "stalled", "DIAGNOSTICS"]
+__all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
 
 DIAGNOSTICS = ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown", "damping")
 """The per-step diagnostics every loop planner records, in the order of the step's ``diag`` array."""
@@ -74,6 +74,18 @@ def stalled(best_error: np.ndarray, k: int, window: int, ratio: float) -> bool:
         return False
     before = best_error[k - window]
     return bool(before - best_error[k] < ratio * before)
+
+
+class StepFailure(Exception):
+    """Raised by :meth:`IKLoopPlanner.solve_step` when there is no valid step (e.g. an infeasible
+    QP). The loop ends the plan with ``status`` and ``message``, keeps the trajectory up to the
+    last valid configuration, and adds ``info`` (JSON-friendly) to the result's ``info``."""
+
+    def __init__(self, status: PlanStatus, message: str, info: dict[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.info = dict(info or {})
 
 
 class Repulsion(Protocol):
@@ -233,6 +245,7 @@ class IKLoopPlanner(Planner):
         rho = cfg.rotation_weight
         last_joint: Any = None
         tool = np.zeros(0, dtype=np.intp)
+        failure: dict[str, Any] = {}
         k = 0
         while True:
             path[k] = q
@@ -240,7 +253,12 @@ class IKLoopPlanner(Planner):
             points, F, support, joint = repulsion.forces(kin)
             if joint is not last_joint:  # sources on fixed control points return the same array
                 tool, last_joint = np.flatnonzero(joint == inputs.tool_joint), joint
-            self.solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+            try:
+                self.solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+            except StepFailure as exc:  # no valid step from q: q is the last configuration
+                status, message, failure = exc.status, f"step {k}: {exc.message}", exc.info
+                diag[k] = np.nan
+                break
             diag[k] = dg
             err_p, err_r = dg[0], dg[1]
             e = err_p + rho * err_r
@@ -274,6 +292,7 @@ class IKLoopPlanner(Planner):
                 status, message = PlanStatus.COLLISION, (f"the arm is in collision at step {hit} "
                                                          f"(t = {hit * dt:.2f} s), found by the dense path check")
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
+        info.update(failure)
         info.update(steps=n - 1, dt=dt, repulsion_gain=repulsion.gain, n_control_points=len(prep["points"]))
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 

@@ -131,12 +131,9 @@ class MatrixFieldQPPlanner(MatrixFieldPlanner):
 
     # --- the timed query ---------------------------------------------------------------------
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        """The loop's plan, plus the solver's and the build's total time in ``info``."""
-        try:
-            result = super().plan(problem, time_limit=time_limit, rng=rng)
-        except QPFailure as exc:  # only until the loop ends a plan on a step failure itself
-            return PlanResult(exc.status, None, target="pose", message=exc.message,
-                              info={**exc.info, "solver": self.solver.name})
+        """The loop's plan (a :class:`~.solve.QPFailure` ends it as ``INFEASIBLE`` with the path so
+        far), plus the solver's and the build's total time in ``info``."""
+        result = super().plan(problem, time_limit=time_limit, rng=rng)
         info = dict(result.info)
         info["solver"] = self.solver.name
         info["solver_time"] = float(np.nansum(info.get("qp_solve_time", np.zeros(0))))

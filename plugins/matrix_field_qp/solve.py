@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from planbench.planner import PlanStatus
+from planbench_plugins.matrix_field.loop import StepFailure
 from planbench_plugins.matrix_field_qp.formulation import StepQP, infeasible_joints
 
 __all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS"]
@@ -27,24 +28,17 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
 active-set solver (daqp) to 1e-5 rad/s (median 2e-8). Polishing is off: OSQP 1.1 prints a line on
 every solve that polishes nothing, even with ``verbose=False`` (osqp/osqp#785)."""
 
-try:  # the loop's hook, when it has one: the loop then ends the plan with the failure's status
-    from planbench_plugins.matrix_field.loop import StepFailure as _FailureBase  # type: ignore[attr-defined]
-except ImportError:  # pragma: no cover - until loop.py has the hook
-    _FailureBase = Exception
 
-
-class QPFailure(_FailureBase):  # type: ignore[misc, valid-type]
+class QPFailure(StepFailure):
     """No valid step: the QP is infeasible or the solver failed. ``status`` is the plan status
     (``INFEASIBLE``), ``solver_status`` the backend's own word for it, ``info`` a JSON-friendly
     summary for the result."""
 
     def __init__(self, message: str, solver: str, solver_status: str) -> None:
-        Exception.__init__(self, message)
-        self.status = PlanStatus.INFEASIBLE
-        self.message = message
+        super().__init__(PlanStatus.INFEASIBLE, message,
+                         {"qp_failure": {"solver": solver, "solver_status": solver_status, "message": message}})
         self.solver = solver
         self.solver_status = solver_status
-        self.info = {"qp_failure": {"solver": solver, "solver_status": solver_status, "message": message}}
 
 
 class QPSolver:
