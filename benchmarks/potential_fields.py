@@ -55,12 +55,14 @@ def bench_step(problem_ids: tuple[str, ...] = STEP_PROBLEMS, n_configs: int = 8)
     for pid in problem_ids:
         problem = planbench.load_problems(pid)[0]
         ref = planbench.plan(problem, MatrixFieldPlanner, time_limit=5.0)
+        assert ref.path is not None, ref.message
         idx = np.linspace(0, len(ref.path) - 1, n_configs).astype(int)
         for name, cls in PLANNERS.items():
             planner = cls(stall_ratio=0.0, max_steps=500, collision_check_every=0, verify_path=False,
                           goal_tolerance_scale=1e-9)
             planner.setup(problem)
             prep = planner._prepared
+            assert prep is not None
             rep = prep["repulsion"]
             kin = ArmKinematics(problem.robot, problem.robot.frame_id(problem.goal.pose.frame), prep["points"],
                                 compiled=planner.use_numba)
@@ -201,13 +203,13 @@ def main(argv: list[str] | None = None) -> int:
         grid = json.loads(args.grid)
         planners = {f"{name} standoff={s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items()
                     for s in values}
-        summary = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl))
-        fams = [f for f in next(iter(summary.values())) if f != "all"]
+        sweep = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl))
+        fams = [f for f in next(iter(sweep.values())) if f != "all"]
         print("| planner | success | " + " | ".join(fams) + " |")
         print("| --- | --- | " + " | ".join("---" for _ in fams) + " |")
-        for label, s in summary.items():
-            per = " | ".join(f"{s[f]['success']:.0%}" for f in fams)
-            print(f"| {label} | {s['all']['success']:.1%} | {per} |")
+        for label, stats in sweep.items():
+            per = " | ".join(f"{stats[f]['success']:.0%}" for f in fams)
+            print(f"| {label} | {stats['all']['success']:.1%} | {per} |")
     return 0
 
 

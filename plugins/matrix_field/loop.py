@@ -172,13 +172,15 @@ class IKLoopPlanner(Planner):
     def _warm_up(self, problem: Problem) -> None:
         """One step and one repulsion query here, in the untimed setup, so that compilation (or
         loading numba's cache) and first-call costs stay out of the timed query."""
+        prep = self._prepared
+        assert prep is not None
         robot = problem.robot
         frame_id = robot.frame_id(problem.goal.pose.frame)
-        kin = ArmKinematics(robot, frame_id, self._prepared["points"], compiled=self.use_numba)
+        kin = ArmKinematics(robot, frame_id, prep["points"], compiled=self.use_numba)
         q = np.array(problem.start, dtype=float)
         kin.update(q)
         inputs = self._inputs(problem, frame_id)
-        points, F, support, _ = self._prepared["repulsion"].forces(kin)
+        points, F, support, _ = prep["repulsion"].forces(kin)
         self.solve_step(kin, q, inputs, points, np.zeros_like(F), support, np.zeros(0, dtype=np.intp),
                         np.zeros(robot.nq), np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics)))
 

@@ -58,7 +58,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -188,9 +188,9 @@ class OMPLPlanner(Planner):
     """
 
     name = "ompl"
-    Config: Any = OMPLAnyConfig
-    ompl_planner: str | None = None  # fixed by the named subclasses
-    default_params: Mapping[str, Any] = {}  # planbench's defaults for the planner's own parameters
+    Config: ClassVar[Any] = OMPLAnyConfig
+    ompl_planner: ClassVar[str | None] = None  # fixed by the named subclasses
+    default_params: ClassVar[Mapping[str, Any]] = {}  # planbench's defaults for the planner's own parameters
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
@@ -245,7 +245,7 @@ class OMPLPlanner(Planner):
         checker = self._checker_for(problem)
         motions = self._segments_for(checker, c.resolution)
         harness = self._segments_for(checker, ValidationSettings().collision_resolution)
-        counted = [checker, *{id(x): x for x in (motions, harness)}.values()]
+        counted: list[Any] = [checker, *{id(x): x for x in (motions, harness)}.values()]
         checks_before = sum(x.n_checks for x in counted)
         params = {**self.default_params, **c.params}
         info: dict[str, Any] = {"ompl_planner": self.planner_name, "collision": c.collision, "ompl_params": params}
