@@ -2,6 +2,7 @@
 resume after kill -9, and the CLI. Test planners live in tests/bench_planners.py; spawned workers
 import them by "module:Attr" (they inherit the parent's sys.path)."""
 
+import csv
 import os
 import signal
 import subprocess
@@ -204,6 +205,13 @@ def test_cli_bench_report_and_library_table(tmp_path, capsys, monkeypatch):
     assert _main([*args, "--plots", str(plots), "--html", str(html)]) == 0
     assert md.read_text().startswith("| planner | family | solved |")
     assert csv_file.read_text().count("\n") == 5  # header + 2 planners x 2 families
+    # a subset of the problems (e.g. a held-out set): only their runs are summarized
+    assert _main([*args, "--problems", "mbm:box/0001-0005"]) == 0
+    subset = list(csv.DictReader(csv_file.read_text().splitlines()))
+    assert [(r["family"], r["runs"]) for r in subset] == [("box", "1"), ("box", "1")]  # 2 planners, seed 1
+    assert _main(["report", str(db), "--problems", "mbm:cage/0001"]) == 1
+    assert "holds no runs of problems mbm:cage/0001" in " ".join(capsys.readouterr().out.split())
+    assert _main([*args]) == 0
     pngs = sorted(p.name for p in plots.glob("*.png"))
     assert {"time_to_success.png", "success_by_family.png", "ecdf_planning_time.png", "box_min_clearance.png"} <= set(
         pngs

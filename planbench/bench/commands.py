@@ -49,6 +49,10 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("db", help="results database written by `planbench bench`")
     p.add_argument("--suite", help="only this suite (default: all suites in the database)")
     p.add_argument(
+        "--problems", nargs="+", metavar="SELECTOR",
+        help="only these problems (selectors as in bench, e.g. 'mbm:*/0021-0100': a held-out set)",
+    )
+    p.add_argument(
         "--by", choices=("planner", "family"), default="planner", help="group by planner, or planner and family"
     )
     p.add_argument("--markdown", metavar="FILE", help="write the table as Markdown")
@@ -191,8 +195,14 @@ def cmd_report(args: argparse.Namespace) -> int:
     console = Console()
     with ResultsDB(args.db, create=False) as db:
         rows = db.rows(args.suite)
+    if args.problems:
+        from planbench.bench.suite import expand_problems
+
+        wanted = {ref.id for ref in expand_problems(args.problems)}
+        rows = [row for row in rows if row["problem"] in wanted]
     if not rows:
-        console.print(f"{escape(args.db)} holds no runs" + (f" of suite {escape(args.suite)!r}" if args.suite else ""))
+        console.print(f"{escape(args.db)} holds no runs" + (f" of suite {escape(args.suite)!r}" if args.suite else "")
+                      + (f" of problems {' '.join(args.problems)}" if args.problems else ""))
         return 1
     by = _by(args.by)
     summary = summarize(rows, by)
