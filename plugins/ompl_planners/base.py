@@ -189,6 +189,10 @@ class OMPLPlanner(Planner):
 
     name = "ompl"
     Config: ClassVar[Any] = OMPLAnyConfig
+    fresh_process: ClassVar[bool] = True
+    """Benchmarks run every query of an OMPL planner in a new worker process: OMPL's state (its
+    random generator, its log) is process-wide. The query reseeds it as well, so library calls in
+    one process are reproducible too."""
     ompl_planner: ClassVar[str | None] = None  # fixed by the named subclasses
     default_params: ClassVar[Mapping[str, Any]] = {}  # planbench's defaults for the planner's own parameters
 
