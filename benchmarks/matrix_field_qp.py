@@ -4,9 +4,9 @@
     python benchmarks/matrix_field_qp.py tune                        # settings grid on mbm:*/0001-0020
     python benchmarks/matrix_field_qp.py mbm "mbm:*" --json out.json # both planners on every problem
 
-``step``: per-step medians from the planner's own diagnostics (``qp_build_time``: task terms and
-QP matrices; ``qp_solve_time``: the qpsolvers call) over a fixed number of steps on one problem,
-for every installed backend, next to the matrix-field planner's whole step.
+``step``: per-step medians from the planner's own diagnostics (``qp_build_time``: task terms,
+QP matrices and their wrapping; ``qp_solve_time``: the backend's solve call) over a fixed number
+of steps on one problem, for every installed backend, next to the matrix-field planner's whole step.
 
 ``mbm``: for every problem, ``matrix-field`` then ``matrix-field-qp`` (same process, same run),
 every path validated by ``planbench.evaluate``. Per family: success, median planning time (all

@@ -77,6 +77,14 @@ def test_edt_repulsion_points_away_from_a_wall_and_vanishes_beyond_d0():
     assert inside[0, 0] < 0 < inside[1, 0] and np.all(np.isfinite(inside))
 
 
+@pytest.mark.parametrize("fill", [0.0, 1.0])
+def test_edt_repulsion_of_a_grid_without_free_or_occupied_cells_is_zero(fill):
+    data = np.full((6, 6, 6), fill)  # e.g. the reach cube of a scene whose obstacles lie outside it
+    rep = EDTFieldRepulsion(OccupancyGrid(data, np.zeros(3), 0.02), khatib_gain(SPEED, STANDOFF, D0), D0, 0.01)
+    F = rep.at(np.array([[0.05, 0.05, 0.05], [0.5, 0.5, 0.5]]))
+    assert np.all(F == 0.0)  # not NaN: inf - inf in the gradient of a constant distance
+
+
 def _distance_repulsion(robot, q, wall_x: float, d0: float = D0):
     """A wide wall facing -x with its front face at ``wall_x`` [m]; the repulsion at ``q``."""
     wall = Obstacle("wall", "box", position=(wall_x + 0.01, 0.0, 0.5), size=(0.02, 2.0, 1.0))

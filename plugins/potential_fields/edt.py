@@ -81,7 +81,9 @@ class EDTFieldRepulsion:
         self.gain, self.d0, self.floor = float(gain), float(influence_distance), float(floor)
         r = grid.resolution
         sd = signed_distance(np.asarray(grid.data) > 0, r)
-        grad = np.stack(np.gradient(sd, r)) if min(sd.shape) > 1 else np.zeros((3, *sd.shape))
+        # no occupied cell (or no free one): no distance varies, nothing pushes (and no inf - inf)
+        varies = min(sd.shape) > 1 and bool(np.isfinite(sd).all())
+        grad = np.stack(np.gradient(sd, r)) if varies else np.zeros((3, *sd.shape))
         deficit = np.zeros((3, *sd.shape))
         deficit[0] = np.minimum(sd, self.d0) - self.d0
         self.gradient = MatrixField(np.ascontiguousarray(grad), grid.origin, r, 0, True)
