@@ -41,7 +41,7 @@ class IKLoopConfig:
     """Step budget; ``STEP_LIMIT`` when spent."""
 
     # --- attraction (primary task) -------------------------------------------------------
-    speed_max: float = 0.5
+    speed_max: float = 0.25
     """Cruising speed of the end effector far from the goal, ``v_max`` [m/s]."""
     sigmoid_gain: float = 20.0
     """``k_sigm`` [1/m] of the arctan speed profile ``v_max atan(k_sigm d) / (pi/2)``."""
