@@ -81,12 +81,15 @@ METRICS = (  # (Evaluation field, label, display unit)
     ("n_waypoints", "waypoints", ""),
     ("final_position_error", "final position error [mm]", "mm"),
     ("final_orientation_error", "final orientation error [rad]", ""),
-    ("collision_checks", "collision checks", ""),
+    ("collision_checks", "collision checks (planner's count)", ""),
+    ("validation_checks", "collision checks (validation)", ""),
 )
 COMPACT = ("success", "planning_time", "joint_path_length", "ee_path_length", "min_clearance")
 
 
 def _fmt(value: Any, unit: str) -> str:
+    if value is None:
+        return "-"
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):

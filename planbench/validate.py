@@ -79,7 +79,8 @@ class Evaluation:
     final_joint_error: float = math.nan
     max_limit_violation: float = math.nan  # [rad] beyond the position limits (0 when inside)
     max_velocity_ratio: float = math.nan  # max |qd| / vmax over segments, when timed
-    collision_checks: int = 0
+    collision_checks: int | None = None  # the planner's own count, when it reports info["collision_checks"]
+    validation_checks: int = 0  # configurations this validation checked (it stops at the first collision)
     checks: dict[str, bool] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
@@ -92,8 +93,12 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     robot = problem.robot
     status, planning_time, setup_time = result.status.value, float(result.planning_time), float(result.setup_time)
 
+    planner_checks = _reported_checks(result)
+
     def unusable(failure: str, n_waypoints: int = 0) -> Evaluation:
-        return Evaluation(False, failure, status, planning_time, setup_time, n_waypoints=n_waypoints)
+        return Evaluation(
+            False, failure, status, planning_time, setup_time, n_waypoints=n_waypoints, collision_checks=planner_checks
+        )
 
     path = result.path
     if path is None or len(path) == 0:
@@ -205,6 +210,15 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         final_joint_error=joint_err,
         max_limit_violation=max_violation,
         max_velocity_ratio=max_ratio,
-        collision_checks=n_checks,
+        collision_checks=planner_checks,
+        validation_checks=n_checks,
         checks=checks,
     )
+
+
+def _reported_checks(result: PlanResult) -> int | None:
+    """The planner's own collision-check count, or None when it does not report a usable one."""
+    n = result.info.get("collision_checks")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        return None
+    return int(n)

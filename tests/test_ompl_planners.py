@@ -167,6 +167,18 @@ def test_goal_configuration_in_collision_is_an_invalid_goal(blocked):
     assert "in collision" in result.message
 
 
+def test_start_in_collision_is_refused_before_the_ik_sampler_runs(blocked):
+    # planbench.plan refuses it earlier (exact geometry); a planner called directly must too
+    hand = tuple(blocked.robot.frame_pose(blocked.start).translation)
+    scene = Scene((*blocked.scene.obstacles, Obstacle("on-start", "sphere", position=hand, radius=0.05)))
+    problem = Problem.create(blocked.robot, scene, blocked.start, goal_pose=blocked.goal.pose, id="test:start-blocked")
+    planner = RRTConnectPlanner()
+    planner.setup(problem)
+    result = planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
+    assert result.status is PlanStatus.INVALID_START and "start in collision" in result.message
+    assert "ik_time" not in result.info
+
+
 def test_goal_configuration_outside_the_limits_plans_to_its_pose():
     # MotionBenchMaker's goal configuration has joint 4 just outside the Panda's limits; its pose is
     # reachable within them: the IK sampler (seeded with the clipped configuration) gives the goal.

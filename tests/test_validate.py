@@ -38,6 +38,18 @@ def test_segment_through_thin_obstacle_is_rejected_although_both_waypoints_are_f
     assert coarse.checks["collision_free"]
 
 
+def test_planner_check_count_is_kept_apart_from_the_validation_count(free_problem):
+    from planbench import metrics
+
+    reported = evaluate(free_problem, straight(free_problem, info={"collision_checks": 7}))
+    silent = evaluate(free_problem, straight(free_problem))
+    dense, _ = metrics.densify(np.stack([free_problem.start, free_problem.goal.q]), 0.01)
+    assert reported.collision_checks == 7 and silent.collision_checks is None
+    assert reported.validation_checks == silent.validation_checks == len(dense)
+    failed = evaluate(free_problem, PlanResult(PlanStatus.TIMEOUT, None, info={"collision_checks": 3}))
+    assert failed.collision_checks == 3 and failed.validation_checks == 0
+
+
 def test_joint_limit_violation_is_rejected(panda, free_problem):
     over = free_problem.start.copy()
     over[3] = panda.upper[3] + 0.01

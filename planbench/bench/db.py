@@ -81,6 +81,7 @@ def _evaluation_columns() -> list[tuple[str, str]]:
     cols = []
     for f in dataclasses.fields(Evaluation):
         t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        t = t.removesuffix(" | None")
         sql = {"bool": "INTEGER", "int": "INTEGER", "float": "REAL", "str": "TEXT"}.get(t, "TEXT")
         cols.append((f.name, sql))
     return cols

@@ -52,7 +52,8 @@ RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
     ("final orientation error", "REAL", lambda r: r["final_orientation_error"]),
     ("final joint error", "REAL", lambda r: r["final_joint_error"]),
     ("waypoints", "INTEGER", lambda r: r["n_waypoints"]),
-    ("collision checks", "INTEGER", lambda r: r["collision_checks"]),
+    ("collision checks", "INTEGER", lambda r: r["collision_checks"]),  # the planner's own count
+    ("validation checks", "INTEGER", lambda r: r.get("validation_checks")),
     ("wall time", "REAL", lambda r: r["wall_time"]),
     ("seed", "INTEGER", lambda r: r["seed"]),
 )

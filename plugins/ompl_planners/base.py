@@ -258,9 +258,12 @@ class OMPLPlanner(Planner):
             info["collision_checks"] = sum(x.n_checks for x in counted) - checks_before
             return PlanResult(status, path, None, target, message, info)
 
+        target = "configuration"
+        if checker.in_collision(problem.start):  # before the IK sampler spends its share of the budget
+            return result(PlanStatus.INVALID_START, message=f"start in collision ({c.collision} mode)")
+
         # 1. goal configurations
         seeds: list[np.ndarray] = []
-        target = "configuration"
         if problem.goal.q is not None:
             goal_q = np.array(problem.goal.q)
             bad = robot.limit_violations(goal_q)
@@ -288,8 +291,6 @@ class OMPLPlanner(Planner):
                 return result(
                     PlanStatus.INVALID_GOAL, message="the IK sampler found no collision-free goal configuration"
                 )
-        if checker.in_collision(problem.start):
-            return result(PlanStatus.INVALID_START, message=f"start in collision ({c.collision} mode)")
 
         def finish(path: np.ndarray) -> np.ndarray:
             path[0] = problem.start
