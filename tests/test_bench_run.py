@@ -3,6 +3,7 @@ resume after kill -9, and the CLI. Test planners live in tests/bench_planners.py
 import them by "module:Attr" (they inherit the parent's sys.path)."""
 
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -222,3 +223,21 @@ def test_cli_bench_report_and_library_table(tmp_path, capsys, monkeypatch):
     table = benchmark(str(suite_file), out=db, jobs=1, resume=True, seeds="1")
     assert [row["planner"] for row in table] == ["noisy", "straight-line"]
     assert table[1]["solved"] == 1 and table[1]["runs"] == 2
+
+
+def test_planner_and_validation_check_counts_have_their_own_columns_also_in_older_files(tmp_path):
+    # the straight line checks twice as densely as the harness: two different counts
+    planners = '[[planners]]\nplanner = "straight-line"\nsettings = { check_resolution = 0.005 }\n'
+    s = parse_suite(suite(planners), "sl.toml")
+    run_benchmark(s, tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        (row,) = db.rows()
+    assert row["success"] and row["collision_checks"] > row["validation_checks"] > 0
+    assert row["collision_checks"] == json.loads(row["info"])["collision_checks"]
+    # a file from before validation_checks existed: its collision_checks column held the harness's count
+    with ResultsDB(tmp_path / "r.db") as db, db.conn:
+        db.conn.execute("UPDATE runs SET collision_checks = validation_checks")
+        db.conn.execute("ALTER TABLE runs DROP COLUMN validation_checks")
+    with ResultsDB(tmp_path / "r.db") as db:
+        (old,) = db.rows()
+    assert (old["collision_checks"], old["validation_checks"]) == (row["collision_checks"], row["validation_checks"])

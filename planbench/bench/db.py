@@ -166,6 +166,12 @@ class ResultsDB:
             for name, sql in cols:  # a newer Evaluation with more metrics: add their columns
                 if name not in have:
                     self.conn.execute(f"ALTER TABLE runs ADD COLUMN {name} {sql.replace(' NOT NULL', '')}")
+            if "validation_checks" not in have and "collision_checks" in have:
+                # written before the planner's own count had its column: collision_checks held the harness's
+                self.conn.execute(
+                    "UPDATE runs SET validation_checks = collision_checks, collision_checks = "
+                    "CASE WHEN json_valid(info) THEN json_extract(info, '$.collision_checks') END"
+                )
         self.columns = [r[1] for r in self.conn.execute("PRAGMA table_info(runs)")]
 
     def close(self) -> None:
