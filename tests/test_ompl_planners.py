@@ -208,6 +208,12 @@ def test_ik_from_a_goal_just_outside_the_limits_stays_next_to_it():
 # --- motion validation and the path that is returned ----------------------------------------------
 
 
+def test_a_search_that_uses_the_whole_time_limit_returns_the_raw_path_unsimplified(blocked):
+    result = solved(blocked, BITstarPlanner, time_limit=1.0, optimize=True)  # improves until the limit
+    assert result.info["path_source"] == "raw"
+    assert result.info["simplify_time"] == 0.0 and "no time left" in result.info["simplify_skipped"]
+
+
 def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path(blocked, monkeypatch):
     from planbench_plugins.ompl_planners.motion import SegmentChecker
 

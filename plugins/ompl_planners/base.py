@@ -418,12 +418,13 @@ def _solve(
         return None, text, info
     info["simplify_time"] = 0.0
     raw = og.PathGeometric(ss.getSolutionPath())
-    if c.simplify:
-        remaining = deadline - time.perf_counter()
-        if remaining > 0:
-            t1 = time.perf_counter()
-            ss.simplifySolution(remaining)
-            info["simplify_time"] = time.perf_counter() - t1
+    remaining = deadline - time.perf_counter()
+    if c.simplify and remaining <= 0:
+        info["simplify_skipped"] = "no time left after the search"
+    elif c.simplify:
+        t1 = time.perf_counter()
+        ss.simplifySolution(remaining)
+        info["simplify_time"] = time.perf_counter() - t1
         path = as_array(ss.getSolutionPath())
         if accept(path):
             info["path_source"] = "simplified"
