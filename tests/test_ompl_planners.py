@@ -1,6 +1,7 @@
 """OMPL baselines: each solves small problems (validated by the harness), same seed -> same path,
 settings are checked, grid mode agrees with the primitives, OMPL stays quiet."""
 
+import gc
 import json
 import subprocess
 import sys
@@ -177,6 +178,25 @@ def test_start_in_collision_is_refused_before_the_ik_sampler_runs(blocked):
     result = planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
     assert result.status is PlanStatus.INVALID_START and "start in collision" in result.message
     assert "ik_time" not in result.info
+
+
+def test_a_reused_planner_checks_each_new_problem_against_its_own_scene(blocked):
+    # CPython often gives a new problem the address (id) of one just freed: a checker cached by id
+    # would plan the goal-blocked problem against the free scene of the one before it
+    planner = RRTConnectPlanner()
+    blocker = Obstacle("on-goal", "sphere", position=tuple(blocked.goal.pose.position), radius=0.05)
+    empty, goal_scene = Scene(name="empty"), Scene((blocker,), name="goal-blocked")
+    reused = 0
+    for _ in range(30):
+        free = Problem.create(blocked.robot, empty, blocked.start, blocked.goal.q, id="test:free")
+        planner.setup(free)
+        freed = id(free)
+        del free
+        gc.collect()
+        goal_blocked = Problem.create(blocked.robot, goal_scene, blocked.start, blocked.goal.q, id="test:g")
+        reused += id(goal_blocked) == freed
+        result = planner.plan(goal_blocked, time_limit=1.0, rng=np.random.default_rng(0))
+        assert result.status is PlanStatus.INVALID_GOAL, (result.status, reused)
 
 
 def test_goal_configuration_outside_the_limits_plans_to_its_pose():

@@ -208,6 +208,7 @@ class OMPLPlanner(Planner):
                 raise UnknownNameError(f"parameter of OMPL planner {planner}", key, accepted)
         self._checker: CollisionChecker | None = None
         self._checker_key: tuple[Any, ...] | None = None
+        self._checker_problem: Problem | None = None
         self._segments: dict[float, SegmentChecker] = {}
 
     @property
@@ -221,8 +222,9 @@ class OMPLPlanner(Planner):
 
     def _checker_for(self, problem: Problem) -> CollisionChecker:
         c = self.config
-        key = (id(problem), c.collision, c.grid_resolution, c.grid_geometry)
-        if self._checker is None or self._checker_key != key:
+        key = (c.collision, c.grid_resolution, c.grid_geometry)
+        # the problem itself, not its id(): a freed problem's id can be reused by the next one
+        if self._checker is None or self._checker_problem is not problem or self._checker_key != key:
             if c.collision == "primitives":
                 self._checker = CollisionChecker.for_problem(problem)
             else:
@@ -232,6 +234,7 @@ class OMPLPlanner(Planner):
                 self._checker = grid_checker(problem.robot, grid, c.grid_geometry)
             self._segments = {}
             self._checker_key = key
+            self._checker_problem = problem
         return self._checker
 
     def _segments_for(self, checker: CollisionChecker, resolution: float) -> SegmentChecker:
