@@ -322,6 +322,12 @@ class OMPLPlanner(Planner):
             info["verify_time"] = verify_time[0]
         if path is None:
             status, message = _STATUS_MESSAGES.get(status_text, (PlanStatus.TIMEOUT, f"OMPL: {status_text}"))
+            if status is PlanStatus.INVALID_GOAL:
+                # every goal handed to OMPL was checked valid above: the planner's own reason is in its log
+                message += (
+                    f" although its {len(goals)} goal configuration(s) are collision-free and within the limits"
+                    " (AORRTC does this when start and goal connect directly); log_level='error' shows OMPL's reason"
+                )
             return result(status, message=message)
         path = finish(path)
         if info.get("path_source") == "none":
