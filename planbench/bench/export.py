@@ -53,7 +53,7 @@ RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
     ("final joint error", "REAL", lambda r: r["final_joint_error"]),
     ("waypoints", "INTEGER", lambda r: r["n_waypoints"]),
     ("collision checks", "INTEGER", lambda r: r["collision_checks"]),  # the planner's own count
-    ("validation checks", "INTEGER", lambda r: r.get("validation_checks")),
+    ("validation checks", "INTEGER", lambda r: r["validation_checks"]),
     ("wall time", "REAL", lambda r: r["wall_time"]),
     ("seed", "INTEGER", lambda r: r["seed"]),
 )
