@@ -62,3 +62,50 @@ class PlannerUnavailableError(PlanbenchError):
 
 class InvalidConfigError(PlanbenchError, ValueError):
     """A setting outside its domain; says which setting and what is allowed."""
+
+
+class ResultsFileError(PlanbenchError):
+    """A results database that cannot be used: missing, damaged, not planbench's, or busy."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+class ResultsLockedError(ResultsFileError):
+    """Another ``planbench bench`` is writing this results file; names that process."""
+
+    def __init__(self, path: object, holder: str) -> None:
+        self.holder = holder
+        super().__init__(
+            path,
+            f"another benchmark is writing this results file ({holder}); wait for it to end, or choose another --out",
+        )
+
+
+class UnstorableValueError(ResultsFileError, ValueError):
+    """A run field whose value SQLite cannot store faithfully (an int beyond 64 bits, an object).
+
+    Raised before anything is written, so the file is unchanged; the caller decides whether the
+    run becomes an error row.
+    """
+
+    def __init__(self, path: object, column: str, value: object, why: str) -> None:
+        self.column = column
+        self.value = value
+        text = repr(value)
+        text = text if len(text) <= 80 else text[:77] + "..."
+        super().__init__(path, f"run field {column!r} = {text} cannot be stored: {why}")
+
+
+class DuplicateProblemError(PlanbenchError):
+    """Two different problem sources with the same problem id in one selection."""
+
+    def __init__(self, problem_id: str, first: str, second: str) -> None:
+        self.problem_id = problem_id
+        self.sources = (first, second)
+        super().__init__(
+            f"problem id {problem_id!r} is given by both {first} and {second}; results are keyed by the id, "
+            "so give each problem its own id (the JSON 'id' field) or select only one of them"
+        )

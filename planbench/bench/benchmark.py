@@ -199,7 +199,7 @@ def run_benchmark(
     ``on_start(n_to_run, n_already_done, skipped_planners)`` and ``on_record(task, record)`` let the
     caller show progress; records are in the database before ``on_record`` is called.
     """
-    with ResultsDB(out) as db:
+    with ResultsDB(out) as db, db.lock_for_writing():
         tasks, n_done, skipped = prepare(suite, db, resume=resume, overwrite=overwrite)
         if on_start is not None:
             on_start(len(tasks), n_done, skipped)

@@ -21,25 +21,47 @@ Schema (``planbench-results/1``)::
 
 ``--resume`` works off the unique key: a run whose key has a row is never run again, and a run
 is recorded with one INSERT in its own transaction, so a kill leaves either the whole row or none.
+
+Who may open a file how:
+
+- ``planbench bench`` opens it writable and holds :meth:`ResultsDB.lock_for_writing` (an
+  ``flock`` on ``<file>.lock``) for the whole benchmark, so a second ``bench`` on the same file
+  refuses at start and names the first, instead of redoing its runs and colliding on the key.
+- ``report`` and ``export`` open it read-only (``ResultsDB(path, read_only=True)``): nothing is
+  created or migrated, the file stays byte-identical; migrations of older files are applied to
+  the rows as they are read. A file without planbench's ``meta`` table is refused.
+  (SQLite may still create its ``-wal``/``-shm`` companion files next to a WAL file, as any
+  reader does; the results file itself is not written.)
+- Every SQLite failure (damaged pages, a file that is not SQLite) becomes a
+  :class:`~planbench.errors.ResultsFileError` naming the file, at whichever query meets it;
+  read-only opens and the writer's lock also run ``PRAGMA quick_check`` first.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
+import functools
 import io
 import json
+import logging
 import math
+import os
 import platform
 import socket
 import sqlite3
-from collections.abc import Iterable
+import sys
+import urllib.parse
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
-from planbench.errors import PlanbenchError
+from planbench.errors import PlanbenchError, ResultsFileError, ResultsLockedError, UnstorableValueError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ResultsDB", "RunKey", "package_versions", "array_from_blob"]
 
@@ -115,49 +137,149 @@ def array_from_blob(blob: bytes | None) -> np.ndarray | None:
     return np.load(io.BytesIO(blob), allow_pickle=False)  # type: ignore[no-any-return]
 
 
-def _sql_value(v: Any) -> Any:
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+
+def _sql_value(v: Any, column: str = "?", path: object = "<results>") -> Any:
+    """``v`` as SQLite stores it, or :class:`UnstorableValueError` naming ``column``.
+
+    Refusing (rather than storing an oversized int as text) keeps every column's type what its
+    readers expect; the producer of the bad value is the one to turn it into an error row.
+    """
     if isinstance(v, (bool, np.bool_)):
         return int(v)
     if isinstance(v, (dict, list, tuple)):
-        return json.dumps(v, sort_keys=True)
+        try:
+            v = json.dumps(v, sort_keys=True)
+        except (TypeError, ValueError, RecursionError) as exc:
+            raise UnstorableValueError(path, column, v, f"not JSON-serialisable ({exc})") from exc
     if isinstance(v, np.generic):
-        return v.item()
+        v = v.item()
     if isinstance(v, float) and math.isnan(v):
         return None
+    if isinstance(v, int) and not INT64_MIN <= v <= INT64_MAX:
+        raise UnstorableValueError(path, column, v, "SQLite integers are 64-bit (|value| < 2**63)")
+    if isinstance(v, str):
+        try:
+            v.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise UnstorableValueError(path, column, v, f"not valid UTF-8 text ({exc.reason})") from exc
+    if v is not None and not isinstance(v, (int, float, str, bytes)):
+        raise UnstorableValueError(path, column, v, f"a {type(v).__name__} is not a number, text or bytes")
     return v
 
 
-class ResultsDB:
-    """A results file; ``ResultsDB(path)`` creates it (and the tables) when missing."""
+_F = TypeVar("_F", bound=Callable[..., Any])
 
-    def __init__(self, path: str | Path, create: bool = True) -> None:
-        self.path = Path(path)
-        if not create and not self.path.is_file():
-            raise PlanbenchError(f"{self.path}: no such results database")
+
+def _sqlite_errors(method: _F) -> _F:
+    """Turn SQLite failures inside ``method`` into a ResultsFileError naming the file.
+
+    Damaged pages surface at whichever query first reads them, not at connect, so every query
+    site is covered, not only the opening.
+    """
+
+    @functools.wraps(method)
+    def wrapper(self: ResultsDB, *args: Any, **kwargs: Any) -> Any:
         try:
-            self.conn = sqlite3.connect(str(self.path), timeout=30.0)
-            self.conn.row_factory = sqlite3.Row
-            self.conn.execute("PRAGMA journal_mode=WAL")
-            self.conn.execute("PRAGMA synchronous=NORMAL")
-            self._create()
+            return method(self, *args, **kwargs)
         except sqlite3.DatabaseError as exc:
-            raise PlanbenchError(f"{self.path}: not a planbench results database ({exc})") from exc
+            raise _file_error(self.path, exc) from exc
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _file_error(path: Path, exc: sqlite3.DatabaseError) -> ResultsFileError:
+    text = str(exc)
+    if "malformed" in text or "not a database" in text or "encrypted" in text:
+        return ResultsFileError(
+            path,
+            f"damaged or not a SQLite file ({text}). Keep a copy, then recover the readable runs with "
+            f"`sqlite3 {path} .recover | sqlite3 recovered.db`, or run the benchmark into a new --out",
+        )
+    if "readonly" in text or "read-only" in text:
+        return ResultsFileError(path, f"cannot write ({text}): check the file's and folder's permissions")
+    return ResultsFileError(path, f"SQLite error: {text}")
+
+
+class ResultsDB:
+    """A results file. ``ResultsDB(path)`` opens it for writing and creates it (and the tables)
+    when missing; ``create=False`` requires an existing file; ``read_only=True`` opens an
+    existing planbench results file without writing anything (see the module docstring)."""
+
+    def __init__(self, path: str | Path, create: bool = True, read_only: bool = False) -> None:
+        self.path = Path(path)
+        self.read_only = read_only
         self.versions = package_versions()
         self.host = socket.gethostname()
+        if (read_only or not create) and not self.path.is_file():
+            raise ResultsFileError(self.path, "no such results database (write one with `planbench bench --out`)")
+        try:
+            if read_only:
+                self._open_read_only()
+            else:
+                self._open_writable()
+        except sqlite3.DatabaseError as exc:
+            self._close_quietly()
+            raise _file_error(self.path, exc) from exc
+        except PlanbenchError:
+            self._close_quietly()
+            raise
+
+    def _open_writable(self) -> None:
+        self.conn = sqlite3.connect(str(self.path), timeout=30.0)
+        self.conn.row_factory = sqlite3.Row
+        self._require_planbench(allow_empty=True)
+        self.conn.execute("PRAGMA journal_mode=WAL")
+        self.conn.execute("PRAGMA synchronous=NORMAL")
+        self._create()
+
+    def _open_read_only(self) -> None:
+        uri = f"file:{urllib.parse.quote(str(self.path.resolve()))}?mode=ro"
+        self.conn = sqlite3.connect(uri, uri=True, timeout=30.0)
+        self.conn.row_factory = sqlite3.Row
+        self._require_planbench(allow_empty=False)
+        if not self._tables() >= {"runs", "suites"}:
+            raise ResultsFileError(self.path, "a planbench results file without its runs/suites tables")
+        self.columns = [r[1] for r in self.conn.execute("PRAGMA table_info(runs)")]
+        self.check_integrity()  # damage anywhere, not only in the pages a report happens to read
+
+    def _tables(self) -> set[str]:
+        return {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+
+    def _require_planbench(self, allow_empty: bool) -> None:
+        """Refuse a SQLite file that planbench did not write (no ``meta`` table with the schema),
+        so that no command adds tables to somebody else's database."""
+        tables = self._tables()
+        if not tables and allow_empty:
+            return
+        row = None
+        if "meta" in tables:
+            row = self.conn.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
+        if row is None:
+            raise ResultsFileError(
+                self.path,
+                "not a planbench results file (no 'meta' table with a 'schema' entry); "
+                "give the file `planbench bench --out` wrote, or another --out for a new benchmark",
+            )
+        if row[0] != SCHEMA:
+            raise ResultsFileError(self.path, f"results schema {row[0]!r}, this planbench reads {SCHEMA!r}")
+
+    def _close_quietly(self) -> None:
+        conn = getattr(self, "conn", None)
+        if conn is not None:
+            with contextlib.suppress(sqlite3.Error):
+                conn.close()
 
     def _create(self) -> None:
         with self.conn:
             self.conn.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
-            row = self.conn.execute("SELECT value FROM meta WHERE key='schema'").fetchone()
-            if row is None:
-                self.conn.execute("INSERT INTO meta VALUES ('schema', ?)", (SCHEMA,))
-            elif row[0] != SCHEMA:
-                raise PlanbenchError(f"{self.path}: results schema {row[0]!r}, this planbench reads {SCHEMA!r}")
+            self.conn.execute("INSERT OR IGNORE INTO meta VALUES ('schema', ?)", (SCHEMA,))
             self.conn.execute(
                 "CREATE TABLE IF NOT EXISTS suites "
                 "(name TEXT PRIMARY KEY, definition TEXT, settings TEXT, created TEXT)"
             )
-            cols = list(_RUN_COLS[:5]) + _evaluation_columns() + list(_RUN_COLS[5:])
+            cols = _all_columns()
             body = ", ".join(f"{name} {sql}" for name, sql in cols)
             self.conn.execute(
                 f"CREATE TABLE IF NOT EXISTS runs (id INTEGER PRIMARY KEY, {body}, UNIQUE({', '.join(_KEY_COLS)}))"
@@ -174,6 +296,42 @@ class ResultsDB:
                 )
         self.columns = [r[1] for r in self.conn.execute("PRAGMA table_info(runs)")]
 
+    # -- the writer's lock ------------------------------------------------------------------------
+
+    @property
+    def lock_path(self) -> Path:
+        return self.path.with_name(self.path.name + ".lock")
+
+    @contextlib.contextmanager
+    def lock_for_writing(self) -> Iterator[None]:
+        """Hold the exclusive writer's lock of this file (``<file>.lock``) and check its pages.
+
+        A second ``planbench bench`` on the same file raises :class:`ResultsLockedError` naming the
+        holder (pid, host, start time, command) before it does any work. The lock is an ``flock``:
+        the kernel drops it when the holder exits, kill -9 included, so a stale lock file never
+        blocks anyone. ``PRAGMA quick_check`` runs under the lock, so a damaged file is refused
+        before any run is planned rather than when a record meets a bad page.
+        """
+        if self.read_only:
+            raise ResultsFileError(self.path, "opened read-only; it cannot be locked for writing")
+        fd = _acquire_lock(self.path, self.lock_path)
+        try:
+            self.check_integrity()
+            yield
+        finally:
+            _release_lock(fd, self.lock_path)
+
+    @_sqlite_errors
+    def check_integrity(self) -> None:
+        """Raise :class:`ResultsFileError` when SQLite's quick check finds damaged pages."""
+        problems = [r[0] for r in self.conn.execute("PRAGMA quick_check(5)")]
+        if problems != ["ok"]:
+            raise ResultsFileError(
+                self.path,
+                "damaged (" + "; ".join(problems) + "). Keep a copy, then recover the readable runs with "
+                f"`sqlite3 {self.path} .recover | sqlite3 recovered.db`, or run the benchmark into a new --out",
+            )
+
     def close(self) -> None:
         self.conn.close()
 
@@ -185,11 +343,13 @@ class ResultsDB:
 
     # -- suites ----------------------------------------------------------------------------------
 
+    @_sqlite_errors
     def suite_settings(self, name: str) -> tuple[dict[str, Any], dict[str, Any]] | None:
         """(definition, settings) stored for suite ``name``, or None."""
         row = self.conn.execute("SELECT definition, settings FROM suites WHERE name=?", (name,)).fetchone()
         return None if row is None else (json.loads(row[0]), json.loads(row[1]))
 
+    @_sqlite_errors
     def put_suite(self, name: str, definition: dict[str, Any], settings_json: str) -> None:
         now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         with self.conn:
@@ -199,26 +359,60 @@ class ResultsDB:
                 (name, json.dumps(definition, sort_keys=True, default=str), settings_json, name, now),
             )
 
+    @_sqlite_errors
     def delete_suite_runs(self, name: str) -> int:
         with self.conn:
             return self.conn.execute("DELETE FROM runs WHERE suite=?", (name,)).rowcount
 
+    @_sqlite_errors
     def suites(self) -> list[str]:
         return [r[0] for r in self.conn.execute("SELECT DISTINCT suite FROM runs ORDER BY suite")]
 
     # -- runs ------------------------------------------------------------------------------------
 
+    @_sqlite_errors
     def done_keys(self, suite: str) -> set[RunKey]:
         rows = self.conn.execute("SELECT suite, problem, planner, seed FROM runs WHERE suite=?", (suite,))
         return {(r[0], r[1], r[2], int(r[3])) for r in rows}
 
+    @_sqlite_errors
     def count(self, suite: str | None = None) -> int:
         if suite is None:
             return int(self.conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0])
         return int(self.conn.execute("SELECT COUNT(*) FROM runs WHERE suite=?", (suite,)).fetchone()[0])
 
-    def add_run(self, fields: dict[str, Any], record: dict[str, Any]) -> None:
-        """Insert one run: ``fields`` (key, planner, settings) and the worker's ``record``; commits."""
+    @_sqlite_errors
+    def add_run(self, fields: dict[str, Any], record: dict[str, Any]) -> bool:
+        """Insert one run: ``fields`` (key, planner, settings) and the worker's ``record``; commits.
+
+        Returns False, with a warning, when the run's key already has a row: the stored run is
+        complete (rows are written whole), so keeping it is what ``--resume`` would do, and
+        crashing here would throw away every run still in flight. A value SQLite cannot store
+        raises :class:`UnstorableValueError` naming the column, before anything is written.
+        """
+        row = self._run_row(fields, record)
+        names = [n for n in row if n in self.columns]
+        missing = set(row) - set(self.columns)
+        if missing:
+            raise ResultsFileError(self.path, f"run fields {sorted(missing)} have no column")
+        values = [_sql_value(row[n], n, self.path) for n in names]
+        sql = f"INSERT INTO runs ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})"
+        try:
+            with self.conn:
+                self.conn.execute(sql, values)
+        except sqlite3.IntegrityError as exc:
+            key = tuple(row.get(k) for k in _KEY_COLS)
+            if not self._has_key(key):
+                raise ResultsFileError(self.path, f"run {key} not stored: {exc}") from exc
+            log.warning("%s: run %s is already stored; keeping the stored row, not this one", self.path, key)
+            return False
+        return True
+
+    def _has_key(self, key: tuple[Any, ...]) -> bool:
+        where = " AND ".join(f"{k}=?" for k in _KEY_COLS)
+        return self.conn.execute(f"SELECT 1 FROM runs WHERE {where}", key).fetchone() is not None
+
+    def _run_row(self, fields: dict[str, Any], record: dict[str, Any]) -> dict[str, Any]:
         row: dict[str, Any] = dict(fields)
         row.update(record["evaluation"])
         row.update(
@@ -235,16 +429,16 @@ class ResultsDB:
             versions=self.versions,
             finished=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="milliseconds"),
         )
-        names = [n for n in row if n in self.columns]
-        missing = set(row) - set(self.columns)
-        if missing:
-            raise PlanbenchError(f"{self.path}: run fields {sorted(missing)} have no column")
-        sql = f"INSERT INTO runs ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})"
-        with self.conn:
-            self.conn.execute(sql, [_sql_value(row[n]) for n in names])
+        return row
 
+    @_sqlite_errors
     def rows(self, suite: str | None = None, with_arrays: bool = False) -> list[dict[str, Any]]:
-        """Runs as dicts in key order (``path``/``times`` decoded when ``with_arrays``)."""
+        """Runs as dicts in key order (``path``/``times`` decoded when ``with_arrays``).
+
+        Every column of the current schema is present; in an older file opened read-only the
+        columns it lacks read as missing values, and its check counts are moved as
+        :meth:`_create` would move them.
+        """
         cols = [c for c in self.columns if with_arrays or c not in ("path", "times")]
         sql = f"SELECT {', '.join(cols)} FROM runs"
         args: tuple[Any, ...] = ()
@@ -252,11 +446,15 @@ class ResultsDB:
             sql += " WHERE suite=?"
             args = (suite,)
         sql += " ORDER BY suite, planner, problem, seed"
+        absent = [n for n, _ in _all_columns() if n not in self.columns and (with_arrays or n not in ("path", "times"))]
+        old_counts = "validation_checks" in absent and "collision_checks" in self.columns
         out = []
         for r in self.conn.execute(sql, args):
             d = dict(r)
-            for name in ("success",):
-                d[name] = bool(d[name])
+            d.update(dict.fromkeys(absent))
+            if old_counts:
+                d["validation_checks"], d["collision_checks"] = d["collision_checks"], _info_count(d.get("info"))
+            d["success"] = bool(d["success"])
             for name, value in d.items():
                 if value is None and name in _FLOAT_COLUMNS:
                     d[name] = math.nan
@@ -265,6 +463,74 @@ class ResultsDB:
                 d["times"] = array_from_blob(d["times"])
             out.append(d)
         return out
+
+
+def _info_count(info: Any) -> Any:
+    """The planner's own ``collision_checks`` from a run's info JSON (None when absent)."""
+    try:
+        value = json.loads(info).get("collision_checks")
+    except (TypeError, ValueError, AttributeError):
+        return None
+    return value if isinstance(value, int) else None
+
+
+def _all_columns() -> list[tuple[str, str]]:
+    """The runs table's columns (without ``id``) in table order, for the current Evaluation."""
+    return list(_RUN_COLS[:5]) + _evaluation_columns() + list(_RUN_COLS[5:])
+
+
+def _acquire_lock(db_path: Path, lock_path: Path) -> int:
+    """An open fd holding ``flock(LOCK_EX)`` on ``lock_path``, with this process described in it."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover (not POSIX): no lock, as before
+        return -1
+    for _ in range(5):
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise ResultsFileError(db_path, f"cannot create its lock file {lock_path}: {exc.strerror}") from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = _read_holder(fd)
+            os.close(fd)
+            raise ResultsLockedError(db_path, holder) from exc
+        try:  # a holder that just ended may have removed the file we opened: lock the one at the path
+            same = os.fstat(fd).st_ino == os.stat(lock_path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            _write_holder(fd)
+            return fd
+        os.close(fd)
+    raise ResultsFileError(db_path, f"could not take its lock {lock_path}: it keeps being replaced")
+
+
+def _write_holder(fd: int) -> None:
+    started = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    info = {"pid": os.getpid(), "host": socket.gethostname(), "started": started, "command": " ".join(sys.argv)[:500]}
+    data = json.dumps(info).encode()
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, data, 0)
+
+
+def _read_holder(fd: int) -> str:
+    """The lock holder as text: pid, host, start time and command line."""
+    try:
+        info = json.loads(os.pread(fd, 4096, 0).decode(errors="replace"))
+        return f"pid {info['pid']} on host {info['host']}, started {info['started']}: {info['command']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "a process that has not written its details yet"
+
+
+def _release_lock(fd: int, lock_path: Path) -> None:
+    """Remove the lock file while still holding it, then drop the lock (see :func:`_acquire_lock`)."""
+    if fd < 0:
+        return
+    with contextlib.suppress(OSError):
+        os.unlink(lock_path)
+    os.close(fd)
 
 
 def _float_columns() -> set[str]:
