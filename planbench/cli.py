@@ -106,7 +106,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     import planbench
+    from planbench.bench.suite import check_seconds, check_seed
 
+    check_seconds(args.time_limit, "--time-limit")
+    check_seed(args.seed)
     settings = dict(args.set or [])
     problems = planbench.load_problems(args.problem)
     planner = planbench.make_planner(args.planner, **settings)
@@ -146,9 +149,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         planner.plot_result(problems[0], result, args.plot)
         console.print(f"figure written to {args.plot}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1, default=_json_default)
-        console.print(f"metrics written to {args.json}")
+        try:
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=1, default=_json_default)
+        except OSError as exc:
+            raise PlanbenchError(f"cannot write {args.json}: {exc.strerror}") from exc
+        console.print(f"metrics written to {escape(args.json)}")
     return 0
 
 
@@ -169,8 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="plan problems with one planner and print the validated metrics")
     p.add_argument("--problem", required=True, help="mbm:box/0001, mbm:box/0001-0010, mbm:*, or a problem .json")
     p.add_argument("--planner", default="straight-line", help="a registered planner name (see `planbench list`)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--time-limit", type=float, default=10.0, help="[s] per problem")
+    p.add_argument("--seed", type=int, default=0, help="0 <= seed < 2**63")
+    p.add_argument("--time-limit", type=float, default=10.0, help="[s] per problem, a finite number > 0")
     p.add_argument(
         "--set",
         action="append",

@@ -20,7 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from planbench.errors import PlanbenchError, UnknownNameError
+from planbench.errors import DuplicateProblemError, PlanbenchError, UnknownNameError
 from planbench.problem import Goal, Pose, Problem, Tolerances
 from planbench.robot import load_robot
 from planbench.scene import Scene
@@ -91,10 +91,21 @@ def load_problems(selector: str | Path) -> list[Problem]:
         files = sorted(path.glob("*.json"))
         if not files:
             raise PlanbenchError(f"{path}: folder holds no problem .json files")
-        return [Problem.load(f) for f in files]
+        return _unique_ids([(Problem.load(f), str(f)) for f in files])
     if path.is_file():
         return [Problem.load(path)]
     raise UnknownNameError("problem set or file", text, ["mbm", "mbm:*"] + [f"mbm:{f}" for f in mbm_families()])
+
+
+def _unique_ids(loaded: list[tuple[Problem, str]]) -> list[Problem]:
+    """The problems, or :class:`DuplicateProblemError` naming two files that share an id (results
+    and tables are keyed by the id, so they would be mixed up)."""
+    seen: dict[str, str] = {}
+    for problem, source in loaded:
+        first = seen.setdefault(problem.id, source)
+        if first != source:
+            raise DuplicateProblemError(problem.id, first, source)
+    return [problem for problem, _ in loaded]
 
 
 def _load_mbm(rest: str) -> list[Problem]:

@@ -233,6 +233,8 @@ class Problem:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "<dict>", base_dir: Path | None = None) -> Problem:
+        """A problem from its JSON object; any wrong field raises :class:`ProblemFileError` naming
+        ``source`` and the field, before anything is built from it."""
         if not isinstance(d, Mapping):
             raise ProblemFileError(source, "a problem must be a JSON object")
         fmt = d.get("format", PROBLEM_FORMAT)
@@ -241,15 +243,14 @@ class Problem:
         for key in ("robot", "scene", "start", "goal"):
             if key not in d:
                 raise ProblemFileError(source, f"missing required key {key!r}")
-        robot = load_robot(d["robot"], **dict(d.get("robot_overrides", {})))
+        _check_fields(d, source)
+        robot = _load_problem_robot(d["robot"], dict(d.get("robot_overrides", {})), source)
         scene_d = d["scene"]
         if isinstance(scene_d, str):
             scene = Scene.load((base_dir or Path.cwd()) / scene_d)
         else:
             scene = Scene.from_dict(scene_d, source, base_dir)
         g = d["goal"]
-        if not isinstance(g, Mapping) or not ({"q", "pose"} & set(g)):
-            raise ProblemFileError(source, "goal must be an object with 'q' and/or 'pose'")
         try:
             pose = None
             if "pose" in g:
@@ -279,6 +280,97 @@ class Problem:
 
     def __repr__(self) -> str:
         return f"Problem({self.id!r}, robot={self.robot.name!r}, obstacles={len(self.scene)}, goal={self.goal.kind})"
+
+
+_OBJECT, _TEXT = "a JSON object", "a string"
+_FIELD_TYPES: dict[str, tuple[tuple[type, ...], str]] = {
+    "format": ((str,), _TEXT),
+    "id": ((str,), _TEXT),
+    "robot": ((str,), "a robot name or a settings .toml path (a string)"),
+    "robot_overrides": ((Mapping,), _OBJECT),
+    "scene": ((Mapping, str), "a scene object or a scene .json path"),
+    "goal": ((Mapping,), "an object with 'q' and/or 'pose'"),
+    "tolerances": ((Mapping,), _OBJECT),
+    "metadata": ((Mapping,), _OBJECT),
+}
+_TOLERANCES = ("position", "orientation", "joint")
+_NAME_TO_NUMBER = ("fixed_joints", "velocity_limits")
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value) if isinstance(value, (list, dict, str, int, float, bool, type(None))) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _wrong(source: str, field: str, want: str, value: Any) -> ProblemFileError:
+    return ProblemFileError(source, f"field {field!r} must be {want}, got {_short(value)}")
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _check_numbers(value: Any, field: str, source: str, length: int | None = None) -> None:
+    want = f"a list of {length} numbers" if length else "a list of numbers"
+    if not (isinstance(value, list) and all(_is_number(v) for v in value)) or (length and len(value) != length):
+        raise _wrong(source, field, want, value)
+
+
+def _check_fields(d: Mapping[str, Any], source: str) -> None:
+    """Every field of a problem object has its JSON type (see the module docstring); raises
+    ProblemFileError naming the field, so that a typo never surfaces as a traceback deep inside."""
+    for key, (types, want) in _FIELD_TYPES.items():
+        if key in d and not isinstance(d[key], types):
+            raise _wrong(source, key, want, d[key])
+    _check_numbers(d["start"], "start", source)
+    goal = d["goal"]
+    if not ({"q", "pose"} & set(goal)):
+        raise ProblemFileError(source, "goal must be an object with 'q' and/or 'pose'")
+    if "q" in goal:
+        _check_numbers(goal["q"], "goal.q", source)
+    if "pose" in goal:
+        pose = goal["pose"]
+        if not isinstance(pose, Mapping):
+            raise _wrong(source, "goal.pose", "an object with position, orientation_xyzw and frame", pose)
+        for key in ("position", "orientation_xyzw"):
+            if key not in pose:
+                raise ProblemFileError(source, f"goal.pose is missing {key!r}")
+        _check_numbers(pose["position"], "goal.pose.position", source, 3)
+        _check_numbers(pose["orientation_xyzw"], "goal.pose.orientation_xyzw", source, 4)
+        if not isinstance(pose.get("frame", ""), str):
+            raise _wrong(source, "goal.pose.frame", "a frame name (a string)", pose["frame"])
+    for key, value in d.get("tolerances", {}).items():
+        if key not in _TOLERANCES:
+            raise ProblemFileError(source, f"tolerances has unknown key {key!r}; known: {', '.join(_TOLERANCES)}")
+        if not _is_number(value):
+            raise _wrong(source, f"tolerances.{key}", "a number", value)
+    _check_overrides(d.get("robot_overrides", {}), source)
+
+
+def _check_overrides(overrides: Mapping[str, Any], source: str) -> None:
+    for key in _NAME_TO_NUMBER:
+        value = overrides.get(key, {})
+        if not (isinstance(value, Mapping) and all(_is_number(v) for v in value.values())):
+            raise _wrong(source, f"robot_overrides.{key}", "an object of joint name: number", value)
+    limits = overrides.get("position_limits", {})
+    if not isinstance(limits, Mapping):
+        raise _wrong(source, "robot_overrides.position_limits", "an object of joint name: [lower, upper]", limits)
+    for name, pair in limits.items():
+        _check_numbers(pair, f"robot_overrides.position_limits.{name}", source, 2)
+    if overrides.get("home") is not None:
+        _check_numbers(overrides["home"], "robot_overrides.home", source)
+
+
+def _load_problem_robot(name: str, overrides: dict[str, Any], source: str) -> Robot:
+    """The problem's robot; its errors name the problem file (the robot's own file is not at fault)."""
+    from planbench.errors import PlanbenchError
+
+    try:
+        return load_robot(name, **overrides)
+    except PlanbenchError as exc:
+        raise ProblemFileError(source, f"robot {name!r}: {exc}") from exc
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        raise ProblemFileError(source, f"robot_overrides: {type(exc).__name__}: {exc}") from exc
 
 
 def _check_q(robot: Robot, checker: Any, q: np.ndarray, what: str) -> list[str]:

@@ -7,9 +7,13 @@ takes the parsed arguments and returns an exit code.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from planbench.errors import InvalidConfigError, PlanbenchError
 
 log = logging.getLogger(__name__)
 
@@ -32,9 +36,15 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--suite", default="smoke", help="a built-in suite (smoke, mbm) or a suite .toml file")
     p.add_argument("--planners", type=_csv_list, help="comma-separated labels of the suite, or planner names to add")
     p.add_argument("--problems", nargs="+", metavar="SELECTOR", help="problem selectors replacing the suite's")
-    p.add_argument("--seeds", help="a count (3), a list (0,1,5) or a range (0-9)")
-    p.add_argument("--jobs", "-j", type=int, default=0, help="worker processes (default: all cores)")
-    p.add_argument("--time-limit", type=float, help="[s] planning time per run")
+    p.add_argument("--seeds", help="a count (3), a list (0,1,5) or a range (0-9); 0 <= seed < 2**63")
+    p.add_argument("--jobs", "-j", type=int, default=0, help="worker processes (default, or 0: all cores)")
+    p.add_argument("--time-limit", type=float, help="[s] planning time per run, a finite number > 0")
+    p.add_argument(
+        "--memory-limit",
+        metavar="MIB",
+        help="address space per worker process [MiB], or 'none' (default: the suite's, else "
+        "planbench.bench.suite.DEFAULT_MEMORY_LIMIT)",
+    )
     p.add_argument("--out", default="results.db", help="results database (SQLite), default results.db")
     p.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
     p.add_argument("--overwrite", action="store_true", help="delete this suite's runs in --out first")
@@ -49,7 +59,9 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("db", help="results database written by `planbench bench`")
     p.add_argument("--suite", help="only this suite (default: all suites in the database)")
     p.add_argument(
-        "--problems", nargs="+", metavar="SELECTOR",
+        "--problems",
+        nargs="+",
+        metavar="SELECTOR",
         help="only these problems (selectors as in bench, e.g. 'mbm:*/0021-0100': a held-out set)",
     )
     p.add_argument(
@@ -80,26 +92,57 @@ def _by(choice: str) -> tuple[str, ...]:
     return ("planner", "family") if choice == "family" else ("planner",)
 
 
+def _bench_suite(args: argparse.Namespace) -> Any:
+    """The suite the ``bench`` options ask for; every option is checked before any file is touched."""
+    from planbench.bench.benchmark import select
+    from planbench.bench.suite import check_seconds, parse_memory_limit
+
+    if args.jobs < 0:
+        raise InvalidConfigError(f"--jobs must be >= 1 (or 0: all cores), got {args.jobs}")
+    if args.time_limit is not None:
+        check_seconds(args.time_limit, "--time-limit")
+    if args.planners is not None and not args.planners:
+        raise InvalidConfigError("--planners names no planner: give comma-separated labels or planner names")
+    if args.resume and args.overwrite:
+        raise InvalidConfigError("--resume keeps the stored runs and --overwrite deletes them: give one of them")
+    suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit)
+    if args.memory_limit is not None:
+        suite = suite.with_changes(memory_limit=parse_memory_limit(args.memory_limit))
+    return suite
+
+
+def _stored_count(path: str, suite: str) -> int:
+    """Runs of ``suite`` in the results file (0 when there is none yet), read without writing."""
+    from planbench.bench.db import ResultsDB
+
+    if not Path(path).is_file():
+        return 0
+    with ResultsDB(path, read_only=True) as db:
+        return db.count(suite)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.markup import escape
 
-    from planbench.bench.benchmark import run_benchmark, select
+    from planbench.bench.benchmark import run_benchmark
     from planbench.bench.db import ResultsDB
     from planbench.bench.report import failures, summarize, to_rich
     from planbench.bench.runner import default_jobs
 
     console = Console(stderr=False)
-    suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit)
+    suite = _bench_suite(args)
     jobs = args.jobs or default_jobs()
     progress = _Progress(console, enabled=not args.no_progress)
 
     def on_start(n: int, done: int, skipped: list[str]) -> None:
         for why in skipped:
             console.print(f"[yellow]skipping optional planner[/yellow] {escape(why)}", highlight=False)
+        memory = f"{suite.memory_limit:g} MiB" if suite.memory_limit else "none"
         console.print(
             f"suite [bold]{escape(suite.name)}[/bold]: {n + done} runs ({done} already in {escape(args.out)}, "
-            f"{n} to run) on {jobs} worker process{'es' if jobs > 1 else ''}, time limit {suite.time_limit:g} s",
+            f"{n} to run) on {jobs} worker process{'es' if jobs > 1 else ''}, time limit {suite.time_limit:g} s, "
+            f"memory limit {memory} per worker",
             highlight=False,
         )
         progress.start(n)
@@ -116,8 +159,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         )
     except KeyboardInterrupt:
         progress.stop()
-        with ResultsDB(args.out) as db:
-            n = db.count(suite.name)
+        n = _stored_count(args.out, suite.name)
         console.print(
             f"interrupted: {n} runs of suite {escape(suite.name)!r} are in {escape(args.out)}; "
             "run the same command with --resume to do only the missing ones"
@@ -125,7 +167,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 130
     progress.stop()
     console.print(f"{outcome.ran} runs in {outcome.wall_time:.1f} s (wall), results in {escape(args.out)}")
-    with ResultsDB(args.out, create=False) as db:
+    with ResultsDB(args.out, read_only=True) as db:
         rows = db.rows(suite.name)
     console.print(
         to_rich(summarize(rows, _by(args.by)), _by(args.by), title=f"suite {suite.name}", width=console.width)
@@ -185,6 +227,24 @@ class _Progress:
             self.bar = None
 
 
+def _output(path: str | Path, db: str | Path) -> Path:
+    """An output path that is not the results file itself (which the writers would replace)."""
+    out = Path(path)
+    if out.resolve() == Path(db).resolve():
+        raise InvalidConfigError(f"{out} is the results database itself; choose another output file")
+    return out
+
+
+@contextlib.contextmanager
+def _writing(path: str | Path) -> Iterator[None]:
+    """Turn a failure to write ``path`` (a missing folder, no permission, a full disk) into a
+    named error instead of a traceback after all the work was done."""
+    try:
+        yield
+    except OSError as exc:
+        raise PlanbenchError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.markup import escape
@@ -193,7 +253,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     from planbench.bench.report import failures, summarize, to_csv, to_markdown, to_rich
 
     console = Console()
-    with ResultsDB(args.db, create=False) as db:
+    outputs = [x for x in (args.markdown, args.csv, args.plots, args.html) if x]
+    for out in outputs:
+        _output(out, args.db)
+    with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
     if args.problems:
         from planbench.bench.suite import expand_problems
@@ -201,8 +264,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         wanted = {ref.id for ref in expand_problems(args.problems)}
         rows = [row for row in rows if row["problem"] in wanted]
     if not rows:
-        console.print(f"{escape(args.db)} holds no runs" + (f" of suite {escape(args.suite)!r}" if args.suite else "")
-                      + (f" of problems {' '.join(args.problems)}" if args.problems else ""))
+        console.print(
+            f"{escape(args.db)} holds no runs"
+            + (f" of suite {escape(args.suite)!r}" if args.suite else "")
+            + (f" of problems {' '.join(args.problems)}" if args.problems else "")
+        )
         return 1
     by = _by(args.by)
     summary = summarize(rows, by)
@@ -210,20 +276,24 @@ def cmd_report(args: argparse.Namespace) -> int:
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     if args.markdown:
-        Path(args.markdown).write_text(to_markdown(summary, by))
+        with _writing(args.markdown):
+            Path(args.markdown).write_text(to_markdown(summary, by))
         console.print(f"Markdown table written to {escape(args.markdown)}")
     if args.csv:
-        Path(args.csv).write_text(to_csv(summary))
+        with _writing(args.csv):
+            Path(args.csv).write_text(to_csv(summary))
         console.print(f"CSV table written to {escape(args.csv)}")
     if args.plots:
         from planbench.bench.plots import write_plots
 
-        files = write_plots(rows, args.plots)
+        with _writing(args.plots):
+            files = write_plots(rows, args.plots)
         console.print(f"{len(files)} plots written to {escape(args.plots)}")
     if args.html:
         from planbench.bench.html import write_html
 
-        write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}")
+        with _writing(args.html):
+            write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}")
         console.print(f"HTML report written to {escape(args.html)}")
     return 0
 
@@ -238,16 +308,20 @@ def cmd_export(args: argparse.Namespace) -> int:
         "planner-arena": db_path.with_suffix("").as_posix() + "-plannerarena.db",
         "csv": db_path.with_suffix(".csv").as_posix(),
     }[args.format]
-    out = Path(args.out or default)
-    with ResultsDB(db_path, create=False) as db:
+    out = _output(args.out or default, db_path)
+    with ResultsDB(db_path, read_only=True) as db:
         rows = db.rows(args.suite)
-    if args.format == "ompl-log":
-        files = export.write_ompl_logs(rows, out)
-        print(f"{len(files)} OMPL benchmark logs written to {out} (one per problem)")
-    elif args.format == "planner-arena":
-        export.write_planner_arena(rows, out)
-        print(f"Planner Arena database written to {out} (open it with `plannerarena {out}`)")
-    else:
-        export.write_runs_csv(rows, out)
-        print(f"{len(rows)} runs written to {out}")
+    if not rows:
+        print(f"{db_path} holds no runs" + (f" of suite {args.suite!r}" if args.suite else "") + "; nothing exported")
+        return 1
+    with _writing(out):
+        if args.format == "ompl-log":
+            files = export.write_ompl_logs(rows, out)
+            print(f"{len(files)} OMPL benchmark logs written to {out} (one per problem)")
+        elif args.format == "planner-arena":
+            export.write_planner_arena(rows, out)
+            print(f"Planner Arena database written to {out} (open it with `plannerarena {out}`)")
+        else:
+            export.write_runs_csv(rows, out)
+            print(f"{len(rows)} runs written to {out}")
     return 0

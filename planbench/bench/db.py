@@ -326,9 +326,10 @@ class ResultsDB:
         """Raise :class:`ResultsFileError` when SQLite's quick check finds damaged pages."""
         problems = [r[0] for r in self.conn.execute("PRAGMA quick_check(5)")]
         if problems != ["ok"]:
+            lines = [x.strip() for p in problems for x in p.splitlines() if x.strip() and not x.startswith("***")]
             raise ResultsFileError(
                 self.path,
-                "damaged (" + "; ".join(problems) + "). Keep a copy, then recover the readable runs with "
+                "damaged (" + "; ".join(lines) + "). Keep a copy, then recover the readable runs with "
                 f"`sqlite3 {self.path} .recover | sqlite3 recovered.db`, or run the benchmark into a new --out",
             )
 

@@ -8,7 +8,7 @@ A suite is a small TOML file (``planbench-suite/1``)::
     problems = ["mbm:box/0001-0010", "mbm:cage", "my_problems/"]   # selectors, see load_problems
     seeds = [0, 1, 2]                 # a list, or a count n meaning 0 .. n-1
     time_limit = 5.0                  # [s] planning time per run (setup is timed apart)
-    memory_limit = 0                  # [MiB] address space per worker process, 0: no limit
+    memory_limit = 4096               # [MiB] address space per worker process; 0 or "none": no limit
     setup_timeout = 120.0             # [s] hard limit on loading the problem and planner setup
     grace = 5.0                       # [s] slack past time_limit before a planning run is killed
     validation_timeout = 300.0        # [s] hard limit on validating one path
@@ -25,6 +25,18 @@ A suite is a small TOML file (``planbench-suite/1``)::
 
 The same planner may appear several times under different labels with different settings. The
 built-in suites (``smoke``, ``mbm``) ship in ``planbench/bench/suites``.
+
+Seeds are integers with ``0 <= seed < 2**63`` (what numpy's ``default_rng`` and a SQLite INTEGER
+both take), at most 1,000,000 of them.
+
+``memory_limit`` defaults to :data:`DEFAULT_MEMORY_LIMIT` MiB, so that a planner that allocates
+without bound becomes an ``error`` row (``MemoryError``) instead of taking the machine down; set it
+in the suite or with ``planbench bench --memory-limit MIB`` (``none`` disables it). It caps the
+worker's *virtual* address space (``RLIMIT_AS``), which is far more than the memory a run touches:
+importing numpy, numba (LLVM), pinocchio, coal and OMPL and starting their thread pools reserves
+address space that is never used. Measured on a fresh worker after one run on ``mbm:box/0001`` and
+``mbm:bookshelf_tall/0001`` (VmPeak, the largest address space the process had, and VmHWM, its
+largest resident memory): see :data:`DEFAULT_MEMORY_LIMIT` for the numbers and the margin.
 """
 
 from __future__ import annotations
@@ -39,7 +51,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from planbench.errors import PlanbenchError, UnknownNameError
+from planbench.errors import DuplicateProblemError, InvalidConfigError, PlanbenchError, UnknownNameError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -51,13 +63,32 @@ __all__ = [
     "ProblemRef",
     "Suite",
     "SuiteFileError",
+    "DEFAULT_MEMORY_LIMIT",
     "builtin_suites",
+    "check_seconds",
+    "check_seed",
     "expand_problems",
+    "parse_memory_limit",
     "load_suite",
     "load_planner_class",
 ]
 
 SUITE_FORMAT = "planbench-suite/1"
+
+DEFAULT_MEMORY_LIMIT = 4096.0
+"""[MiB] of address space per worker by default.
+
+Measured VmPeak (address space) / VmHWM (resident) [MiB] of a fresh worker-like process (one
+thread per pool, as benchmark workers run) after one run, on mbm:box/0001 and
+mbm:bookshelf_tall/0001: after ``import planbench`` 101 / 30; straight-line 302-307 / 129-135;
+matrix-field 592-681 / 277-368; matrix-field-qp 545-570 / 257-282; edt-field 575-595 / 258-269;
+distance-field 554-560 / 236-243; ompl-rrtconnect, -bitstar, -prmstar, -kpiece, -rrtstar
+452-464 / 137-143 (5 s runs). A long-lived matrix-field worker after 28 problems
+(``mbm:*/0001-0004``): 732 / 414. 4096 MiB is more than 5x the largest, so no shipped planner
+meets it, while a runaway allocation still ends as an ``error`` row long before a machine of
+a few GiB per core runs out."""
+SEED_LIMIT = 2**63  # seeds are < 2**63: numpy's default_rng takes any, SQLite INTEGER is int64
+MAX_SEEDS = 1_000_000
 
 
 class SuiteFileError(PlanbenchError):
@@ -99,7 +130,7 @@ class Suite:
     planners: tuple[PlannerEntry, ...]
     seeds: tuple[int, ...] = (0,)
     time_limit: float = 5.0
-    memory_limit: float = 0.0
+    memory_limit: float = DEFAULT_MEMORY_LIMIT
     setup_timeout: float = 120.0
     grace: float = 5.0
     validation_timeout: float = 300.0
@@ -121,10 +152,13 @@ class Suite:
             raise bad("[suite] seeds is empty")
         for name in ("time_limit", "setup_timeout", "grace", "validation_timeout"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise bad(f"[suite] {name} must be a number > 0 [s], got {v!r}")
-        if not (isinstance(self.memory_limit, (int, float)) and self.memory_limit >= 0):
-            raise bad(f"[suite] memory_limit must be >= 0 [MiB], got {self.memory_limit!r}")
+            if not _positive_number(v):
+                raise bad(f"[suite] {name} must be a finite number > 0 [s], got {v!r}")
+        m = self.memory_limit
+        if not (_positive_number(m) or (isinstance(m, (int, float)) and not isinstance(m, bool) and m == 0)):
+            raise bad(f'[suite] memory_limit must be a number of MiB > 0, or 0 / "none" for no limit, got {m!r}')
+        for seed in self.seeds:
+            check_seed(seed, self.source)
         labels = [p.label for p in self.planners]
         dupes = sorted({x for x in labels if labels.count(x) > 1})
         if dupes:
@@ -252,9 +286,9 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
     validation = data.get("validation", {})
     if not isinstance(validation, dict):
         raise SuiteFileError(source, "[validation] must be a table")
-    kwargs = {
-        k: head[k] for k in ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout") if k in head
-    }
+    kwargs = {k: head[k] for k in ("time_limit", "setup_timeout", "grace", "validation_timeout") if k in head}
+    if "memory_limit" in head:
+        kwargs["memory_limit"] = parse_memory_limit(head["memory_limit"], f"{source}: [suite] memory_limit")
     return Suite(
         name=head.get("name", ""),
         description=str(head.get("description", "")),
@@ -267,6 +301,39 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
     )
 
 
+def _positive_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def check_seconds(value: Any, what: str) -> float:
+    """``value`` as seconds when it is a finite number > 0, else an error naming ``what``."""
+    if not _positive_number(value):
+        raise InvalidConfigError(f"{what} must be a finite number of seconds > 0, got {value!r}")
+    return float(value)
+
+
+def parse_memory_limit(value: Any, source: str = "--memory-limit") -> float:
+    """MiB from a number, a numeric string, or ``"none"`` (0.0: no limit)."""
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if text in ("none", "0"):
+            return 0.0
+        try:
+            value = float(text)
+        except ValueError:
+            value = text
+    if _positive_number(value) or value == 0:
+        return float(value)
+    raise SuiteFileError(source, f'memory_limit must be a number of MiB > 0, or "none" for no limit, got {value!r}')
+
+
+def check_seed(seed: int, source: str = "--seed") -> int:
+    """``seed`` when ``0 <= seed < 2**63`` (numpy's default_rng and SQLite INTEGER both take it)."""
+    if not 0 <= seed < SEED_LIMIT:
+        raise SuiteFileError(source, f"seed {seed} is out of range: seeds are integers with 0 <= seed < 2**63")
+    return seed
+
+
 def parse_seeds(value: Any, source: str = "--seeds") -> tuple[int, ...]:
     """Seeds from a list of ints, a count ``n`` (0..n-1), or text ``"0,1,5"`` / ``"3"`` / ``"0-9"``."""
     if isinstance(value, str):
@@ -275,8 +342,11 @@ def parse_seeds(value: Any, source: str = "--seeds") -> tuple[int, ...]:
             if "," in text:
                 value = [int(x) for x in text.split(",") if x.strip()]
             elif "-" in text[1:]:
-                lo, _, hi = text.partition("-")
-                value = list(range(int(lo), int(hi) + 1))
+                lo_text, _, hi_text = text.partition("-")
+                lo, hi = check_seed(int(lo_text), source), check_seed(int(hi_text), source)
+                if hi < lo or hi - lo >= MAX_SEEDS:
+                    raise SuiteFileError(source, f"seed range {text!r}: give lo-hi with lo <= hi, at most {MAX_SEEDS}")
+                value = list(range(lo, hi + 1))
             else:
                 value = int(text)
         except ValueError as exc:
@@ -284,14 +354,16 @@ def parse_seeds(value: Any, source: str = "--seeds") -> tuple[int, ...]:
     if isinstance(value, bool):
         raise SuiteFileError(source, "seeds must be a count or a list of integers")
     if isinstance(value, int):
-        if value < 1:
-            raise SuiteFileError(source, f"a seed count must be >= 1, got {value}")
+        if not 1 <= value <= MAX_SEEDS:
+            raise SuiteFileError(source, f"a seed count must be between 1 and {MAX_SEEDS}, got {value}")
         return tuple(range(value))
     if isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
         if len(set(value)) != len(value):
             raise SuiteFileError(source, f"seeds {value} repeat a value")
-        if any(s < 0 for s in value):
-            raise SuiteFileError(source, f"seeds {value} must be >= 0")
+        if len(value) > MAX_SEEDS:
+            raise SuiteFileError(source, f"{len(value)} seeds: at most {MAX_SEEDS}")
+        for seed in value:
+            check_seed(seed, source)
         return tuple(value)
     raise SuiteFileError(source, f"seeds must be a count or a non-empty list of integers, got {value!r}")
 
@@ -327,7 +399,12 @@ def make_planner_instance(planner: str, settings: dict[str, Any]) -> Any:
 
 
 def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
-    """The problems named by ``selectors``, in order, without repeats."""
+    """The problems named by ``selectors``, in order, without repeats.
+
+    The same problem selected twice (overlapping selectors) counts once; two *different* sources
+    with one id raise :class:`DuplicateProblemError` naming both, since runs are keyed by the id
+    and would otherwise be silently merged into one.
+    """
     from planbench.datasets import load_problems
     from planbench.problem import Problem
 
@@ -340,8 +417,18 @@ def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
                 raise PlanbenchError(f"{path}: folder holds no problem .json files")
             for f in files:
                 p = Problem.load(f)
-                out.setdefault(p.id, ProblemRef(str(f.resolve()), p.id, str(p.metadata.get("family", ""))))
+                _add_ref(out, ProblemRef(str(f.resolve()), p.id, str(p.metadata.get("family", ""))))
         else:
             for p in load_problems(sel):
-                out.setdefault(p.id, ProblemRef(p.id, p.id, str(p.metadata.get("family", ""))))
+                _add_ref(out, ProblemRef(p.id, p.id, str(p.metadata.get("family", ""))))
     return list(out.values())
+
+
+def _add_ref(out: dict[str, ProblemRef], ref: ProblemRef) -> None:
+    old = out.setdefault(ref.id, ref)
+    if old.ref != ref.ref:
+        raise DuplicateProblemError(ref.id, _source_text(old.ref), _source_text(ref.ref))
+
+
+def _source_text(ref: str) -> str:
+    return f"the built-in problem {ref}" if ref.startswith("mbm:") else ref
