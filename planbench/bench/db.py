@@ -312,8 +312,7 @@ class ResultsDB:
         blocks anyone. ``PRAGMA quick_check`` runs under the lock, so a damaged file is refused
         before any run is planned rather than when a record meets a bad page.
         """
-        if self.read_only:
-            raise ResultsFileError(self.path, "opened read-only; it cannot be locked for writing")
+        self._require_writable()
         fd = _acquire_lock(self.path, self.lock_path)
         try:
             self.check_integrity()
@@ -352,6 +351,7 @@ class ResultsDB:
 
     @_sqlite_errors
     def put_suite(self, name: str, definition: dict[str, Any], settings_json: str) -> None:
+        self._require_writable()
         now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
         with self.conn:
             self.conn.execute(
@@ -362,6 +362,7 @@ class ResultsDB:
 
     @_sqlite_errors
     def delete_suite_runs(self, name: str) -> int:
+        self._require_writable()
         with self.conn:
             return self.conn.execute("DELETE FROM runs WHERE suite=?", (name,)).rowcount
 
@@ -391,6 +392,7 @@ class ResultsDB:
         crashing here would throw away every run still in flight. A value SQLite cannot store
         raises :class:`UnstorableValueError` naming the column, before anything is written.
         """
+        self._require_writable()
         row = self._run_row(fields, record)
         names = [n for n in row if n in self.columns]
         missing = set(row) - set(self.columns)
@@ -408,6 +410,10 @@ class ResultsDB:
             log.warning("%s: run %s is already stored; keeping the stored row, not this one", self.path, key)
             return False
         return True
+
+    def _require_writable(self) -> None:
+        if self.read_only:
+            raise ResultsFileError(self.path, "opened read-only (as report and export do); runs are written by bench")
 
     def _has_key(self, key: tuple[Any, ...]) -> bool:
         where = " AND ".join(f"{k}=?" for k in _KEY_COLS)
