@@ -103,3 +103,52 @@ def test_seeds_and_command_line_selection():
         ("NoisyPlanner", "bench_planners:NoisyPlanner"),
     ]
     assert s.seeds == (0,) and s.time_limit == 1.0
+
+
+def test_seeds_fit_numpy_and_sqlite():
+    assert parse_seeds(f"{2**63 - 2}-{2**63 - 1}") == (2**63 - 2, 2**63 - 1)
+    for bad in ("99999999999999999999", f"0,{2**63}", f"0-{2**63}", "9-3", [-1], [2**64]):
+        with pytest.raises(SuiteFileError, match="seed"):
+            parse_seeds(bad)
+
+
+MEMORY = """
+[suite]
+name = "m"
+problems = ["mbm:box/0001"]
+{line}
+
+[[planners]]
+planner = "straight-line"
+"""
+
+
+def test_memory_limit_has_a_default_and_can_be_set_or_disabled():
+    from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, parse_memory_limit
+
+    assert DEFAULT_MEMORY_LIMIT >= 2048  # far above the ~0.8 GiB address space the shipped planners reach
+    assert parse_suite(MEMORY.format(line="")).memory_limit == DEFAULT_MEMORY_LIMIT
+    assert parse_suite(MEMORY.format(line="memory_limit = 2000")).memory_limit == 2000
+    assert parse_suite(MEMORY.format(line='memory_limit = "none"')).memory_limit == 0
+    assert parse_suite(MEMORY.format(line="memory_limit = 0")).memory_limit == 0
+    for bad in ("-1", '"lots"', "nan", "true"):
+        with pytest.raises(SuiteFileError, match=r"m\.toml: \[suite\] memory_limit"):
+            parse_suite(MEMORY.format(line=f"memory_limit = {bad}"), "m.toml")
+    assert parse_memory_limit("none") == 0 and parse_memory_limit("512") == 512
+    assert "memory_limit" in load_suite("smoke").settings_json()
+
+
+def test_bench_memory_limit_option_reaches_the_suite():
+    import argparse
+
+    from planbench.bench.commands import add_commands
+
+    parser = argparse.ArgumentParser()
+    add_commands(parser.add_subparsers(dest="command"))
+    from planbench.bench.commands import _bench_suite
+
+    for given, expected in (("none", 0.0), ("1500", 1500.0)):
+        args = parser.parse_args(["bench", "--problems", "mbm:box/0001", "--memory-limit", given])
+        assert _bench_suite(args).memory_limit == expected
+    args = parser.parse_args(["bench", "--problems", "mbm:box/0001"])
+    assert _bench_suite(args).memory_limit == load_suite("smoke").memory_limit
