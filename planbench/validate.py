@@ -1,17 +1,21 @@
 """Independent validation of a returned path, and the metrics of every run.
 
 A planner's claim of success is never trusted: :func:`evaluate` re-checks the path against the
-problem's TRUE geometry (the scene's primitives with coal, never a voxel grid) and the robot's
-limits, and success means every check holds:
+problem's TRUE geometry (the scene's primitives and the robot's collision meshes with coal, never a
+voxel grid) and the robot's limits, and success means every check holds:
 
 - the path is an (N, nq) array of finite values starting at the problem's start;
-- every waypoint is inside the joint limits;
-- no configuration collides with the scene or with the robot itself, checked at every waypoint and
-  along every segment so that no joint moves more than ``collision_resolution`` [rad] between two
-  checked configurations (linear interpolation in joint space);
+- every waypoint is inside the joint limits (so is every point between them: the limits are a box);
+- every segment (linear interpolation in joint space) is *proven* free of collisions with the scene
+  and of self-collisions, by :class:`planbench.certified.CertifiedChecker`: distance-based
+  conservative advancement, no sampling resolution, every distance at least ``required_clearance``;
 - for a trajectory with time stamps, the joint velocities of every segment are within the limits;
 - the final end-effector pose is within the position and orientation tolerances of the goal pose,
   and, when the planner says it drove to the goal configuration, the final joint error too.
+
+Clearance is measured along the whole path: ``min_clearance`` is the smallest robot-obstacle
+distance found, ``min_clearance_bound`` a certified lower bound of it (the true minimum is between
+the two, at most ``clearance_gap`` apart unless the refinement's budget ran out).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from planbench import metrics
-from planbench.collision import CollisionChecker
+from planbench.certified import CertificationSettings, CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem, pose_error
 
@@ -32,13 +36,21 @@ __all__ = ["ValidationSettings", "Evaluation", "evaluate"]
 
 @dataclass(frozen=True)
 class ValidationSettings:
-    """How densely paths are checked. Units: rad (or m for prismatic joints)."""
+    """How paths are checked. Units: m, rad, s."""
 
-    collision_resolution: float = 0.01
-    """Largest joint motion between two configurations checked for collision [rad]."""
-    clearance_resolution: float = 0.05
-    """Largest joint motion between two configurations where clearance is measured [rad]
-    (distance queries cost ~30x a collision query, so clearance is sampled more coarsely)."""
+    required_clearance: float = 0.0
+    """Smallest distance [m] allowed between the robot and an obstacle, or between two of its links,
+    anywhere along the path. 0: touching is not colliding, penetration is."""
+    clearance_gap: float = 1e-3
+    """The certified lower bound of the path's clearance is refined to within this [m] of the
+    smallest distance found (a measurement setting; it never changes a verdict)."""
+    max_distance_queries: int = 500_000
+    """Distance queries one path may take; a path that needs more is refused as not certifiable."""
+    clearance_samples: int = 16
+    """Configurations, evenly spaced by joint-space length, where ``mean_clearance`` is measured."""
+    ee_resolution: float = 0.01
+    """Largest joint motion [rad] between configurations where the end-effector path length is
+    measured (a metric only; collision checking has no resolution)."""
     start_tolerance: float = 1e-6
     """How far path[0] may be from the problem's start [rad]."""
     limit_tolerance: float = 1e-9
@@ -47,10 +59,21 @@ class ValidationSettings:
     """Relative slack on velocity limits (|qd| <= vmax * (1 + tol))."""
 
     def __post_init__(self) -> None:
-        for name in ("collision_resolution", "clearance_resolution"):
+        for name in ("required_clearance", "clearance_gap", "ee_resolution"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be > 0 [rad], got {v}")
+            if not math.isfinite(v):
+                raise ValueError(f"{name} must be finite, got {v}")
+        if not (self.clearance_gap > 0 and self.ee_resolution > 0):
+            raise ValueError("clearance_gap [m] and ee_resolution [rad] must be > 0")
+        if self.max_distance_queries < 1 or self.clearance_samples < 1:
+            raise ValueError("max_distance_queries and clearance_samples must be >= 1")
+
+    def certification(self) -> CertificationSettings:
+        return CertificationSettings(
+            required_clearance=self.required_clearance,
+            clearance_gap=self.clearance_gap,
+            max_queries=self.max_distance_queries,
+        )
 
 
 @dataclass(frozen=True)
@@ -69,8 +92,9 @@ class Evaluation:
     n_waypoints: int = 0
     joint_path_length: float = math.nan
     ee_path_length: float = math.nan
-    min_clearance: float = math.nan
-    mean_clearance: float = math.nan
+    min_clearance: float = math.nan  # smallest robot-obstacle distance found along the path [m]
+    min_clearance_bound: float = math.nan  # certified lower bound of it [m] (valid paths)
+    mean_clearance: float = math.nan  # over ValidationSettings.clearance_samples configurations [m]
     duration: float = math.nan  # at the velocity limits, see metrics.execution_duration
     trajectory_duration: float = math.nan  # the planner's own time stamps, when given
     smoothness: float = math.nan  # total turning angle, see metrics.turning_angle
@@ -80,7 +104,11 @@ class Evaluation:
     max_limit_violation: float = math.nan  # [rad] beyond the position limits (0 when inside)
     max_velocity_ratio: float = math.nan  # max |qd| / vmax over segments, when timed
     collision_checks: int | None = None  # the planner's own count, when it reports info["collision_checks"]
-    validation_checks: int = 0  # configurations this validation checked (it stops at the first collision)
+    validation_checks: int = 0  # distance queries this validation made (it stops at the first collision)
+    collision_segment: int = -1  # first segment found in collision (-1: none)
+    collision_fraction: float = math.nan  # where along it (0: its first waypoint, 1: its last)
+    collision_pair: str = ""  # "<robot link> / <link or obstacle:name>"
+    penetration_depth: float = math.nan  # [m] at that point (0: closer than allowed, not provably free)
     checks: dict[str, bool] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
@@ -149,22 +177,16 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
             else:
                 checks["velocity_limits"] = True
 
-    checker = CollisionChecker.for_problem(problem)
-    dense, segment = metrics.densify(path, settings.collision_resolution)
-    n_checks = 0
-    hit = -1
-    for i, q in enumerate(dense):
-        n_checks += 1
-        if checker.in_collision(q):
-            hit = i
-            break
-    checks["collision_free"] = hit < 0
-    if hit >= 0:
-        pairs = ", ".join(f"{a} with {b}" for a, b in checker.collisions(dense[hit])[:3])
-        failures.append(f"collision on segment {int(segment[hit])} (dense state {hit}): {pairs}")
-
-    coarse, _ = metrics.densify(path, settings.clearance_resolution)
-    clearances = np.array([checker.clearance(q) for q in coarse])
+    checker = CertifiedChecker.for_problem(problem, settings.certification())
+    verdict = checker.check_path(path)
+    n_checks = verdict.queries
+    checks["collision_free"] = verdict.free
+    if not verdict.free:
+        failures.append(verdict.describe() if verdict.segment >= 0 else verdict.reason)
+        clearances = np.array([verdict.clearance_found])
+    else:
+        clearances = _clearance_samples(checker, path, settings.clearance_samples)
+    dense, _ = metrics.densify(path, settings.ee_resolution)
     ee_points = np.array([robot.frame_pose(q).translation for q in dense])
 
     final = path[-1]
@@ -200,8 +222,9 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         n_waypoints=len(path),
         joint_path_length=metrics.joint_path_length(path),
         ee_path_length=metrics.polyline_length(ee_points),
-        min_clearance=float(clearances.min()),
-        mean_clearance=float(clearances.mean()),
+        min_clearance=float(verdict.clearance_found),
+        min_clearance_bound=float(verdict.clearance_lower),
+        mean_clearance=float(clearances.mean()) if verdict.free else math.nan,
         duration=metrics.execution_duration(path, robot.velocity_limit),
         trajectory_duration=trajectory_duration,
         smoothness=metrics.turning_angle(path),
@@ -212,8 +235,23 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         max_velocity_ratio=max_ratio,
         collision_checks=planner_checks,
         validation_checks=n_checks,
+        collision_segment=verdict.segment,
+        collision_fraction=verdict.fraction,
+        collision_pair=" / ".join(verdict.pair) if not verdict.free and verdict.pair[0] else "",
+        penetration_depth=verdict.depth,
         checks=checks,
     )
+
+
+def _clearance_samples(checker: CertifiedChecker, path: np.ndarray, n: int) -> np.ndarray:
+    """Clearance at ``n`` configurations evenly spaced by joint-space length along ``path``."""
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    if len(path) == 1 or cum[-1] == 0:
+        return np.array([checker.clearance(path[0])])
+    at = np.linspace(0.0, cum[-1], n)
+    q = np.stack([np.interp(at, cum, path[:, j]) for j in range(path.shape[1])], axis=1)
+    return np.array([checker.clearance(c) for c in q])
 
 
 def _reported_checks(result: PlanResult) -> int | None:

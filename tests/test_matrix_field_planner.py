@@ -7,6 +7,7 @@ import pytest
 
 import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
+from planbench.certified import CertifiedChecker
 from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import UnknownNameError
@@ -85,7 +86,6 @@ def test_named_failures(robot):
     assert crash.status is PlanStatus.COLLISION
     assert not planbench.evaluate(problem, crash).success
     # the blind arm in collision: the path ends where the checker first found it
-    from planbench.collision import CollisionChecker
 
     checker = CollisionChecker(robot, problem.scene)
     assert checker.in_collision(crash.path[-1]) and not checker.in_collision(crash.path[-2])
@@ -173,12 +173,13 @@ def test_success_is_never_claimed_on_a_colliding_path(robot):
     assert not planbench.evaluate(problem, unchecked).success
     checked = planbench.plan(problem, MatrixFieldPlanner, **blind)
     assert checked.status is PlanStatus.COLLISION, checked.message
-    assert "dense path check" in checked.message
+    assert "certified path check" in checked.message
     hit = len(checked.path) - 1
     assert hit < len(unchecked.path) - 1  # the path ends where the collision was found
-    checker = CollisionChecker(robot, problem.scene)
-    assert checker.first_collision(unchecked.path, 0.01) == hit
-    assert checker.first_collision(unchecked.path[:hit], 0.01) is None
+    certified = CertifiedChecker.for_problem(problem)
+    verdict = certified.check_path(unchecked.path)
+    assert hit == verdict.segment + (1 if verdict.fraction > 0 else 0)
+    assert certified.check_path(unchecked.path[:hit]).free
 
 
 def test_control_points_from_the_robot_file_and_from_settings(tmp_path):

@@ -244,24 +244,24 @@ def test_a_search_that_uses_the_whole_time_limit_returns_the_raw_path_unsimplifi
 
 
 def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path(blocked, monkeypatch):
-    from planbench_plugins.ompl_planners.motion import SegmentChecker
+    from planbench.certified import CertifiedChecker, PathVerdict
 
     calls = []
-    original = SegmentChecker.first_collision
+    original = CertifiedChecker.check_path
 
-    def first_collision_rejecting_the_first_path(self, path):
+    def check_path_rejecting_the_first_path(self, path):
         calls.append(len(path))
-        return 1 if len(calls) == 1 else original(self, path)
+        return PathVerdict(False, segment=0) if len(calls) == 1 else original(self, path)
 
-    monkeypatch.setattr(SegmentChecker, "first_collision", first_collision_rejecting_the_first_path)
+    monkeypatch.setattr(CertifiedChecker, "check_path", check_path_rejecting_the_first_path)
     result = solved(blocked, RRTConnectPlanner)
-    assert result.info["path_source"] == "reduced" and len(calls) == 2
+    assert result.info["path_source"] == "reduced" and len(calls) == 3  # simplified, reduced, the harness
 
 
 def test_a_path_that_fails_every_check_is_a_collision(blocked, monkeypatch):
-    from planbench_plugins.ompl_planners.motion import SegmentChecker
+    from planbench.certified import CertifiedChecker, PathVerdict
 
-    monkeypatch.setattr(SegmentChecker, "first_collision", lambda self, path: 1)
+    monkeypatch.setattr(CertifiedChecker, "check_path", lambda self, path: PathVerdict(False, segment=0))
     result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=5.0)
     assert result.status is PlanStatus.COLLISION
     assert result.info["path_source"] == "none"

@@ -10,7 +10,6 @@ from conftest import midpoint_wall
 from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
 from planbench.collision import CollisionChecker
 from planbench.problem import Goal, Pose
-from planbench.validate import ValidationSettings
 
 
 def straight(problem, **kw):
@@ -33,19 +32,14 @@ def test_segment_through_thin_obstacle_is_rejected_although_both_waypoints_are_f
     assert not ev.success
     assert not ev.checks["collision_free"]
     assert "collision on segment 0" in ev.failure and "obstacle:plate" in ev.failure
-    # the segment check is what catches it: checking the waypoints alone would not
-    coarse = evaluate(p, straight(p), ValidationSettings(collision_resolution=10.0))
-    assert coarse.checks["collision_free"]
+    assert ev.collision_segment == 0 and 0 < ev.collision_fraction < 1 and "plate" in ev.collision_pair
 
 
 def test_planner_check_count_is_kept_apart_from_the_validation_count(free_problem):
-    from planbench import metrics
-
     reported = evaluate(free_problem, straight(free_problem, info={"collision_checks": 7}))
     silent = evaluate(free_problem, straight(free_problem))
-    dense, _ = metrics.densify(np.stack([free_problem.start, free_problem.goal.q]), 0.01)
     assert reported.collision_checks == 7 and silent.collision_checks is None
-    assert reported.validation_checks == silent.validation_checks == len(dense)
+    assert reported.validation_checks == silent.validation_checks > 0  # the certifier's distance queries
     failed = evaluate(free_problem, PlanResult(PlanStatus.TIMEOUT, None, info={"collision_checks": 3}))
     assert failed.collision_checks == 3 and failed.validation_checks == 0
 

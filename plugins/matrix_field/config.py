@@ -112,8 +112,8 @@ class IKLoopConfig:
     """Check the robot against the true scene every this many steps while planning (coal; an
     early exit); 0 = never."""
     verify_path: bool = True
-    """Before claiming success, check the whole trajectory against the true scene at the harness's
-    collision resolution (0.01 rad), so that success is never claimed on a colliding path."""
+    """Before claiming success, certify the whole trajectory against the true scene with the
+    harness's checker (:mod:`planbench.certified`), so that success is never claimed on a colliding path."""
 
     def __post_init__(self) -> None:
         if self.control_points is not None:

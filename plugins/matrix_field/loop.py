@@ -29,7 +29,7 @@ Endings (:class:`~planbench.planner.PlanStatus`):
 - ``COLLISION``: the exact checker (coal, the scene's true geometry) finds the arm in collision.
   A field sees the voxel grid (or only nearby points), not the true geometry, so the planner
   checks the true geometry every ``collision_check_every`` steps while it runs (an early exit) and,
-  before it claims success, along the whole trajectory at the harness's collision resolution
+  before it claims success, along the whole trajectory with the harness's certified checker
   (``verify_path``). The returned path then ends at the first configuration found in collision.
 
 The result is a trajectory: ``path[k]`` at ``times[k] = k dt``, with velocities within the limits
@@ -288,21 +288,25 @@ class IKLoopPlanner(Planner):
             k += 1
         n = k + 1
         if checker is not None and status is not PlanStatus.COLLISION:
-            hit = self._first_collision(checker, path[:n])
+            hit = self._first_collision(checker, prep["problem"], path[:n])
             if hit is not None:
                 n = hit + 1
                 status, message = PlanStatus.COLLISION, (f"the arm is in collision at step {hit} "
-                                                         f"(t = {hit * dt:.2f} s), found by the dense path check")
+                                                         f"(t = {hit * dt:.2f} s), found by the certified path check")
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
         info.update(steps=n - 1, dt=dt, repulsion_gain=repulsion.gain, n_control_points=len(prep["points"]))
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 
-    def _first_collision(self, checker: Any, path: np.ndarray) -> int | None:
-        """The first step whose segment (or end) collides, or None. With ``verify_path`` the whole
-        trajectory at the harness's collision resolution, else only the last configuration."""
+    def _first_collision(self, checker: Any, problem: Problem, path: np.ndarray) -> int | None:
+        """The first step whose segment (or end) is not proven free, or None. With ``verify_path``
+        the whole trajectory, certified as the harness certifies it, else only the last configuration."""
         if not self.config.verify_path:
             return len(path) - 1 if checker.in_collision(path[-1]) else None
+        from planbench.certified import CertifiedChecker
         from planbench.validate import ValidationSettings
 
-        return checker.first_collision(path, ValidationSettings().collision_resolution)  # type: ignore[no-any-return]
+        verdict = CertifiedChecker.for_problem(problem, ValidationSettings().certification()).check_path(path)
+        if verdict.free:
+            return None
+        return max(0, verdict.segment) + (1 if verdict.fraction > 0 else 0)

@@ -14,12 +14,12 @@ How a query runs (all inside ``plan()``, so all of it is timed by the harness):
 3. ``solve`` runs for what is left of the time limit. Only an exact solution counts.
 4. The path is simplified (``simplify=True``, OMPL's ``PathSimplifier`` via ``simplifySolution``)
    for at most what is left of the time limit; its time is reported apart in ``info``.
-5. The path is checked once more exactly as the harness checks it (``verify=True``). The simplifier
-   cuts segments at points in between the checked ones (shortcuts start and end inside segments), so
-   a simplified path can graze an obstacle between check points (seen on MotionBenchMaker: 0.03 to
-   0.15 mm). Then the raw path with only OMPL's ``reduceVertices`` (which joins existing vertices,
-   each new segment checked at the harness's points) is taken, then the raw path itself
-   (``info["path_source"]``: ``simplified``, ``reduced`` or ``raw``). Only if all fail: ``COLLISION``.
+5. The path is certified as the harness certifies it (``verify=True``,
+   :class:`planbench.certified.CertifiedChecker`: every segment proven free, no sampling). OMPL's
+   search and simplifier check motions at sampled points, and a path can graze an obstacle between
+   them (seen on MotionBenchMaker: up to 0.2 mm deep). If the simplified path fails, the raw path with
+   only OMPL's ``reduceVertices`` is tried, then the raw path itself (``info["path_source"]``:
+   ``simplified``, ``reduced`` or ``raw``). Only if all fail: ``COLLISION``.
 
 Collision checking: a plain Python function is OMPL's state validity checker; it calls
 :meth:`planbench.collision.CollisionChecker.in_collision` (coal, robot against the scene's
@@ -62,6 +62,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from planbench.certified import CertifiedChecker
 from planbench.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
 from planbench.planner import Planner, PlanResult, PlanStatus
@@ -100,8 +101,8 @@ class OMPLConfig:
     """Asymptotically optimal planners: keep improving until the time limit (not reproducible)
     instead of stopping at the first exact solution."""
     verify: bool = True
-    """Check the returned path as the harness does (its default 0.01 rad); if the simplified path
-    fails, fall back to the raw path (vertices reduced, then as found); ``COLLISION`` if all fail."""
+    """Certify the returned path as the harness does; if the simplified path fails, fall back to the
+    raw path (vertices reduced, then as found); ``COLLISION`` if all fail."""
     ik_goals: int = 4
     """Pose-only goals: how many goal configurations to sample with IK."""
     ik_time_fraction: float = 0.2
@@ -251,8 +252,8 @@ class OMPLPlanner(Planner):
         robot = problem.robot
         checker = self._checker_for(problem)
         motions = self._segments_for(checker, c.resolution)
-        harness = self._segments_for(checker, ValidationSettings().collision_resolution)
-        counted: list[Any] = [checker, *{id(x): x for x in (motions, harness)}.values()]
+        certified = CertifiedChecker.for_problem(problem, ValidationSettings().certification())
+        counted: list[Any] = [checker, motions]
         checks_before = sum(x.n_checks for x in counted)
         params = {**self.default_params, **c.params}
         info: dict[str, Any] = {"ompl_planner": self.planner_name, "collision": c.collision, "ompl_params": params}
@@ -302,14 +303,16 @@ class OMPLPlanner(Planner):
             return path
 
         verify_time = [0.0]
+        verify_queries = [0]
 
         def accept(path: np.ndarray) -> bool:
             if not c.verify:
                 return True
             t0 = time.perf_counter()
-            ok = harness.first_collision(finish(path)) is None
+            verdict = certified.check_path(finish(path))
             verify_time[0] += time.perf_counter() - t0
-            return ok
+            verify_queries[0] += verdict.queries
+            return verdict.free
 
         seed = int(rng.integers(1, 2**31 - 1))
         info["ompl_seed"] = seed
@@ -320,6 +323,7 @@ class OMPLPlanner(Planner):
         info["ompl_status"] = status_text
         if c.verify:
             info["verify_time"] = verify_time[0]
+            info["verify_distance_queries"] = verify_queries[0]
         if path is None:
             status, message = _STATUS_MESSAGES.get(status_text, (PlanStatus.TIMEOUT, f"OMPL: {status_text}"))
             if status is PlanStatus.INVALID_GOAL:
@@ -334,7 +338,7 @@ class OMPLPlanner(Planner):
             return result(
                 PlanStatus.COLLISION,
                 path,
-                "OMPL's path (simplified, reduced and raw) collides when checked at the harness's resolution",
+                "OMPL's path (simplified, reduced and raw) is not certified collision-free by the harness's checker",
             )
         return result(PlanStatus.SUCCESS, path)
 
