@@ -14,7 +14,7 @@ seeds = 3
 time_limit = 2.5
 
 [validation]
-collision_resolution = 0.02
+required_clearance = 0.002
 
 [[planners]]
 planner = "straight-line"
@@ -31,7 +31,7 @@ def test_parse_a_suite_with_the_same_planner_under_two_labels():
     assert s.name == "two-labels"
     assert s.seeds == (0, 1, 2)
     assert s.time_limit == 2.5
-    assert s.validation == {"collision_resolution": 0.02}
+    assert s.validation == {"required_clearance": 0.002}
     assert [(p.label, p.planner, p.settings) for p in s.planners] == [
         ("straight-line", "straight-line", {}),
         ("sl-untimed", "straight-line", {"timed": False}),

@@ -14,7 +14,7 @@ A suite is a small TOML file (``planbench-suite/1``)::
     validation_timeout = 300.0        # [s] hard limit on validating one path
 
     [validation]                      # optional: planbench.ValidationSettings fields
-    collision_resolution = 0.01
+    required_clearance = 0.0          # [m] smallest distance allowed along a path
 
     [[planners]]
     label = "mf-default"              # unique in the suite; defaults to the planner name

@@ -1,13 +1,12 @@
-"""Motion validation at exactly the configurations planbench's harness checks.
+"""Sampled motion validation for OMPL's search.
 
-:func:`planbench.evaluate` checks a path segment ``a -> b`` at ``a + (j / n) (b - a)``,
-``j = 1 .. n``, with ``n = ceil(max_i |b_i - a_i| / resolution)`` (:func:`planbench.metrics.densify`,
-``resolution`` = ``ValidationSettings.collision_resolution``, 0.01 rad): no joint moves more than
-``resolution`` between checked configurations. :class:`SegmentChecker` checks a motion at those same
-configurations, computed with the same floating-point operations, so a segment it passes is a
-segment the harness passes (up to coal's contact answers within about a micrometre, which depend on
-earlier queries). OMPL's own ``DiscreteMotionValidator`` checks at points a Euclidean distance apart
-instead, which never coincide with the harness's: a path could graze an obstacle between them.
+A segment ``a -> b`` is checked at ``a + (j / n) (b - a)``, ``j = 1 .. n``, with
+``n = ceil(max_i |b_i - a_i| / resolution)`` (:func:`planbench.metrics.densify`; ``resolution``
+0.01 rad by default): no joint moves more than ``resolution`` between checked configurations. This
+is what the search uses for its edges (fast, but blind between samples); the path the planner
+returns is then certified by :class:`planbench.certified.CertifiedChecker`, as the harness does
+(see :mod:`.base`). OMPL's own ``DiscreteMotionValidator`` checks at points a Euclidean distance
+apart instead.
 
 The configurations of one motion go to pinocchio in one batch (``computeCollisionsInParallel`` on a
 one-thread broadphase pool, the same dynamic AABB tree and geometry as
