@@ -136,6 +136,8 @@ def test_other_bad_bench_options_are_named(tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     _refused(["bench", "--problems", str(empty), "--out", out], capsys, "no problem .json")
+    _refused(["bench", "--problems", "mbm:box/0001", "--out", str(empty)], capsys, str(empty), "is a folder")
+    _refused(["report", str(empty)], capsys, str(empty), "is a folder")
 
 
 def test_unreadable_suite_files_are_named(tmp_path, capsys):

@@ -26,6 +26,8 @@ def _csv_list(text: str) -> list[str]:
 
 def add_commands(subparsers: Any) -> None:
     """Add ``bench``, ``report`` and ``export`` to an argparse subparsers object."""
+    from planbench.bench.suite import DEFAULT_MEMORY_LIMIT
+
     p = subparsers.add_parser(
         "bench",
         help="run a benchmark suite (planners x problems x seeds) into a results database",
@@ -42,8 +44,8 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument(
         "--memory-limit",
         metavar="MIB",
-        help="address space per worker process [MiB], or 'none' (default: the suite's, else "
-        "planbench.bench.suite.DEFAULT_MEMORY_LIMIT)",
+        help="address space per worker process [MiB], or 'none' (default: the suite's memory_limit, "
+        f"{DEFAULT_MEMORY_LIMIT:g} MiB unless it sets one)",
     )
     p.add_argument("--out", default="results.db", help="results database (SQLite), default results.db")
     p.add_argument("--resume", action="store_true", help="run only the runs missing from --out")

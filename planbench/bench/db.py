@@ -212,6 +212,8 @@ class ResultsDB:
         self.read_only = read_only
         self.versions = package_versions()
         self.host = socket.gethostname()
+        if self.path.exists() and not self.path.is_file():
+            raise ResultsFileError(self.path, "is a folder or a device, not a results file; give a file name")
         if (read_only or not create) and not self.path.is_file():
             raise ResultsFileError(self.path, "no such results database (write one with `planbench bench --out`)")
         try:
