@@ -248,6 +248,7 @@ class CertifiedChecker:
         self._delta = np.diff(path, axis=0)
         seg_motion = np.abs(self._delta) @ self.motion_weights.T  # (N - 1, pairs) [m]
         self._cum = np.vstack([np.zeros((1, self.n_pairs)), np.cumsum(seg_motion, axis=0)])  # (N, pairs)
+        self._cum_lists: dict[int, list[float]] = {}
         self._samples: dict[float, _Sample] = {}
         self._deepest: dict[int, float] = {}  # pair -> deepest penetration seen [m]
         self._leaves: list[tuple[float, int, int, _Sample, _Sample]] = []
@@ -281,13 +282,10 @@ class CertifiedChecker:
 
     def _motion(self, k: int, u0: float, u1: float) -> float:
         """Pair ``k``'s motion bound [m] along the path from ``u0`` to ``u1``."""
-        return self._cum_at(k, u1) - self._cum_at(k, u0)
-
-    def _cum_at(self, k: int, u: float) -> float:
-        i = int(u)
-        if u == i:
-            return float(self._cum[i, k])
-        return float(self._cum[i, k] + (u - i) * (self._cum[i + 1, k] - self._cum[i, k]))
+        cum = self._cum_lists.get(k)
+        if cum is None:
+            cum = self._cum_lists[k] = self._cum[:, k].tolist()
+        return _cum_at(cum, u1) - _cum_at(cum, u0)
 
     @staticmethod
     def _split(u0: float, u1: float) -> float:
@@ -445,6 +443,14 @@ class CertifiedChecker:
         return float(min(lower, found)), float(found)
 
 
+def _cum_at(cum: list[float], u: float) -> float:
+    """A piecewise-linear prefix sum at path parameter ``u``."""
+    i = int(u)
+    if u == i:
+        return cum[i]
+    return cum[i] + (u - i) * (cum[i + 1] - cum[i])
+
+
 def _fresh_request(req: Any) -> None:
     """GJK from its default initial guess, never from the previous query's (verdicts must not
     depend on the order of queries)."""
@@ -482,19 +488,41 @@ def _hull_model(gm: Any) -> tuple[Any, list[bool]]:
     return hulls, replaced
 
 
-def _body_radius(obj: Any) -> float:
-    """Largest distance [m] of a geometry's points from its parent joint's origin."""
+def _body_points(obj: Any) -> np.ndarray:
+    """Points whose convex hull contains a geometry, in its parent joint's frame: a mesh's
+    vertices, else the corners of the geometry's local bounding box."""
     import coal
 
     geom = obj.geometry
-    R, t = obj.placement.rotation, obj.placement.translation
+    R, t = np.asarray(obj.placement.rotation), np.asarray(obj.placement.translation)
     if isinstance(geom, coal.BVHModelBase) and geom.num_vertices > 0:
         pts = np.asarray(geom.vertices())
     else:
         geom.computeLocalAABB()
         lo, hi = np.asarray(geom.aabb_local.min_), np.asarray(geom.aabb_local.max_)
         pts = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    return float(np.linalg.norm(pts @ np.asarray(R).T + t, axis=1).max())
+    return np.asarray(pts @ R.T + t)
+
+
+def _axis(joint_model: Any) -> np.ndarray | None:
+    """The unit rotation axis of a revolute joint in its own frame (None when unknown)."""
+    short = joint_model.shortname()
+    if short in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+        return np.eye(3)["XYZ".index(short[-1])]
+    try:
+        axis = np.asarray(joint_model.extract().axis, dtype=float)
+    except AttributeError:
+        return None
+    return axis / np.linalg.norm(axis)
+
+
+def _axis_distance(points: np.ndarray, axis: np.ndarray | None) -> float:
+    """Largest distance of ``points`` from the line through the origin along ``axis`` (from the
+    origin itself when the axis is unknown)."""
+    pts = np.atleast_2d(points)
+    if axis is None:
+        return float(np.linalg.norm(pts, axis=1).max())
+    return float(np.linalg.norm(pts - np.outer(pts @ axis, axis), axis=1).max())
 
 
 def _chain(model: Any, joint: int) -> list[int]:
@@ -508,7 +536,14 @@ def _chain(model: Any, joint: int) -> list[int]:
 
 def _motion_weights(robot: Any, gm: Any, n_robot: int, pairs: list[tuple[int, int]]) -> np.ndarray:
     """(pairs, nq) matrix ``W``: pair ``k``'s distance changes by at most ``W[k] @ |dq|`` [m] for a
-    straight joint-space motion ``dq`` (module docstring)."""
+    straight joint-space motion ``dq`` (module docstring).
+
+    For a body on joint ``j`` and a revolute joint ``i`` before it, with ``c`` the next joint after
+    ``i`` towards the body: every point ``x`` of the body is within ``dist(o_c, axis_i) + |x - o_c|``
+    of joint ``i``'s axis, where ``o_c``'s place in joint ``i``'s frame is fixed by the model (plus the
+    travel of ``c`` when it is prismatic) and ``|x - o_c|`` is bounded by the offsets from ``c`` to
+    ``j`` plus the body's extent. For ``i = j`` the distance of the body's points from the axis is
+    exact. A prismatic joint moves every point after it by exactly its own motion."""
     model = robot.model
     nq = robot.nq
     kinds = {}
@@ -520,21 +555,30 @@ def _motion_weights(robot: Any, gm: Any, n_robot: int, pairs: list[tuple[int, in
             kinds[j] = "prismatic"
         else:  # the robot loader only admits 1-dof joints; say so if that ever changes
             raise ValueError(f"certified checking supports revolute and prismatic joints, not {short}")
-    travel = {
-        j: max(abs(robot.lower[model.joints[j].idx_q]), abs(robot.upper[model.joints[j].idx_q]))
-        for j in kinds
-        if kinds[j] == "prismatic"
-    }
+    axes = {j: _axis(model.joints[j]) for j in kinds if kinds[j] == "revolute"}
+    travel = {j: 0.0 for j in kinds}
+    for j in kinds:
+        if kinds[j] == "prismatic":
+            i = model.joints[j].idx_q
+            travel[j] = float(max(abs(robot.lower[i]), abs(robot.upper[i])))
 
     def body_weights(g: int) -> dict[int, float]:
         obj = gm.geometryObjects[g]
         chain = _chain(model, int(obj.parentJoint))
+        if not chain:  # fixed to the world: never moves
+            return {}
+        points = _body_points(obj)
         out: dict[int, float] = {}
-        reach = _body_radius(obj)  # from the origin of chain[0]
-        for j in chain:
-            out[j] = 1.0 if kinds[j] == "prismatic" else reach
-            # moving up the chain: add the offset of joint j in its parent, and j's own travel
-            reach += float(np.linalg.norm(model.jointPlacements[j].translation)) + travel.get(j, 0.0)
+        reach = float(np.linalg.norm(points, axis=1).max())  # from the origin of the current joint
+        for pos, i in enumerate(chain):
+            if pos == 0:
+                w = _axis_distance(points, axes.get(i))
+            else:
+                c = chain[pos - 1]
+                t_c = np.asarray(model.jointPlacements[c].translation)
+                w = _axis_distance(t_c, axes.get(i)) + travel[c] + reach
+                reach += float(np.linalg.norm(t_c)) + travel[c]
+            out[i] = 1.0 if kinds[i] == "prismatic" else w
         return out
 
     cache: dict[int, dict[int, float]] = {}
