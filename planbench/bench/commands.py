@@ -230,11 +230,25 @@ class _Progress:
 
 
 def _output(path: str | Path, db: str | Path) -> Path:
-    """An output path that is not the results file itself (which the writers would replace)."""
+    """An output path that is neither the results file itself nor another planbench results file
+    (the writers replace what is there)."""
     out = Path(path)
     if out.resolve() == Path(db).resolve():
         raise InvalidConfigError(f"{out} is the results database itself; choose another output file")
+    if out.is_file() and _is_results_file(out):
+        raise InvalidConfigError(f"{out} is a planbench results database; choose another output file")
     return out
+
+
+def _is_results_file(path: Path) -> bool:
+    from planbench.bench.db import ResultsDB
+    from planbench.errors import ResultsFileError
+
+    try:
+        with ResultsDB(path, read_only=True):
+            return True
+    except ResultsFileError:
+        return False
 
 
 @contextlib.contextmanager
