@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from planbench.bench.db import ResultsDB, RunKey
-from planbench.bench.runner import Runner
+from planbench.bench.runner import Runner, failure_record
 from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_planner_class, load_suite, parse_seeds
-from planbench.errors import PlanbenchError, PlannerUnavailableError, UnknownNameError
+from planbench.errors import PlanbenchError, PlannerUnavailableError, UnknownNameError, UnstorableValueError
 
 log = logging.getLogger(__name__)
 
@@ -218,7 +218,11 @@ def run_benchmark(
                 "time_limit": task["time_limit"],
                 "settings": task["run_settings"],
             }
-            db.add_run(fields, record)
+            try:
+                db.add_run(fields, record)
+            except UnstorableValueError as exc:  # a last guard: the runner should have caught it
+                record = failure_record("error", f"the run's record could not be stored: {exc.problem}")
+                db.add_run(fields, record)
             if on_record is not None:
                 on_record(task, record)
 

@@ -1,4 +1,5 @@
-"""Run many benchmark runs in parallel worker processes, each run isolated, each with hard limits.
+"""Run many benchmark runs in parallel worker processes, each run isolated, each with hard limits, each
+verdict computed where no planner code has run.
 
 Design (asv's and OMPL Benchmark's idea, our own code):
 
@@ -8,27 +9,43 @@ Design (asv's and OMPL Benchmark's idea, our own code):
   and not counted in any run. Planners are passed by registered name or ``"module:Attr"`` string,
   so a worker imports exactly what the run needs (decorator registrations made in the parent do not
   exist in a spawned worker).
-- **Long-lived workers, one run at a time each.** A worker plans and validates a run and sends the
-  record back. Runs of a planner marked ``fresh_process`` (a process-wide RNG, as in OMPL, or any
-  global state) get a worker that has run nothing before, so their result depends only on the run.
-- **Hard limits in the parent, per phase.** Setup (problem loading, planner construction and
-  ``setup()``): ``setup_timeout``; planning: ``time_limit + grace``; validation:
-  ``validation_timeout`` [s]. Past its deadline the worker is killed (SIGKILL) and the run is
-  recorded as ``timeout`` with the phase in its message. A worker that dies during a run (segfault,
-  ``os._exit``, the OOM killer, SIGKILL) gives a ``crash`` record with the exit code or signal and
-  the tail of the worker's stderr (faulthandler prints the Python traceback of a fatal signal
-  there). An exception in the planner is the harness's ``error`` record with its traceback.
-  ``memory_limit`` [MiB] caps a worker's address space (``RLIMIT_AS``), so exhausting it raises
-  ``MemoryError`` in the planner (an ``error``) instead of taking the machine down.
+- **A slot is a worker and a validator.** The worker (:mod:`planbench.bench.worker`) only plans
+  and sends the raw result back as data (:mod:`planbench.bench.wire`: JSON and float64 bytes, never
+  a pickle, so nothing a planner built can run code here). This process checks the result again
+  (it does not trust the worker's checks), then the slot's validator
+  (:mod:`planbench.bench.validator`), a spawned process that imports planbench's core and never a
+  planner, computes the verdict. A planner that patches planbench, numpy or coal in its worker
+  therefore changes neither its own verdict nor a later run's. The slot takes its next run only
+  once the verdict is in, so ``--jobs`` processes compute at a time.
+- **Long-lived workers, one run at a time each.** Runs of a planner marked ``fresh_process`` (a
+  process-wide RNG, as in OMPL, or any global state) get a worker that has run nothing before.
+- **Hard limits here, per phase.** Setup (problem loading, planner construction and ``setup()``):
+  ``setup_timeout``; planning: ``time_limit + grace``; validation: ``validation_timeout`` [s]. Past
+  its deadline the worker's whole process group (the planner's subprocesses included) or the
+  validator is killed (SIGKILL) and the run is recorded as ``timeout`` with the phase in its
+  message; this loop keeps enforcing the other slots' deadlines meanwhile. A worker that dies
+  during a run (segfault, ``os._exit``, the OOM killer, SIGKILL) gives a ``crash`` record with the
+  exit code or signal and the tail of its output (faulthandler prints the Python traceback of a
+  fatal signal there). An exception in the planner is the harness's ``error`` record with its
+  traceback; a result with a field the benchmark cannot keep is an ``error`` naming the field.
+  ``memory_limit`` [MiB] caps a worker's address space (``RLIMIT_AS``) during a run, so exhausting
+  it raises ``MemoryError`` (an ``error`` that names the limit) instead of taking the machine down.
+- **Processes die with the benchmark.** Workers and validators run in sessions of their own, die
+  with this process (``PR_SET_PDEATHSIG``, kill -9 included) and a worker's reaper then kills the
+  planner's children (:mod:`planbench.bench.procs`).
+- **Output captured.** A worker's fds 1 and 2 go to a file, cut back to its tail past 16 MiB; the
+  last 8 KiB of a run's output are appended to its ``traceback`` under ``--- worker output (tail)
+  ---``.
 - **One thread per worker by default** (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
   ``MKL_NUM_THREADS``, ``NUMBA_NUM_THREADS`` set in the worker): ``--jobs`` workers use ``--jobs``
   cores, and results do not depend on how many threads a parallel reduction had.
-- The parent is the only database writer: it hands each record to ``on_record`` as soon as the run
-  ends.
+- This process is the only database writer: it hands each record to ``on_record`` as soon as the
+  run ends.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import multiprocessing as mp
@@ -36,6 +53,7 @@ import multiprocessing.connection
 import os
 import shutil
 import signal
+import socket
 import tempfile
 import time
 from collections import deque
@@ -43,14 +61,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from planbench.bench.procs import OUTPUT_HEADER, OutputFile, kill_group
+from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Runner", "default_jobs", "failure_record"]
+__all__ = ["Runner", "default_jobs", "failure_record", "record_from"]
 
 Record = dict[str, Any]
 Task = dict[str, Any]
+RECV_TIMEOUT = 5.0
+"""[s] a child that stops in the middle of a message for this long is treated as broken."""
 
 
 def default_jobs() -> int:
@@ -62,7 +84,7 @@ def default_jobs() -> int:
 
 
 def failure_record(status: str, message: str, traceback: str = "", planning_time: float = math.nan) -> Record:
-    """A record for a run that produced none itself (killed or crashed)."""
+    """A record for a run that produced none itself (killed, crashed, or a result not kept)."""
     from planbench.validate import Evaluation
 
     evaluation = Evaluation(False, f"{status}: {message}", status, planning_time, math.nan).as_dict()
@@ -81,26 +103,70 @@ def failure_record(status: str, message: str, traceback: str = "", planning_time
     }
 
 
-@dataclass
-class _Slot:
-    """One worker process and the run it is doing."""
+def record_from(fields: dict[str, Any], evaluation: dict[str, Any] | None, validation_time: float) -> Record:
+    """The record of a run from its checked raw result and the validator's verdict (None when there
+    is nothing to validate: the run could not be prepared)."""
+    if evaluation is None:
+        from planbench.validate import Evaluation
 
+        status, message = fields["status"], fields["message"]
+        failure = f"{status}: {message}" if message else status
+        evaluation = Evaluation(False, failure, status, fields["planning_time"], fields["setup_time"]).as_dict()
+    wall = fields["wall_time"] + (validation_time if math.isfinite(validation_time) else 0.0)
+    return {
+        "evaluation": evaluation,
+        "message": fields["message"],
+        "traceback": fields["traceback"],
+        "path": fields["path"],
+        "times": fields["times"],
+        "info": fields["info"],
+        "wall_time": wall,
+        "validation_time": validation_time,
+        "elapsed": math.nan,
+        "pid": fields["pid"],
+        "host": fields["host"],
+    }
+
+
+@dataclass
+class _Child:
+    """A spawned worker or validator and its connection (read with ``recv_bytes`` only)."""
+
+    kind: str
     proc: Any
     conn: Any
-    stderr_path: str
+    output: OutputFile
     ready: bool = False
     runs: int = 0
+    closed: bool = False
+
+    @property
+    def usable(self) -> bool:
+        return not self.closed and self.proc.is_alive()
+
+
+@dataclass
+class _Slot:
+    """One worker, one validator and the run they are doing."""
+
+    worker: _Child
+    validator: _Child
     task: Task | None = None
+    run: int = 0
     phase: str = ""
     phase_start: float = 0.0
     deadline: float = math.inf
     dispatched: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
-    closed: bool = False
+    fields: dict[str, Any] | None = None
+
+
+class _ChildFailed(Exception):
+    """A child's message could not be read (too long, stalled, malformed); the child is killed."""
 
 
 class Runner:
-    """Runs tasks (dicts built by :mod:`planbench.bench.benchmark`) on ``jobs`` worker processes."""
+    """Runs tasks (dicts built by :mod:`planbench.bench.benchmark`) on ``jobs`` worker slots."""
 
     def __init__(self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1) -> None:
         self.jobs = default_jobs() if not jobs else int(jobs)
@@ -110,6 +176,9 @@ class Runner:
         self.ctx = mp.get_context(start_method)
         self._tmp = ""
         self._count = 0
+        self._runs = 0
+        self._start_failures = 0
+        self._host = socket.gethostname()
 
     def run(self, tasks: Sequence[Task], on_record: Callable[[Task, Record], None]) -> None:
         """Run every task; call ``on_record(task, record)`` in this process as each one ends.
@@ -123,78 +192,166 @@ class Runner:
         self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
         slots: list[_Slot] = []
         try:
-            slots = [self._start() for _ in range(min(self.jobs, len(pending)))]
-            start_failures = 0
+            for _ in range(min(self.jobs, len(pending))):
+                slots.append(_Slot(self._start("worker"), self._start("validator")))
             while pending or any(s.task is not None for s in slots):
-                for i, slot in enumerate(slots):
-                    if slot.task is None and slot.ready and pending:
-                        if pending[0].get("fresh_process") and slot.runs > 0:
-                            self._stop(slot)
-                            slots[i] = self._start()
-                            continue
-                        self._dispatch(slot, pending.popleft())
-                self._wait(slots)
-                kept: list[_Slot] = []
                 for slot in slots:
-                    self._drain(slot, on_record)
-                    now = time.monotonic()
-                    if slot.task is not None and now > slot.deadline:
-                        self._kill(slot, dump_stack=True)
-                        record = self._timeout_record(slot, now)
-                        record["elapsed"] = now - slot.dispatched
-                        on_record(slot.task, record)
-                        slot.task = None
-                    elif not slot.proc.is_alive():
-                        self._drain(slot, on_record)
-                        if slot.task is not None:
-                            record = self._crash_record(slot)
-                            record["elapsed"] = now - slot.dispatched
-                            on_record(slot.task, record)
-                            slot.task = None
-                        elif not slot.ready:
-                            start_failures += 1
-                            if start_failures > 3:
-                                raise PlanbenchError(
-                                    "benchmark worker processes die before they start (a script that runs a "
-                                    "benchmark needs an `if __name__ == '__main__':` guard: workers are "
-                                    "spawned and import the main module); last stderr:\n" + _tail(slot.stderr_path)
-                                )
-                    else:
-                        kept.append(slot)
-                        continue
-                    # the worker is gone: replace it while there is work left
-                    self._close(slot)
-                    if pending:
-                        kept.append(self._start())
-                slots = kept
+                    self._maybe_dispatch(slot, pending)
+                self._wait(slots)
+                for slot in slots:
+                    self._service(slot, on_record, bool(pending))
         finally:
             for slot in slots:
-                self._stop(slot)
+                self._stop(slot.worker, idle=slot.task is None)
+                self._stop(slot.validator, idle=slot.phase != "validate" or slot.task is None)
             shutil.rmtree(self._tmp, ignore_errors=True)
 
-    # -- workers -------------------------------------------------------------------------------
+    # -- the loop ----------------------------------------------------------------------------------
 
-    def _start(self) -> _Slot:
+    def _maybe_dispatch(self, slot: _Slot, pending: deque[Task]) -> None:
+        if slot.task is not None or not pending:
+            return
+        if not slot.worker.usable:
+            self._close(slot.worker)
+            slot.worker = self._start("worker")
+            return
+        if not slot.worker.ready:
+            return
+        if pending[0].get("fresh_process") and slot.worker.runs > 0:
+            self._stop(slot.worker, idle=True)
+            slot.worker = self._start("worker")
+            return
+        self._dispatch(slot, pending.popleft())
+
+    def _service(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+        """Everything one slot needs after a wait: messages, deadlines, dead processes."""
+        slot.worker.output.bound()
+        finished = self._drain_worker(slot) or self._drain_validator(slot)
+        if finished is not None:
+            self._finish(slot, finished, on_record)
+        now = time.monotonic()
+        if slot.task is not None and now > slot.deadline:
+            self._finish(slot, self._timeout(slot, now), on_record)
+        self._check_worker(slot, on_record, more)
+        self._check_validator(slot, on_record, more)
+
+    def _check_worker(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+        w = slot.worker
+        if w.closed or w.proc.is_alive():
+            return
+        if slot.task is not None and slot.phase in ("setup", "plan"):
+            self._finish(slot, self._crash(slot, w), on_record)
+        elif not w.ready:
+            self._start_failed(w)
+        self._close(w)
+        if more:
+            slot.worker = self._start("worker")
+
+    def _check_validator(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+        v = slot.validator
+        if v.closed or v.proc.is_alive():
+            return
+        if slot.task is not None and slot.phase == "validate":
+            self._finish(slot, self._crash(slot, v), on_record)
+        elif not v.ready:
+            self._start_failed(v)
+        self._close(v)
+        if more or slot.task is not None:
+            slot.validator = self._start("validator")
+
+    def _start_failed(self, child: _Child) -> None:
+        self._start_failures += 1
+        if self._start_failures > 3:
+            raise PlanbenchError(
+                f"benchmark {child.kind} processes die before they start (a script that runs a "
+                "benchmark needs an `if __name__ == '__main__':` guard: workers are "
+                "spawned and import the main module); last output:\n" + child.output.tail()
+            )
+
+    def _finish(self, slot: _Slot, record: Record, on_record: Callable[[Task, Record], None]) -> None:
+        task = slot.task
+        assert task is not None
+        record["elapsed"] = time.monotonic() - slot.dispatched
+        _note_memory_limit(record, task)
+        slot.task, slot.fields, slot.phase, slot.deadline = None, None, "", math.inf
+        on_record(task, record)
+
+    # -- processes -------------------------------------------------------------------------------
+
+    def _start(self, kind: str) -> _Child:
+        from planbench.bench.validator import validator_main
         from planbench.bench.worker import worker_main
 
         self._count += 1
-        path = os.path.join(self._tmp, f"worker-{self._count}.stderr")
+        output = OutputFile(os.path.join(self._tmp, f"{kind}-{self._count}.out"))
         parent, child = self.ctx.Pipe(duplex=True)
+        target = worker_main if kind == "worker" else validator_main
         proc = self.ctx.Process(  # type: ignore[attr-defined]
-            target=worker_main, args=(child, path, self.threads), daemon=True, name=f"planbench-worker-{self._count}"
+            target=target,
+            args=(child, output.path, os.getpid(), self.threads),
+            daemon=True,
+            name=f"planbench-{kind}-{self._count}",
         )
         proc.start()
         child.close()
-        return _Slot(proc, parent, path)
+        _set_recv_timeout(parent, RECV_TIMEOUT)
+        return _Child(kind, proc, parent, output)
+
+    def _kill(self, child: _Child, dump_stack: bool = False) -> None:
+        pid = child.proc.pid
+        if dump_stack and child.proc.is_alive() and pid is not None:  # faulthandler writes the stack
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGUSR1)
+                child.proc.join(0.3)
+        kill_group(pid)
+        child.proc.join(5)
+
+    def _stop(self, child: _Child, idle: bool) -> None:
+        if child.closed:
+            return
+        if child.proc.is_alive() and idle and child.ready:
+            with contextlib.suppress(OSError):
+                if child.kind == "worker":
+                    child.conn.send(None)
+                else:
+                    child.conn.send_bytes(encode({"type": "stop"}))
+            child.proc.join(2)
+        self._kill(child)
+        self._close(child)
+
+    def _close(self, child: _Child) -> None:
+        if child.closed:
+            return
+        child.closed = True
+        kill_group(child.proc.pid)  # a dead worker's group may still hold the planner's children
+        with contextlib.suppress(OSError):
+            child.conn.close()
+        child.proc.join(5)
+        if child.proc.exitcode is not None:
+            child.proc.close()
+
+    def _wait(self, slots: list[_Slot]) -> None:
+        children = [c for s in slots for c in (s.worker, s.validator) if not c.closed]
+        waitables = [c.conn for c in children] + [c.proc.sentinel for c in children]
+        deadlines = [s.deadline for s in slots if s.task is not None]
+        timeout = 0.5  # also how often output files are bounded
+        if deadlines:
+            timeout = min(timeout, max(0.0, min(deadlines) - time.monotonic()) + 0.01)
+        multiprocessing.connection.wait(waitables, timeout)
+
+    # -- a run's life ------------------------------------------------------------------------------
 
     def _dispatch(self, slot: _Slot, task: Task) -> None:
         now = time.monotonic()
-        slot.task = task
-        slot.runs += 1
+        self._runs += 1
+        slot.task, slot.run, slot.fields = task, self._runs, None
+        slot.worker.runs += 1
         slot.dispatched = now
         slot.timings = {}
+        slot.phase = ""
+        slot.worker.output.reset()
         self._enter(slot, "setup", now)
-        slot.conn.send(task)
+        slot.worker.conn.send({**task, "run": slot.run})
 
     def _enter(self, slot: _Slot, phase: str, now: float) -> None:
         task = slot.task or {}
@@ -203,57 +360,140 @@ class Runner:
             "plan": float(task.get("time_limit", 5.0)) + float(task.get("grace", 5.0)),
             "validate": float(task.get("validation_timeout", 300.0)),
         }
-        slot.timings[slot.phase] = now - slot.phase_start
+        if slot.phase:
+            slot.timings[slot.phase] = now - slot.phase_start
         slot.phase = phase
         slot.phase_start = now
         slot.deadline = now + limits[phase]
 
-    def _wait(self, slots: list[_Slot]) -> None:
-        waitables = [s.conn for s in slots] + [s.proc.sentinel for s in slots]
-        deadlines = [s.deadline for s in slots if s.task is not None]
-        timeout = 1.0
-        if deadlines:
-            timeout = min(timeout, max(0.0, min(deadlines) - time.monotonic()) + 0.01)
-        multiprocessing.connection.wait(waitables, timeout)
-
-    def _drain(self, slot: _Slot, on_record: Callable[[Task, Record], None]) -> None:
+    def _receive(self, child: _Child) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+        """Every message waiting from ``child``, parsed (never unpickled); :class:`_ChildFailed` when
+        one cannot be read."""
+        out = []
         try:
-            while slot.conn.poll():
-                msg = slot.conn.recv()
-                if msg[0] == "ready":
-                    slot.ready = True
-                elif msg[0] == "phase" and slot.task is not None and msg[1] == slot.task["key"]:
-                    self._enter(slot, msg[2], time.monotonic())
-                elif msg[0] == "done" and slot.task is not None and msg[1] == slot.task["key"]:
-                    task, slot.task = slot.task, None
-                    slot.deadline = math.inf
-                    record = msg[2]
-                    record["elapsed"] = time.monotonic() - slot.dispatched
-                    on_record(task, record)
-        except (EOFError, OSError):
-            pass  # the worker died; its slot is handled by the caller
+            while not child.closed and child.conn.poll():
+                data = child.conn.recv_bytes(MAX_MESSAGE_BYTES)
+                out.append(decode(data))
+        except EOFError:
+            pass  # the process ended; its slot is handled by the liveness checks
+        except BlockingIOError as exc:
+            raise _ChildFailed(f"stopped for {RECV_TIMEOUT:g} s in the middle of a message") from exc
+        except OSError as exc:
+            raise _ChildFailed(
+                f"sent a message that could not be read ({exc}; limit {MAX_MESSAGE_BYTES} bytes)"
+            ) from exc
+        except BadMessage as exc:
+            raise _ChildFailed(f"sent a malformed message ({exc})") from exc
+        return out
 
-    def _timeout_record(self, slot: _Slot, now: float) -> Record:
+    def _drain_worker(self, slot: _Slot) -> Record | None:
+        """Handle the worker's messages; a record when its run ends here (a result not kept)."""
+        try:
+            messages = self._receive(slot.worker)
+        except _ChildFailed as exc:
+            self._kill(slot.worker)
+            if slot.task is not None and slot.phase in ("setup", "plan"):
+                return failure_record("error", f"the worker {exc}; worker process killed", slot.worker.output.tail())
+            return None
+        for header, arrays in messages:
+            kind, run = header.get("type"), header.get("run")
+            if kind == "ready":
+                slot.worker.ready = True
+            elif slot.task is None or run != slot.run or slot.phase not in ("setup", "plan"):
+                continue  # a late message of a run already recorded
+            elif kind == "phase" and header.get("phase") == "plan" and slot.phase == "setup":
+                self._enter(slot, "plan", time.monotonic())
+            elif kind == "done":
+                return self._on_result(slot, header, arrays)
+        return None
+
+    def _on_result(self, slot: _Slot, header: dict[str, Any], arrays: dict[str, Any]) -> Record | None:
+        """Check the worker's raw result again here, then hand it to the validator."""
+        assert slot.task is not None
+        tail = slot.worker.output.tail()
+        try:
+            fields = _fields_from(header, arrays)
+        except BadField as bad:
+            message = f"the planner's result is unusable: {bad} (found on receipt; the worker's check missed it)"
+            record = failure_record("error", message, _with_output("", tail))
+            record.update(pid=slot.worker.proc.pid, host=self._host)
+            return record
+        fields["pid"], fields["host"] = slot.worker.proc.pid, self._host  # what this process knows itself
+        fields["traceback"] = _with_output(fields["traceback"], tail)
+        if not fields["prepared"]:
+            return record_from(fields, None, math.nan)
+        slot.fields = fields
+        self._enter(slot, "validate", time.monotonic())
+        if not slot.validator.usable:
+            self._close(slot.validator)
+            slot.validator = self._start("validator")
+        request = {
+            "type": "validate",
+            "run": slot.run,
+            "problem_ref": slot.task["problem_ref"],
+            "validation": slot.task["validation"],
+            "result": {k: v for k, v in fields.items() if k not in ("path", "times")},
+        }
+        try:
+            slot.validator.conn.send_bytes(encode(request, {"path": fields["path"], "times": fields["times"]}))
+        except OSError:
+            pass  # the validator died: its liveness check records the crash
+        return None
+
+    def _drain_validator(self, slot: _Slot) -> Record | None:
+        try:
+            messages = self._receive(slot.validator)
+        except _ChildFailed as exc:
+            self._kill(slot.validator)
+            if slot.task is not None and slot.phase == "validate":
+                return failure_record("error", f"the validator {exc}; validator process killed")
+            return None
+        for header, _ in messages:
+            if header.get("type") == "ready":
+                slot.validator.ready = True
+            elif header.get("type") == "verdict" and slot.phase == "validate" and header.get("run") == slot.run:
+                return self._on_verdict(slot, header)
+        return None
+
+    def _on_verdict(self, slot: _Slot, header: dict[str, Any]) -> Record:
+        fields = slot.fields
+        assert fields is not None
+        evaluation = header.get("evaluation")
+        if not isinstance(evaluation, dict):
+            message = "validation raised (a planbench bug, please report it)"
+            record = failure_record("error", message, str(header.get("error", ""))[-8000:], fields["planning_time"])
+            record.update(info=fields["info"], pid=fields["pid"], host=fields["host"])
+            return record
+        validation_time = header.get("validation_time")
+        if type(validation_time) is not float:
+            validation_time = math.nan
+        return record_from(fields, evaluation, validation_time)
+
+    def _timeout(self, slot: _Slot, now: float) -> Record:
         task = slot.task or {}
         elapsed = now - slot.phase_start
+        if slot.phase == "validate":
+            self._kill(slot.validator)
+            self._close(slot.validator)
+            msg = f"validation ran past {task.get('validation_timeout')} s; validator process killed"
+            fields = slot.fields or {}
+            return failure_record("timeout", msg, "", fields.get("planning_time", math.nan))
+        self._kill(slot.worker, dump_stack=True)
         if slot.phase == "plan":
             msg = (
                 f"planning ran {elapsed:.1f} s, past the time limit of {task.get('time_limit')} s "
                 f"+ {task.get('grace')} s grace; worker process killed"
             )
             planning_time = elapsed
-        elif slot.phase == "setup":
+        else:
             msg = (
                 f"setup (problem loading, planner setup) ran past {task.get('setup_timeout')} s; worker process killed"
             )
             planning_time = math.nan
-        else:
-            msg = f"validation ran past {task.get('validation_timeout')} s; worker process killed"
-            planning_time = slot.timings.get("plan", math.nan)
-        return failure_record("timeout", msg, _tail(slot.stderr_path), planning_time)
+        return failure_record("timeout", msg, _with_output("", slot.worker.output.tail()), planning_time)
 
-    def _crash_record(self, slot: _Slot) -> Record:
-        code = slot.proc.exitcode
+    def _crash(self, slot: _Slot, child: _Child) -> Record:
+        code = child.proc.exitcode
         if code is not None and code < 0:
             try:
                 how = f"signal {signal.Signals(-code).name} ({-code})"
@@ -261,49 +501,70 @@ class Runner:
                 how = f"signal {-code}"
         else:
             how = f"exit code {code}"
-        msg = f"worker process died with {how} during {slot.phase}"
-        return failure_record("crash", msg, _tail(slot.stderr_path))
-
-    def _kill(self, slot: _Slot, dump_stack: bool = False) -> None:
-        if slot.proc.is_alive():
-            if dump_stack and slot.proc.pid is not None:  # faulthandler writes the stack to stderr
-                try:
-                    os.kill(slot.proc.pid, signal.SIGUSR1)
-                    slot.proc.join(0.3)
-                except OSError:
-                    pass
-            slot.proc.kill()
-        slot.proc.join(5)
-
-    def _stop(self, slot: _Slot) -> None:
-        if slot.closed:
-            return
-        if slot.proc.is_alive() and slot.task is None and slot.ready:
-            try:
-                slot.conn.send(None)
-            except (OSError, BrokenPipeError):
-                pass
-            slot.proc.join(2)
-        self._kill(slot)
-        self._close(slot)
-
-    def _close(self, slot: _Slot) -> None:
-        if slot.closed:
-            return
-        slot.closed = True
-        try:
-            slot.conn.close()
-        except OSError:
-            pass
-        if slot.proc.exitcode is not None:
-            slot.proc.close()
+        phase = "validation" if slot.phase == "validate" else slot.phase
+        msg = f"{child.kind} process died with {how} during {phase}"
+        limit = float((slot.task or {}).get("memory_limit", 0) or 0)
+        if limit > 0 and child.kind == "worker" and code is not None and code < 0:
+            msg += f" (its memory limit was {limit:g} MiB: a failed allocation in C code can end a process this way)"
+        return failure_record("crash", msg, _with_output("", child.output.tail()))
 
 
-def _tail(path: str, limit: int = 8000) -> str:
-    """The last ``limit`` characters of a worker's stderr file."""
+def _fields_from(header: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:
+    """The raw result of a ``done`` message, checked here as if the worker had checked nothing."""
+    result = header.get("result")
+    if not isinstance(result, dict):
+        raise BadField("result", "the message holds no result")
+    if set(arrays) - {"path", "times"}:
+        raise BadField("result", f"unexpected arrays {sorted(arrays)[:5]}")
+    return clean_result({**result, "path": arrays.get("path"), "times": arrays.get("times")})
+
+
+def _with_output(traceback: str, tail: str) -> str:
+    """``traceback`` with the run's output tail appended under :data:`OUTPUT_HEADER`."""
+    if not tail:
+        return traceback
+    sep = "\n" if traceback and not traceback.endswith("\n") else ""
+    return f"{traceback}{sep}{OUTPUT_HEADER}\n{tail}"
+
+
+def _note_memory_limit(record: Record, task: Task) -> None:
+    """Name the memory limit in an ``error`` that ran out of memory (the limit is the likely cause)."""
+    limit = float(task.get("memory_limit", 0) or 0)
+    evaluation = record["evaluation"]
+    if limit <= 0 or evaluation.get("status") != "error":
+        return
+    if not ran_out_of_memory(str(record.get("message", "")), str(record.get("traceback", ""))):
+        return
+    note = (
+        f" (MemoryError under the run's memory limit of {limit:g} MiB: "
+        "suite memory_limit or --memory-limit; 'none' lifts it)"
+    )
+    record["message"] = str(record.get("message", "")) + note
+    evaluation["failure"] = str(evaluation.get("failure", "")) + note
+
+
+def ran_out_of_memory(message: str, traceback: str) -> bool:
+    """Whether a run ended in ``MemoryError``: the harness's message names it, or the traceback's
+    exception line does (the worker's output, appended after :data:`OUTPUT_HEADER`, does not count)."""
+    if "MemoryError" in message:
+        return True
+    own = traceback.split(OUTPUT_HEADER, 1)[0]
+    return any(line.startswith("MemoryError") for line in own.splitlines())
+
+
+def _set_recv_timeout(conn: Any, seconds: float) -> None:
+    """Make reads of ``conn`` give up after ``seconds`` when a sender stalls mid-message (a socket
+    option, so ``poll`` then ``recv_bytes`` can never block this loop for long)."""
+    import struct
+
     try:
-        with open(path, errors="replace") as f:
-            text = f.read()
-    except OSError:
-        return ""
-    return text[-limit:]
+        sock = socket.socket(fileno=os.dup(conn.fileno()))
+    except OSError:  # pragma: no cover (not a socket: a pipe on another platform)
+        return
+    try:
+        sec = int(seconds)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", sec, int((seconds - sec) * 1e6)))
+    except OSError:  # pragma: no cover
+        pass
+    finally:
+        sock.close()

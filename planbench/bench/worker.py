@@ -1,35 +1,64 @@
-"""The worker process: receive runs over a pipe, plan and validate each, send the records back.
+"""The worker process: receive runs, plan each, send back the raw result as data. It never validates.
 
 Started by :mod:`planbench.bench.runner` with the ``spawn`` method, so it is a fresh interpreter
-that imports planners by name or ``"module:Attr"``. Messages to the parent:
+that imports planners by name or ``"module:Attr"``. This is the only process where planner code
+runs, so nothing it says is trusted:
 
-- ``("ready", pid)`` once imports are done;
-- ``("phase", key, "plan")`` when setup has finished and the timed query starts;
-- ``("phase", key, "validate")`` when the query has returned;
-- ``("done", key, record)`` with the run's record (see :func:`run_one`).
+- **No verdicts here.** A planner could patch planbench, numpy or coal in this process; a verdict
+  computed here would be the planner's to choose (its own, and a later run's in the same worker).
+  The worker sends the raw result (status, path, times, target, message, info, times measured,
+  traceback, pid); the verdict comes from :mod:`planbench.bench.validator`, a process no planner
+  code has touched.
+- **Data, not pickles.** Messages are :mod:`planbench.bench.wire` bytes (JSON + float64 arrays),
+  so the parent only parses them: a ``__reduce__`` in a planner's object cannot run there.
+- **Checked before sending.** :func:`planbench.bench.wire.clean_result` turns what the planner
+  returned into plain values or names the field it cannot keep (an integer past 64 bits, an
+  exception as ``message``, an object in ``info``, an ``info`` of megabytes, a path of the wrong
+  shape); such a run is sent as an ``error`` naming the field. The parent checks again.
+- **Process hygiene** (:mod:`planbench.bench.procs`): a session of its own (its group is its pid,
+  so the parent's ``killpg`` takes a planner's subprocesses too), ``PR_SET_PDEATHSIG`` and a
+  parent watch so it dies with the benchmark (kill -9 included), and a forked reaper that kills
+  the group once the worker is gone. fds 1 and 2 go to a file the parent keeps bounded and reads
+  the tail of into each row, so C code's output is caught too and nothing reaches the terminal.
+- ``memory_limit`` [MiB] caps the address space (``RLIMIT_AS``) during each run; a run that met
+  ``MemoryError`` ends the worker after its result is sent (its heap may be in any state).
 
-The worker ignores SIGINT (the parent decides what Ctrl-C does), writes its stderr to the file the
-parent gives (so a crash's last words, e.g. faulthandler's traceback of a segfault, are kept) and
-exits when the pipe closes.
+Messages to the parent: ``{"type": "ready"}`` once imports are done; ``{"type": "phase", "run":
+id, "phase": "plan"}`` when setup has finished and the timed query starts; ``{"type": "done",
+"run": id, "result": {...}}`` with the ``path`` and ``times`` arrays. The parent's messages (the
+tasks it built) arrive with ``Connection.recv``: the worker trusts its parent, not the reverse.
 """
 
 from __future__ import annotations
 
 import faulthandler
+import math
 import os
 import signal
 import socket
+import sys
 import time
 import traceback
+from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["worker_main", "run_one"]
+from planbench.bench.procs import (
+    THREAD_VARIABLES,
+    OutputFile,
+    detach,
+    limit_threads,
+    start_reaper,
+    watch_parent,
+)
+from planbench.bench.wire import BadField, clean_result, encode
+
+__all__ = ["THREAD_VARIABLES", "error_fields", "plan_one", "run_one", "worker_main"]
 
 
 class _PhaseReporter:
     """Wraps a planner instance to tell the parent when setup ends and planning starts."""
 
-    def __init__(self, inner: Any, notify: Any) -> None:
+    def __init__(self, inner: Any, notify: Callable[[str], None]) -> None:
         self._inner = inner
         self._notify = notify
 
@@ -68,95 +97,150 @@ def _set_memory_limit(mib: float) -> None:
     resource.setrlimit(resource.RLIMIT_AS, (want, hard))
 
 
-def run_one(task: dict[str, Any], notify: Any = lambda phase: None) -> dict[str, Any]:
-    """Plan and validate one run in this process; never raises for a planner's fault.
+def error_fields(message: str, tb: str = "", **known: Any) -> dict[str, Any]:
+    """Raw-result fields of an ``error`` run (plain values, so they pass :func:`clean_result`)."""
+    fields: dict[str, Any] = {
+        "status": "error",
+        "message": message,
+        "target": "pose",
+        "info": {},
+        "planning_time": math.nan,
+        "setup_time": math.nan,
+        "wall_time": math.nan,
+        "traceback": tb,
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "prepared": True,
+        "path": None,
+        "times": None,
+    }
+    fields.update(known)
+    return fields
 
-    ``task`` holds ``problem_ref``, ``planner`` (name or ``"module:Attr"``), ``settings``,
-    ``seed``, ``time_limit`` [s] and ``validation`` (ValidationSettings fields). The record holds
-    ``evaluation`` (``Evaluation.as_dict()``), ``message``, ``traceback``, ``path`` and ``times``
-    (arrays or None), ``info`` (planner diagnostics, JSON-friendly) and ``wall_time`` [s].
+
+def _result_fields(result: Any) -> dict[str, Any]:
+    """The fields of a planner's result, as they are (checked afterwards by :func:`clean_result`)."""
+    from planbench.planner import PlanResult, PlanStatus
+
+    if not isinstance(result, PlanResult):
+        raise BadField("result", f"plan() gave a {type(result).__name__}, not a PlanResult")
+    status = result.status
+    info = result.info
+    tb = ""
+    if isinstance(info, Mapping) and "traceback" in info:
+        tb = info["traceback"]
+        info = {k: v for k, v in info.items() if k != "traceback"}
+    return {
+        "status": status.value if isinstance(status, PlanStatus) else status,
+        "message": result.message,
+        "target": result.target,
+        "info": info,
+        "planning_time": result.planning_time,
+        "setup_time": result.setup_time,
+        "traceback": tb,
+        "path": result.path,
+        "times": result.times,
+    }
+
+
+def plan_one(task: dict[str, Any], notify: Callable[[str], None] = lambda phase: None) -> dict[str, Any]:
+    """Plan one run in this process and return its checked raw-result fields; never raises for a
+    planner's fault (a bad result is an ``error`` run naming the bad field).
+
+    ``task`` holds ``problem_ref``, ``planner`` (name or ``"module:Attr"``), ``settings``, ``seed``
+    and ``time_limit`` [s].
     """
-    import numpy as np
-
     import planbench
     from planbench.bench.suite import make_planner_instance
-    from planbench.planner import PlanResult, PlanStatus
-    from planbench.validate import ValidationSettings
 
     t0 = time.perf_counter()
-    tb = ""
-    problem = None
+    base = {"pid": os.getpid(), "host": socket.gethostname()}
     try:
         problem = _problem(task["problem_ref"])
         instance = make_planner_instance(task["planner"], dict(task["settings"]))
     except Exception as exc:  # a problem or planner that cannot be built is an ERROR of this run
-        result = PlanResult(PlanStatus.ERROR, message=f"could not prepare the run: {type(exc).__name__}: {exc}")
-        tb = traceback.format_exc()
-    else:
+        message = f"could not prepare the run: {type(exc).__name__}: {exc}"
+        return error_fields(message, traceback.format_exc(), prepared=False, wall_time=time.perf_counter() - t0)
+    try:
         result = planbench.plan(
             problem, _PhaseReporter(instance, notify), seed=int(task["seed"]), time_limit=float(task["time_limit"])
         )
-        tb = str(result.info.get("traceback", ""))
-    notify("validate")
-    t1 = time.perf_counter()
-    if problem is not None:
-        evaluation = planbench.evaluate(problem, result, ValidationSettings(**task["validation"])).as_dict()
-    else:
-        from planbench.validate import Evaluation
-
-        evaluation = Evaluation(False, result.message, result.status.value, np.nan, np.nan).as_dict()
-    return {
-        "evaluation": evaluation,
-        "message": result.message,
-        "traceback": tb,
-        "path": None if result.path is None else np.asarray(result.path),
-        "times": None if result.times is None else np.asarray(result.times),
-        "info": _jsonable({k: v for k, v in result.info.items() if k != "traceback"}),
-        "wall_time": time.perf_counter() - t0,
-        "validation_time": time.perf_counter() - t1,
-        "pid": os.getpid(),
-        "host": socket.gethostname(),
-    }
+    except Exception as exc:  # the harness could not take what the planner gave (e.g. a path patched in)
+        message = f"the planner's result is unusable: {type(exc).__name__}: {exc}"
+        return error_fields(message, traceback.format_exc(), wall_time=time.perf_counter() - t0)
+    wall = time.perf_counter() - t0
+    timing: dict[str, Any] = {}
+    try:
+        fields = _result_fields(result)
+        timing = {k: fields[k] for k in ("planning_time", "setup_time")}
+        return clean_result({**fields, **base, "wall_time": wall, "prepared": True})
+    except BadField as bad:
+        return error_fields(f"the planner's result is unusable: {bad}", wall_time=wall, **_timing(timing))
+    except Exception as exc:  # the planner's objects raised while being read
+        message = f"the planner's result could not be read: {type(exc).__name__}"
+        return error_fields(message, traceback.format_exc(), wall_time=wall, **_timing(timing))
 
 
-def _jsonable(x: Any) -> Any:
-    """Planner diagnostics reduced to JSON types (small arrays as lists, the rest as text)."""
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist() if x.size <= 1000 else f"<array {x.shape} {x.dtype}>"
-    if isinstance(x, np.generic):
-        return x.item()
-    if x is None or isinstance(x, (bool, int, float, str)):
-        return x
-    return repr(x)
+def _timing(timing: dict[str, Any]) -> dict[str, float]:
+    """The measured times that are plain numbers (the harness's own, unless a planner patched it)."""
+    return {k: float(v) for k, v in timing.items() if type(v) in (float, int)}
 
 
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+def run_one(task: dict[str, Any]) -> dict[str, Any]:
+    """Plan and validate one run in *this* process and return its record (as the runner builds it).
 
-
-def worker_main(conn: Any, stderr_path: str, threads: int = 1) -> None:
-    """Entry point of a worker process (see the module docstring).
-
-    ``threads`` caps the thread pools of OpenMP, BLAS and numba in this worker (set before any of
-    them is imported), so parallel workers do not oversubscribe the cores and a run's arithmetic
-    (e.g. the order of a parallel reduction) does not depend on ``--jobs``.
+    For tools and tests that need a record without worker processes; the benchmark itself never
+    validates where a planner ran (see the module docstring). ``task`` also holds ``validation``
+    (ValidationSettings fields).
     """
-    for name in THREAD_VARIABLES:
-        os.environ[name] = str(threads)
+    from planbench.bench.runner import record_from
+
+    fields = plan_one(task)
+    evaluation, validation_time = None, math.nan
+    if fields["prepared"]:
+        from planbench.bench.validator import validate_fields
+
+        t0 = time.perf_counter()
+        evaluation = validate_fields(_problem(task["problem_ref"]), fields, task["validation"])
+        validation_time = time.perf_counter() - t0
+    return record_from(fields, evaluation, validation_time)
+
+
+def _send(conn: Any, header: dict[str, Any], arrays: dict[str, Any] | None = None) -> None:
+    conn.send_bytes(encode(header, arrays))
+
+
+def _send_result(conn: Any, run: Any, fields: dict[str, Any]) -> None:
+    head = {k: v for k, v in fields.items() if k not in ("path", "times")}
+    try:
+        data = encode({"type": "done", "run": run, "result": head}, {"path": fields["path"], "times": fields["times"]})
+    except Exception as exc:  # e.g. MemoryError under the run's memory limit
+        small = error_fields(f"could not send the result: {type(exc).__name__}: {exc}")
+        small.pop("path"), small.pop("times")
+        data = encode({"type": "done", "run": run, "result": small})
+    conn.send_bytes(data)
+
+
+def _out_of_memory(fields: dict[str, Any]) -> bool:
+    from planbench.bench.runner import ran_out_of_memory
+
+    message, tb = fields.get("message"), fields.get("traceback")
+    return ran_out_of_memory(message if isinstance(message, str) else "", tb if isinstance(tb, str) else "")
+
+
+def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) -> None:
+    """Entry point of a worker process (see the module docstring)."""
+    detach(parent_pid)
+    start_reaper()  # before any thread starts
+    watch_parent(parent_pid)
+    limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    fd = os.open(stderr_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    os.dup2(fd, 2)
-    os.close(fd)
+    OutputFile(output_path).open_for_child()
     faulthandler.enable()
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the parent asks where a run hangs
     import planbench  # noqa: F401  (import before saying ready, so startup is not run time)
 
-    conn.send(("ready", os.getpid()))
+    _send(conn, {"type": "ready", "pid": os.getpid()})
     while True:
         try:
             task = conn.recv()
@@ -164,9 +248,17 @@ def worker_main(conn: Any, stderr_path: str, threads: int = 1) -> None:
             return
         if task is None:
             return
-        os.ftruncate(2, 0)
-        os.lseek(2, 0, os.SEEK_SET)
-        _set_memory_limit(float(task.get("memory_limit", 0.0)))
-        key = task["key"]
-        record = run_one(task, lambda phase, key=key: conn.send(("phase", key, phase)))
-        conn.send(("done", key, record))
+        _set_memory_limit(float(task.get("memory_limit", 0.0) or 0.0))
+        run = task["run"]
+        try:
+            fields = plan_one(task, lambda phase, run=run: _send(conn, {"type": "phase", "run": run, "phase": phase}))
+        except Exception as exc:  # planbench's own fault, or a planner that broke it: still a row
+            fields = error_fields(f"the worker failed: {type(exc).__name__}: {exc}", traceback.format_exc())
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except Exception:  # a planner may have replaced or closed them
+                pass
+        _send_result(conn, run, fields)
+        if _out_of_memory(fields):
+            return  # its heap may be in any state: the runner starts a fresh worker

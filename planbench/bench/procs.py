@@ -1,0 +1,201 @@
+"""Process lifetime for the benchmark's children: sessions, death with the parent, group kills, and
+bounded output files.
+
+Why each piece:
+
+- :func:`detach` puts a child in its own session (so its process group is its pid and a planner's
+  subprocesses join that group; Ctrl-C in the terminal does not reach it) and ties its life to the
+  parent's with ``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux, checked against the parent's pid
+  in case the parent died before the call (the signal fires when the parent *thread* that started
+  the child ends, which is the benchmark's loop here).
+- ``PDEATHSIG`` kills only the worker, not a planner's own children. :func:`start_reaper` forks a
+  tiny process into the worker's group that waits for the worker to be gone (by pid: its parent
+  changes) and then kills the whole group, so grandchildren die whether the worker was killed,
+  crashed or exited. A thread in the worker could not do this: ``PDEATHSIG`` kills the worker
+  before such a thread runs, and a planner holding the GIL would starve it.
+- :func:`kill_group` is how the parent ends a worker: ``killpg(pid, SIGKILL)`` (the worker, its
+  reaper, the planner's children), then the process itself in case it had not reached
+  :func:`detach` yet.
+- :class:`OutputFile` is where a worker's fds 1 and 2 go. The parent trims it when it grows past
+  :data:`OUTPUT_MAX_BYTES` (keeping the tail) and reads its tail into the run's row, so a planner
+  that prints without end neither reaches the terminal nor fills the disk.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import signal
+import sys
+import threading
+import time
+
+__all__ = [
+    "THREAD_VARIABLES",
+    "OutputFile",
+    "detach",
+    "kill_group",
+    "limit_threads",
+    "process_alive",
+    "start_reaper",
+    "watch_parent",
+]
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+PR_SET_PDEATHSIG = 1
+OUTPUT_MAX_BYTES = 16 * 2**20
+"""A worker's output file is cut back to its tail past this size [bytes]."""
+OUTPUT_KEEP_BYTES = 64 * 1024
+TAIL_BYTES = 8 * 1024
+"""How much of a run's output its row keeps [bytes]."""
+OUTPUT_HEADER = "--- worker output (tail) ---"
+
+
+def limit_threads(threads: int) -> None:
+    """Cap the thread pools of OpenMP, BLAS and numba in this process (before any is imported), so
+    parallel workers do not oversubscribe the cores and a run's arithmetic does not depend on
+    ``--jobs``."""
+    for name in THREAD_VARIABLES:
+        os.environ[name] = str(threads)
+
+
+def detach(parent_pid: int) -> None:
+    """Make this process a session leader that dies with ``parent_pid`` (see the module docstring)."""
+    with contextlib.suppress(OSError):
+        os.setsid()
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if os.getppid() != parent_pid:  # the parent died before prctl could take effect
+        _kill_own_group()
+
+
+def watch_parent(parent_pid: int, interval: float = 0.5) -> None:
+    """A daemon thread that kills this process group when ``parent_pid`` is no longer the parent
+    (the fallback where ``PR_SET_PDEATHSIG`` does not exist)."""
+
+    def loop() -> None:
+        while True:
+            time.sleep(interval)
+            if os.getppid() != parent_pid:
+                _kill_own_group()
+
+    threading.Thread(target=loop, name="planbench-parent-watch", daemon=True).start()
+
+
+def start_reaper(interval: float = 0.1) -> int:
+    """Fork the group reaper (see the module docstring) and return its pid (0 where fork is missing).
+
+    Call it right after :func:`detach` and before any thread starts: the child is a copy of a
+    single-threaded interpreter that only sleeps and polls.
+    """
+    if not hasattr(os, "fork"):  # pragma: no cover
+        return 0
+    worker = os.getpid()
+    pid = os.fork()
+    if pid:
+        return pid
+    try:  # the reaper: hold no fd of the worker's (its pipes must close when the worker ends)
+        os.closerange(3, 65536)
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
+            signal.signal(sig, signal.SIG_IGN)
+        while os.getppid() == worker:
+            time.sleep(interval)
+        _kill_own_group()
+    finally:
+        os._exit(0)
+    return 0  # pragma: no cover
+
+
+def _kill_own_group() -> None:
+    with contextlib.suppress(OSError):
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+    os._exit(1)  # pragma: no cover (not a group leader: at least this process goes)
+
+
+def kill_group(pid: int | None) -> None:
+    """SIGKILL the process group led by ``pid`` (a worker after :func:`detach`) and ``pid`` itself."""
+    if not pid:
+        return
+    with contextlib.suppress(OSError):
+        os.killpg(pid, signal.SIGKILL)
+    with contextlib.suppress(OSError):
+        os.kill(pid, signal.SIGKILL)
+
+
+def process_alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped, counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            stat = f.read()
+        return stat[stat.rindex(b")") + 2 : stat.rindex(b")") + 3] not in (b"Z", b"X")
+    except FileNotFoundError:
+        return False
+    except OSError:  # pragma: no cover (no /proc)
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        except PermissionError:
+            return True
+        return True
+
+
+class OutputFile:
+    """The file a worker's stdout and stderr go to, kept bounded by the parent."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.dropped = 0
+        """Bytes cut from the front since the last :meth:`reset`."""
+
+    def open_for_child(self) -> None:
+        """In the worker: point fds 1 and 2 here (append mode, so the parent may cut the file)."""
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_TRUNC, 0o600)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.close(fd)
+
+    def reset(self) -> None:
+        """Empty the file (in the parent, before a run: a row holds only its own run's output)."""
+        self.dropped = 0
+        with contextlib.suppress(OSError):
+            os.truncate(self.path, 0)
+
+    def bound(self) -> None:
+        """Cut the file back to its last :data:`OUTPUT_KEEP_BYTES` once it passes :data:`OUTPUT_MAX_BYTES`.
+
+        The worker writes with ``O_APPEND``, so its next write lands at the new end; what it writes
+        while the tail is copied may be lost, which is acceptable for output that is being cut.
+        """
+        try:
+            size = os.stat(self.path).st_size
+            if size <= OUTPUT_MAX_BYTES:
+                return
+            with open(self.path, "r+b") as f:
+                f.seek(size - OUTPUT_KEEP_BYTES)
+                tail = f.read(OUTPUT_KEEP_BYTES)
+                f.seek(0)
+                f.truncate(0)
+                f.write(tail)
+            self.dropped += size - len(tail)
+        except OSError:
+            pass
+
+    def tail(self, limit: int = TAIL_BYTES) -> str:
+        """The last ``limit`` bytes as text, with a note of how much came before ("" when empty)."""
+        try:
+            with open(self.path, "rb") as f:
+                size = f.seek(0, os.SEEK_END)
+                f.seek(max(0, size - limit))
+                data = f.read(limit)
+        except OSError:
+            return ""
+        if not data:
+            return ""
+        before = self.dropped + max(0, size - limit)
+        text = data.decode("utf-8", errors="replace").replace("\x00", "\\x00")
+        return (f"[... {before} bytes before this]\n" if before else "") + text

@@ -1,0 +1,180 @@
+"""Planners that attack the benchmark on purpose, for tests/test_bench_trust.py and
+tests/test_bench_processes.py.
+
+Workers import them by entry point (``"bench_adversarial_planners:PatchingPlanner"``); spawned
+workers inherit the test process's ``sys.path``, which holds this folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from planbench.planner import Planner, PlanResult, PlanStatus
+from planbench.problem import Problem
+
+
+def straight_path(problem: Problem, n: int = 20) -> np.ndarray:
+    goal = problem.goal.q if problem.goal.q is not None else problem.start
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    return problem.start + s * (goal - problem.start)
+
+
+class PatchingPlanner(Planner):
+    """Patches planbench's collision checking and validation in its process to always say
+    "free" / "success", then returns a straight line through the obstacles claiming success."""
+
+    name = "bench-patching"
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        import planbench
+        import planbench.certified
+        import planbench.collision
+        import planbench.validate
+
+        def free(self, *args, **kwargs):
+            return False
+
+        def far(self, *args, **kwargs):
+            return 1.0
+
+        planbench.collision.CollisionChecker.in_collision = free
+        planbench.collision.CollisionChecker.collisions = lambda self, *a, **k: []
+        planbench.collision.CollisionChecker.clearance = far
+        real = planbench.validate.evaluate
+
+        def always_success(problem, result, settings=None):
+            e = real(problem, result.replace(path=None), settings)
+            return planbench.validate.Evaluation(True, "", "success", e.planning_time, e.setup_time)
+
+        planbench.validate.evaluate = always_success
+        planbench.evaluate = always_success
+        for name in dir(planbench.certified.CertifiedChecker):
+            if name.startswith(("check", "certify", "verify", "path", "segment")):
+                setattr(planbench.certified.CertifiedChecker, name, lambda self, *a, **k: None)
+        result = PlanResult(PlanStatus.SUCCESS, path=straight_path(problem), target="configuration")
+        # proof that the patch works in this process: validation here would call the path valid
+        fooled = planbench.evaluate(problem, result).success
+        return result.replace(info={"in_process_verdict_fooled": bool(fooled)})
+
+
+class _Bomb:
+    """Unpickling it runs code: it writes its pid to a marker file."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        code = f"open({self.marker!r}, 'a').write(str(__import__('os').getpid()) + '\\n')"
+        return (exec, (code,))
+
+
+@dataclass(frozen=True)
+class MalformedConfig:
+    kind: str = "huge_int"
+    marker: str = ""
+    """File a __reduce__ bomb writes its pid to when unpickled."""
+
+
+class MalformedPlanner(Planner):
+    """Returns a result with one field the benchmark cannot keep (``kind`` picks which)."""
+
+    name = "bench-malformed"
+    Config = MalformedConfig
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        kind = self.config.kind
+        path = straight_path(problem)
+        ok = dict(status=PlanStatus.SUCCESS, path=path, target="configuration")
+        if kind == "huge_int":
+            return PlanResult(**ok, info={"collision_checks": 2**64})
+        if kind == "exception_message":
+            return PlanResult(**ok, message=RuntimeError("a message that is an exception"))
+        if kind == "unserializable":
+            return PlanResult(**ok, info={"thing": object()})
+        if kind == "gigantic_info":
+            return PlanResult(**ok, info={f"k{i}": "x" * 50 for i in range(100_000)})
+        if kind == "reduce_bomb":
+            return PlanResult(**ok, info={"bomb": _Bomb(self.config.marker)})
+        if kind == "nan_path":
+            path = path.copy()
+            path[3, 2] = np.nan
+            return PlanResult(PlanStatus.SUCCESS, path=path, target="configuration")
+        if kind == "wrong_shape":
+            result = PlanResult(**ok)
+            object.__setattr__(result, "path", np.zeros(5))
+            return result
+        if kind == "bad_status":
+            result = PlanResult(**ok)
+            object.__setattr__(result, "status", "totally-solved")
+            return result
+        if kind == "not_a_result":
+            return {"status": "success"}  # type: ignore[return-value]
+        if kind == "bypass_worker_check":
+            # the worker's own check patched away: the parent must catch the huge integer itself
+            import planbench.bench.worker as worker
+
+            worker.clean_result = lambda fields: {**fields, "status": "success"}
+            return PlanResult(**ok, info={"collision_checks": 2**64})
+        raise ValueError(f"unknown kind {kind!r}")
+
+
+@dataclass(frozen=True)
+class HangingConfig:
+    pid_file: str = ""
+    """Where to write {"worker": pid, "child": pid} once the child runs."""
+
+
+class HangingPlanner(Planner):
+    """Starts a ``sleep 1000`` child process, says so in ``pid_file``, then never returns."""
+
+    name = "bench-hanging"
+    Config = HangingConfig
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        child = subprocess.Popen(["sleep", "1000"])
+        tmp = self.config.pid_file + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump({"worker": os.getpid(), "child": child.pid}, f)
+        os.replace(tmp, self.config.pid_file)
+        while True:
+            time.sleep(3600)
+
+
+@dataclass(frozen=True)
+class FloodConfig:
+    mib: float = 20.0
+
+
+class FloodPlanner(Planner):
+    """Prints ``mib`` MiB to stdout (Python) and stderr (the raw fd), then a last line, and fails."""
+
+    name = "bench-flood"
+    Config = FloodConfig
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        line = "FLOOD " + "x" * 1017 + "\n"  # 1 KiB
+        n = int(self.config.mib * 1024) // 2
+        for _ in range(n):
+            sys.stdout.write(line)
+        chunk = line.encode() * 64
+        for _ in range(n // 64):
+            os.write(2, chunk)
+        sys.stdout.write("FLOOD-END the last words\n")
+        return PlanResult(PlanStatus.STEP_LIMIT, message="printed a lot")
+
+
+class MemoryHogPlanner(Planner):
+    """Allocates 64 GiB at once."""
+
+    name = "bench-memory-hog"
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        hog = np.ones(8 * 2**30)
+        return PlanResult(PlanStatus.ERROR, message=f"allocated {hog.nbytes} bytes")
