@@ -150,22 +150,26 @@ class HangingPlanner(Planner):
 @dataclass(frozen=True)
 class FloodConfig:
     mib: float = 20.0
+    pause: float = 0.0
+    """Sleep after each 256 KiB [s] (so a flood lasts long enough to watch the file's size)."""
 
 
 class FloodPlanner(Planner):
-    """Prints ``mib`` MiB to stdout (Python) and stderr (the raw fd), then a last line, and fails."""
+    """Prints ``mib`` MiB, half to stdout (Python) and half to fd 2 (as C code would), then a last
+    line, and fails."""
 
     name = "bench-flood"
     Config = FloodConfig
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
         line = "FLOOD " + "x" * 1017 + "\n"  # 1 KiB
-        n = int(self.config.mib * 1024) // 2
-        for _ in range(n):
-            sys.stdout.write(line)
-        chunk = line.encode() * 64
-        for _ in range(n // 64):
-            os.write(2, chunk)
+        chunk = line * 256
+        for i in range(int(self.config.mib * 4)):
+            if i % 2:
+                os.write(2, chunk.encode())
+            else:
+                sys.stdout.write(chunk)
+            time.sleep(self.config.pause)
         sys.stdout.write("FLOOD-END the last words\n")
         return PlanResult(PlanStatus.STEP_LIMIT, message="printed a lot")
 

@@ -1,0 +1,139 @@
+"""The benchmark's processes: a run's children die with it, workers die with the main process
+(kill -9 included), and a planner's output never reaches the terminal (its tail is in the row).
+Planners in tests/bench_adversarial_planners.py."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from planbench.bench.benchmark import run_benchmark
+from planbench.bench.db import ResultsDB
+from planbench.bench.procs import OUTPUT_HEADER, process_alive
+from planbench.bench.suite import parse_suite
+
+TESTS = Path(__file__).parent
+A = "bench_adversarial_planners"
+PROBLEM = "mbm:table_pick/0001"
+
+
+def suite(planners: str, time_limit: float = 0.3, name: str = "p") -> str:
+    return f"""
+[suite]
+name = "{name}"
+problems = ["{PROBLEM}"]
+seeds = [0]
+time_limit = {time_limit}
+grace = 0.3
+{planners}
+"""
+
+
+def hanging(pid_file: Path) -> str:
+    return f'[[planners]]\nlabel = "hangs"\nplanner = "{A}:HangingPlanner"\nsettings = {{ pid_file = "{pid_file}" }}\n'
+
+
+def wait_gone(pids: list[int], seconds: float = 5.0) -> list[int]:
+    """The pids still running after up to ``seconds``."""
+    deadline = time.monotonic() + seconds
+    alive = list(pids)
+    while alive and time.monotonic() < deadline:
+        alive = [p for p in alive if process_alive(p)]
+        time.sleep(0.05)
+    return alive
+
+
+def children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out += [int(x) for x in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return out
+
+
+def test_a_run_killed_on_timeout_takes_its_child_processes_with_it(tmp_path):
+    pid_file = tmp_path / "pids.json"
+    run_benchmark(parse_suite(suite(hanging(pid_file)), "hang.toml"), tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        (row,) = db.rows()
+    assert row["status"] == "timeout" and "worker process killed" in row["message"]
+    pids = json.loads(pid_file.read_text())
+    assert wait_gone([pids["worker"], pids["child"]]) == []
+
+
+def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path):
+    pid_file = tmp_path / "pids.json"
+    suite_file = tmp_path / "hang.toml"
+    suite_file.write_text(suite(hanging(pid_file), time_limit=600.0))
+    db_path = tmp_path / "r.db"
+    code = (
+        "from planbench.bench import benchmark\n"
+        "if __name__ == '__main__':\n"
+        f"    benchmark({str(suite_file)!r}, out={str(db_path)!r}, jobs=1)\n"
+    )
+    script = tmp_path / "run.py"
+    script.write_text(code)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, str(script)], env=env, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not pid_file.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+        assert pid_file.exists(), "the hanging planner never started"
+        pids = json.loads(pid_file.read_text())
+        spawned = children(proc.pid)  # the worker and the validator
+        assert pids["worker"] in spawned
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert wait_gone([pids["worker"], pids["child"], *spawned]) == []
+
+
+def test_a_planner_flooding_stdout_reaches_neither_the_terminal_nor_the_disk_unbounded(tmp_path, capfd, monkeypatch):
+    workdir = tmp_path / "workers"
+    workdir.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(workdir))  # where the runner keeps output files
+    sizes = [0]
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            for f in workdir.glob("*/*.out"):
+                with contextlib.suppress(OSError):
+                    sizes[0] = max(sizes[0], f.stat().st_size)
+            time.sleep(0.01)
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    planners = (
+        f'[[planners]]\nlabel = "floods"\nplanner = "{A}:FloodPlanner"\nsettings = {{ mib = 48, pause = 0.01 }}\n'
+    )
+    planners += '[[planners]]\nplanner = "straight-line"\n'
+    try:
+        run_benchmark(parse_suite(suite(planners, time_limit=30.0), "flood.toml"), tmp_path / "r.db", jobs=1)
+    finally:
+        done.set()
+        watcher.join()
+    out, err = capfd.readouterr()
+    assert "FLOOD" not in out and "FLOOD" not in err
+    assert 0 < sizes[0] < 32 * 2**20  # cut back past 16 MiB while the planner went on to 48
+    with ResultsDB(tmp_path / "r.db") as db:
+        rows = {r["planner"]: r for r in db.rows()}
+    tb = rows["floods"]["traceback"]
+    assert OUTPUT_HEADER in tb and tb.rstrip().endswith("FLOOD-END the last words")
+    assert "bytes before this]" in tb and len(tb) < 10_000
+    assert rows["floods"]["status"] == "step_limit"
+    assert OUTPUT_HEADER not in rows["straight-line"]["traceback"]  # each row holds its own run's output
+    assert rows["straight-line"]["success"]
