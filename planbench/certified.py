@@ -346,32 +346,43 @@ class CertifiedChecker:
             return 0.0, k, max(0.0, -start.exact[k])
         if last == 0.0:
             return None
-        stack = [(0.0, last)]
+        # The hot loop of certification (a pair in near-contact takes thousands of intervals): the
+        # interval's end samples and their bounds travel on the stack, the motion bound comes from
+        # the pair's prefix sums, and only a new midpoint costs a distance query.
+        cum = self._cum_lists.get(k)
+        if cum is None:
+            cum = self._cum_lists[k] = self._cum[:, k].tolist()
+        resolution = cfg.resolution
+        obstacle_pair = self._obstacle_pair[k]
+        end = self._sample(last)
+        stack = [(0.0, last, start, end, self._bound(start, k), self._bound(end, k))]
         while stack:
-            u0, u1 = stack.pop()
+            u0, u1, s0, s1, d0, d1 = stack.pop()
             if u0 >= stop:
                 continue
-            s0, s1 = self._sample(u0), self._sample(u1)
-            m = self._motion(k, u0, u1)
-            d0, d1 = self._bound(s0, k), self._bound(s1, k)
+            m = _cum_at(cum, u1) - _cum_at(cum, u0)
             if (d0 + d1 - m) / 2 - acc >= floor:
-                self._leaf(k, s0, s1, d0, d1, m)
+                if obstacle_pair:
+                    self._leaf(k, s0, s1, d0, d1, m)
                 continue
-            if (k not in s0.exact or k not in s1.exact) and (min(d0, d1) - acc < floor or m <= cfg.resolution):
+            if (k not in s0.exact or k not in s1.exact) and (min(d0, d1) - acc < floor or m <= resolution):
                 # an end inside a hull (or at micrometre scale): bisecting on hull bounds cannot
                 # certify, the exact distances may (hulls far below their mesh are rare: measured,
                 # exact distances on every failed interval made MBM paths slower, not faster)
                 d0, d1 = self._exact(s0, k), self._exact(s1, k)
                 if (d0 + d1 - m) / 2 - acc >= floor:
-                    self._leaf(k, s0, s1, d0, d1, m)
+                    if obstacle_pair:
+                        self._leaf(k, s0, s1, d0, d1, m)
                     continue
-            if m <= cfg.resolution:
+            if m <= resolution:
                 # the collision starts within the resolution before u1 (or, when u1 is free, a
                 # contact that cannot be proven free); depth: the deepest point the search saw
                 return (u1 if d1 - acc < floor else u0), k, max(0.0, -d1, self._deepest.get(k, 0.0))
             um = self._split(u0, u1)
-            stack.append((um, u1))
-            stack.append((u0, um))  # popped first: earliest interval first
+            sm = self._sample(um)
+            dm = self._bound(sm, k)
+            stack.append((um, u1, sm, s1, dm, d1))
+            stack.append((u0, um, s0, sm, d0, dm))  # popped first: earliest interval first
         return None
 
     # -- clearance ---------------------------------------------------------------------------------
@@ -394,9 +405,9 @@ class CertifiedChecker:
         return best
 
     def _leaf(self, k: int, s0: _Sample, s1: _Sample, d0: float, d1: float, m: float) -> None:
-        if self._obstacle_pair[k]:
-            self._tiebreak += 1
-            heapq.heappush(self._leaves, (min(d0, d1, (d0 + d1 - m) / 2), self._tiebreak, k, s0, s1))
+        """Remember a certified interval of an obstacle pair for the clearance refinement."""
+        self._tiebreak += 1
+        heapq.heappush(self._leaves, (min(d0, d1, (d0 + d1 - m) / 2), self._tiebreak, k, s0, s1))
 
     def _clearance(self) -> tuple[float, float]:
         """(certified lower bound, smallest exact distance found) of the robot-obstacle distance
