@@ -66,6 +66,19 @@ planner = "straight-line"
     assert not sl["success"], sl["failure"]
 
 
+def test_a_plugin_that_patches_on_import_never_runs_in_the_main_process(tmp_path, monkeypatch):
+    marker = tmp_path / "imported.txt"
+    monkeypatch.setenv("PLANBENCH_TEST_IMPORT_MARKER", str(marker))
+    planners = '[[planners]]\nlabel = "patcher"\nplanner = "bench_import_patcher:ImportPatchingPlanner"\n'
+    run_benchmark(parse_suite(suite(planners), "import.toml"), tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        (row,) = db.rows()
+    assert row["status"] == "success" and not row["success"] and "collision" in row["failure"]
+    imported_in = marker.read_text().split()
+    assert imported_in and str(os.getpid()) not in imported_in  # the probe and the worker, not here
+    assert str(row["worker_pid"]) in imported_in
+
+
 MALFORMED = {  # kind -> text the row's message must hold (the field it names)
     "huge_int": "info['collision_checks']: integer 18446744073709551616",
     "exception_message": "message: a RuntimeError, not text",

@@ -13,8 +13,8 @@ from typing import Any
 
 from planbench.bench.db import ResultsDB, RunKey
 from planbench.bench.runner import Runner, failure_record
-from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_planner_class, load_suite, parse_seeds
-from planbench.errors import PlanbenchError, PlannerUnavailableError, UnknownNameError, UnstorableValueError
+from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_suite, parse_seeds
+from planbench.errors import PlanbenchError, UnstorableValueError
 
 log = logging.getLogger(__name__)
 
@@ -66,27 +66,29 @@ def select(
 
 
 def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[str, str]]:
-    """Planners that can run (settings checked here, before any process starts), labels of optional
-    planners skipped with the reason, and each label's planner version."""
-    from planbench.bench.suite import make_planner_instance
+    """Planners that can run (settings checked here, before any worker starts), labels of optional
+    planners skipped with the reason, and each label's planner version.
+
+    The planners are loaded and built in a throw-away process (:mod:`planbench.bench.probe`): this
+    process checks results and writes the database, so no planner code runs in it.
+    """
+    from planbench.bench.probe import probe_planners
     from planbench.registry import REGISTRY
 
+    answers = probe_planners([(entry.planner, dict(entry.settings)) for entry in suite.planners])
     usable, skipped, versions = [], [], {}
-    for entry in suite.planners:
-        try:
-            cls = load_planner_class(entry.planner)
-            make_planner_instance(entry.planner, entry.settings)
-        except (PlannerUnavailableError, UnknownNameError, PlanbenchError) as exc:
+    for entry, answer in zip(suite.planners, answers, strict=True):
+        if not answer.get("ok"):
             if entry.optional:
-                skipped.append(f"{entry.label}: {exc}")
+                skipped.append(f"{entry.label}: {answer.get('error')}")
                 continue
-            raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: {exc}") from exc
+            raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: {answer.get('error')}")
         if ":" not in entry.planner:
             spec = REGISTRY.spec(entry.planner)
             versions[entry.label] = f"{spec.distribution} {spec.version}".strip()
         else:
-            versions[entry.label] = str(getattr(cls, "__module__", ""))
-        fresh = entry.fresh_process or bool(getattr(cls, "fresh_process", False))
+            versions[entry.label] = str(answer.get("module", ""))
+        fresh = entry.fresh_process or answer.get("fresh_process") is True
         usable.append(entry if fresh == entry.fresh_process else _with_fresh(entry))
     return usable, skipped, versions
 

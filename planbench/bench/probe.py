@@ -1,0 +1,82 @@
+"""Check a suite's planners in a throw-away process, so the benchmark's main process never imports
+or constructs planner code.
+
+Why: importing a plugin runs its module code, and building an instance runs its ``__init__``; a
+plugin that patches numpy, json or planbench there would otherwise do so in the process that
+checks results and writes the database. The probe is spawned, loads each planner and builds it
+with its settings, and answers with data only (:mod:`planbench.bench.wire`): whether it loaded
+(else the error's text and kind), its module and whether it asks for a fresh process per run.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from typing import Any
+
+from planbench.bench.procs import detach, kill_group, limit_threads
+from planbench.bench.wire import MAX_MESSAGE_BYTES, BadMessage, decode, encode
+from planbench.errors import PlanbenchError
+
+__all__ = ["probe_planners"]
+
+
+def _probe_one(planner: str, settings: dict[str, Any]) -> dict[str, Any]:
+    from planbench.bench.suite import load_planner_class, make_planner_instance
+    from planbench.errors import PlannerUnavailableError, UnknownNameError
+
+    try:
+        cls = load_planner_class(planner)
+        make_planner_instance(planner, settings)
+    except (PlannerUnavailableError, UnknownNameError, PlanbenchError) as exc:
+        return {"ok": False, "error": str(exc), "planbench_error": True}
+    except Exception as exc:  # a plugin's own failure: named, not a traceback
+        return {"ok": False, "error": f"{type(exc).__name__}: {exc}", "planbench_error": False}
+    module = getattr(cls, "__module__", "")
+    return {
+        "ok": True,
+        "module": module if isinstance(module, str) else "",
+        "fresh_process": bool(getattr(cls, "fresh_process", False)),
+    }
+
+
+def _probe_main(conn: Any, entries: list[tuple[str, dict[str, Any]]], parent_pid: int) -> None:
+    detach(parent_pid)
+    limit_threads(1)
+    answers = [_probe_one(planner, settings) for planner, settings in entries]
+    conn.send_bytes(encode({"type": "probe", "answers": answers}))
+
+
+def probe_planners(entries: list[tuple[str, dict[str, Any]]], timeout: float = 300.0) -> list[dict[str, Any]]:
+    """For each ``(planner, settings)``, what :func:`_probe_one` found, in a spawned process.
+
+    Raises :class:`PlanbenchError` when the probe dies, answers garbage, or takes over ``timeout`` s
+    (a plugin whose import hangs).
+    """
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=True)
+    proc = ctx.Process(target=_probe_main, args=(child, entries, os.getpid()), daemon=True, name="planbench-probe")
+    proc.start()
+    child.close()
+    try:
+        deadline = time.monotonic() + timeout
+        while not parent.poll(0.1):
+            if not proc.is_alive() and not parent.poll(0.1):
+                raise PlanbenchError(f"loading the suite's planners ended the process with exit code {proc.exitcode}")
+            if time.monotonic() > deadline:
+                raise PlanbenchError(f"loading the suite's planners took more than {timeout:g} s")
+        try:
+            header, _ = decode(parent.recv_bytes(MAX_MESSAGE_BYTES))
+        except (EOFError, OSError, BadMessage) as exc:
+            raise PlanbenchError(f"loading the suite's planners gave no readable answer ({exc})") from exc
+        answers = header.get("answers")
+        if not (
+            isinstance(answers, list) and len(answers) == len(entries) and all(isinstance(a, dict) for a in answers)
+        ):
+            raise PlanbenchError("loading the suite's planners gave a malformed answer")
+        return answers
+    finally:
+        kill_group(proc.pid)
+        proc.join(5)
+        parent.close()
