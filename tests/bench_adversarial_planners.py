@@ -122,6 +122,16 @@ class MalformedPlanner(Planner):
 
             worker.clean_result = lambda fields: {**fields, "status": "success"}
             return PlanResult(**ok, info={"collision_checks": 2**64})
+        if kind == "pickle_to_parent":
+            # send the parent a pickle over the worker's own connection: unpickling it would run code
+            import gc
+            import multiprocessing.connection
+
+            for obj in gc.get_objects():
+                if isinstance(obj, multiprocessing.connection.Connection) and not obj.closed:
+                    obj.send(_Bomb(self.config.marker))
+            time.sleep(5)
+            return PlanResult(**ok)
         raise ValueError(f"unknown kind {kind!r}")
 
 

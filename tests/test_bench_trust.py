@@ -149,6 +149,27 @@ planner = "straight-line"
     assert rows["straight-line"]["worker_pid"] == bad["worker_pid"]
 
 
+def test_a_pickle_sent_to_the_parent_is_refused_unread(tmp_path):
+    marker = tmp_path / "unpickled.txt"
+    planners = f"""
+[[planners]]
+label = "pickler"
+planner = "{A}:MalformedPlanner"
+settings = {{ kind = "pickle_to_parent", marker = "{marker}" }}
+[[planners]]
+planner = "straight-line"
+"""
+    s = parse_suite(suite(planners, problems=("mbm:table_pick/0001",), time_limit=10.0), "pickle.toml")
+    run_benchmark(s, tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        rows = {r["planner"]: r for r in db.rows()}
+    bad = rows["pickler"]
+    assert bad["status"] == "error" and "the worker sent a malformed message" in bad["message"]
+    assert "worker process killed" in bad["message"]
+    assert not marker.exists()  # nothing unpickled it, here or anywhere
+    assert rows["straight-line"]["success"]
+
+
 def test_memory_limit_turns_a_hog_into_an_error_row_and_the_benchmark_goes_on(tmp_path):
     planners = f'[[planners]]\nlabel = "hog"\nplanner = "{A}:MemoryHogPlanner"\n'
     planners += '[[planners]]\nplanner = "straight-line"\n'

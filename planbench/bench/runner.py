@@ -73,6 +73,8 @@ Record = dict[str, Any]
 Task = dict[str, Any]
 RECV_TIMEOUT = 5.0
 """[s] a child that stops in the middle of a message for this long is treated as broken."""
+MAX_MESSAGES_PER_WAIT = 64
+"""A child sends at most three messages per run; one that floods its connection is treated as broken."""
 
 
 def default_jobs() -> int:
@@ -372,6 +374,8 @@ class Runner:
         out = []
         try:
             while not child.closed and child.conn.poll():
+                if len(out) >= MAX_MESSAGES_PER_WAIT:
+                    raise _ChildFailed(f"sent more than {MAX_MESSAGES_PER_WAIT} messages at once")
                 data = child.conn.recv_bytes(MAX_MESSAGE_BYTES)
                 out.append(decode(data))
         except EOFError:
