@@ -184,11 +184,18 @@ class FloodPlanner(Planner):
         return PlanResult(PlanStatus.STEP_LIMIT, message="printed a lot")
 
 
+@dataclass(frozen=True)
+class MemoryHogConfig:
+    gib: float = 6.0
+
+
 class MemoryHogPlanner(Planner):
-    """Allocates 64 GiB at once."""
+    """Reserves ``gib`` GiB at once (untouched pages: without an address-space limit this succeeds
+    on any machine that overcommits, so only the limit can stop it)."""
 
     name = "bench-memory-hog"
+    Config = MemoryHogConfig
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        hog = np.ones(8 * 2**30)
-        return PlanResult(PlanStatus.ERROR, message=f"allocated {hog.nbytes} bytes")
+        hog = np.empty(int(self.config.gib * 2**30), dtype=np.uint8)
+        return PlanResult(PlanStatus.STEP_LIMIT, message=f"reserved {hog.nbytes} bytes")

@@ -173,14 +173,22 @@ planner = "straight-line"
 def test_memory_limit_turns_a_hog_into_an_error_row_and_the_benchmark_goes_on(tmp_path):
     planners = f'[[planners]]\nlabel = "hog"\nplanner = "{A}:MemoryHogPlanner"\n'
     planners += '[[planners]]\nplanner = "straight-line"\n'
-    s = parse_suite(suite(planners, problems=("mbm:table_pick/0001",), extra="memory_limit = 4096"), "hog.toml")
-    run_benchmark(s, tmp_path / "r.db", jobs=1)
+    problems = ("mbm:table_pick/0001",)
+    limited = parse_suite(suite(planners, problems=problems, extra="memory_limit = 4096"), "hog.toml")
+    run_benchmark(limited, tmp_path / "r.db", jobs=1)
     with ResultsDB(tmp_path / "r.db") as db:
         rows = {r["planner"]: r for r in db.rows()}
     hog = rows["hog"]
-    assert hog["status"] in ("error", "crash"), hog["message"]
-    assert "memory limit" in hog["message"] and "4096 MiB" in hog["message"]
-    assert rows["straight-line"]["success"]
+    assert hog["status"] == "error" and "MemoryError" in hog["message"], hog["message"]
+    assert "memory limit of 4096 MiB" in hog["message"] and "memory limit of 4096 MiB" in hog["failure"]
+    assert rows["straight-line"]["success"]  # in a fresh worker: the hog's ended after its run
+    assert rows["straight-line"]["worker_pid"] != hog["worker_pid"]
+    # the same reservation without a limit succeeds: it was the limit that stopped it
+    unlimited = limited.with_changes(name="unlimited", memory_limit=0, planners=limited.planners[:1])
+    run_benchmark(unlimited, tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        (free,) = db.rows("unlimited")
+    assert free["status"] == "step_limit" and "reserved" in free["message"]
 
 
 # -- the parent's own checks, without processes ---------------------------------------------------
