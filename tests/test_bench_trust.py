@@ -251,3 +251,18 @@ def test_clean_result_keeps_json_data_and_names_everything_else():
     for info, named in (({"s": {1, 2}}, "info['s']"), (nested, "nested deeper"), ({"t": "\ud800"}, "UTF-8")):
         with pytest.raises(BadField, match=named.replace("[", r"\[").replace("]", r"\]")):
             clean_result({**_fields(info=info), "path": None, "times": None})
+
+
+def test_planners_are_checked_in_a_probe_process_with_named_errors(tmp_path):
+    from planbench.errors import PlanbenchError
+
+    bad = '[[planners]]\nlabel = "missing"\nplanner = "no_such_module_here:Planner"\n'
+    with pytest.raises(PlanbenchError, match="planner 'missing': cannot load planner entry point"):
+        run_benchmark(parse_suite(suite(bad), "bad.toml"), tmp_path / "a.db", jobs=1)
+    settings = f'[[planners]]\nlabel = "hog"\nplanner = "{A}:MemoryHogPlanner"\nsettings = {{ nope = 1 }}\n'
+    with pytest.raises(PlanbenchError, match="planner 'hog'.*nope"):
+        run_benchmark(parse_suite(suite(settings), "bad.toml"), tmp_path / "b.db", jobs=1)
+    optional = bad.replace('label = "missing"', 'label = "missing"\noptional = true')
+    optional += '[[planners]]\nplanner = "straight-line"\n'
+    outcome = run_benchmark(parse_suite(suite(optional), "opt.toml"), tmp_path / "c.db", jobs=1)
+    assert outcome.ran == 1 and outcome.skipped_planners and "missing" in outcome.skipped_planners[0]
