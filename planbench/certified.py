@@ -488,14 +488,17 @@ def _hull_model(gm: Any) -> tuple[Any, list[bool]]:
     replaced = []
     for i, obj in enumerate(gm.geometryObjects):
         geom = obj.geometry
+        hull = None
         if isinstance(geom, coal.BVHModelBase) and geom.num_vertices >= 4:
-            mesh = geom.clone()
-            mesh.buildConvexHull(False, "Qt")
-            hull_obj = hulls.geometryObjects[i]
-            hull_obj.geometry = mesh.convex
-            replaced.append(True)
-        else:
-            replaced.append(False)
+            try:
+                mesh = geom.clone()
+                mesh.buildConvexHull(False, "Qt")
+                hull = mesh.convex
+            except (RuntimeError, ValueError):  # a flat or degenerate mesh: its own distance is the bound
+                hull = None
+        if hull is not None:
+            hulls.geometryObjects[i].geometry = hull
+        replaced.append(hull is not None)
     return hulls, replaced
 
 
