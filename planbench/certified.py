@@ -206,6 +206,15 @@ class CertifiedChecker:
         if self.queries > self._limit:
             raise _Budget
 
+    def _query(self, which: str, s: _Sample, k: int) -> float:
+        """Pair ``k``'s distance at ``s`` for the hull model or the exact one (placed there first)."""
+        gm, gd = (self._hull_model, self._hull_data) if which == "hull" else (self.geometry_model, self._exact_data)
+        if self._placed[which] != s.key:
+            self._pin.updateGeometryPlacements(self._model, self._data, gm, gd, s.q)
+            self._placed[which] = s.key
+        self._spend()
+        return _distance(gm, gd, k)
+
     def _bound(self, s: _Sample, k: int) -> float:
         """A lower bound of pair ``k``'s distance at ``s``: exact when known, else the hulls'."""
         d = s.exact.get(k)
@@ -213,11 +222,7 @@ class CertifiedChecker:
             return d
         d = s.bound.get(k)
         if d is None:
-            if self._placed["hull"] != s.key:
-                self._pin.updateGeometryPlacements(self._model, self._data, self._hull_model, self._hull_data, s.q)
-                self._placed["hull"] = s.key
-            self._spend()
-            d = s.bound[k] = _distance(self._hull_model, self._hull_data, k)
+            d = s.bound[k] = self._query("hull", s, k)
             if self._hull_is_exact[k]:
                 s.exact[k] = d
         return d
@@ -225,12 +230,8 @@ class CertifiedChecker:
     def _exact(self, s: _Sample, k: int) -> float:
         d = s.exact.get(k)
         if d is None:
-            if self._placed["exact"] != s.key:
-                self._pin.updateGeometryPlacements(self._model, self._data, self.geometry_model, self._exact_data, s.q)
-                self._placed["exact"] = s.key
-            self._spend()
             self.exact_queries += 1
-            d = s.exact[k] = _distance(self.geometry_model, self._exact_data, k)
+            d = s.exact[k] = self._query("exact", s, k)
             if d < 0:
                 self._deepest[k] = max(self._deepest.get(k, 0.0), -d)
         return d

@@ -25,7 +25,7 @@ from planbench.problem import Goal, Pose, Problem, Tolerances
 from planbench.robot import load_robot
 from planbench.scene import Scene
 
-__all__ = ["load_problems", "mbm_families", "problem_sets"]
+__all__ = ["load_problem", "load_problems", "mbm_families", "problem_sets"]
 
 _RANGE = re.compile(r"^(\d+)(?:-(\d+))?$")
 
@@ -95,6 +95,21 @@ def load_problems(selector: str | Path) -> list[Problem]:
     if path.is_file():
         return [Problem.load(path)]
     raise UnknownNameError("problem set or file", text, ["mbm", "mbm:*"] + [f"mbm:{f}" for f in mbm_families()])
+
+
+_ONE: dict[str, Problem] = {}
+
+
+def load_problem(ref: str) -> Problem:
+    """The one problem a reference names (``"mbm:box/0001"``, a .json file), loaded once per
+    process: benchmark workers and validators load each run's problem by reference."""
+    problem = _ONE.get(ref)
+    if problem is None:
+        found = load_problems(ref)
+        if len(found) != 1:
+            raise PlanbenchError(f"problem reference {ref!r} names {len(found)} problems, not one")
+        problem = _ONE[ref] = found[0]
+    return problem
 
 
 def _unique_ids(loaded: list[tuple[Problem, str]]) -> list[Problem]:

@@ -28,18 +28,11 @@ from planbench.bench.wire import clean_result, decode, encode
 
 __all__ = ["validate_fields", "validator_main"]
 
-_PROBLEMS: dict[str, Any] = {}
-
 
 def _problem(ref: str) -> Any:
-    if ref not in _PROBLEMS:
-        from planbench.datasets import load_problems
+    from planbench.datasets import load_problem
 
-        found = load_problems(ref)
-        if len(found) != 1:
-            raise RuntimeError(f"problem reference {ref!r} names {len(found)} problems, not one")
-        _PROBLEMS[ref] = found[0]
-    return _PROBLEMS[ref]
+    return load_problem(ref)
 
 
 def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, Any]) -> dict[str, Any]:

@@ -73,18 +73,10 @@ class _PhaseReporter:
         return getattr(self._inner, name)
 
 
-_PROBLEMS: dict[str, Any] = {}
-
-
 def _problem(ref: str) -> Any:
-    if ref not in _PROBLEMS:
-        from planbench.datasets import load_problems
+    from planbench.datasets import load_problem
 
-        found = load_problems(ref)
-        if len(found) != 1:
-            raise RuntimeError(f"problem reference {ref!r} names {len(found)} problems, not one")
-        _PROBLEMS[ref] = found[0]
-    return _PROBLEMS[ref]
+    return load_problem(ref)
 
 
 def _set_memory_limit(mib: float) -> None:
