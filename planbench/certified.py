@@ -215,6 +215,18 @@ class CertifiedChecker:
         self._spend()
         return _distance(gm, gd, k)
 
+    def _all_bounds(self, s: _Sample) -> None:
+        """Hull distances of every pair at ``s`` in one pinocchio call."""
+        self._pin.computeDistances(self._model, self._data, self._hull_model, self._hull_data, s.q)
+        self._placed["hull"] = s.key
+        results = self._hull_data.distanceResults
+        for k in range(self.n_pairs):
+            if k not in s.bound:
+                self._spend()
+                d = s.bound[k] = float(results[k].min_distance)
+                if self._hull_is_exact[k]:
+                    s.exact[k] = d
+
     def _bound(self, s: _Sample, k: int) -> float:
         """A lower bound of pair ``k``'s distance at ``s``: exact when known, else the hulls'."""
         d = s.exact.get(k)
@@ -302,6 +314,8 @@ class CertifiedChecker:
         cfg = self.settings
         last = float(len(self._path) - 1)
         hit: tuple[float, int, float] | None = None  # (u, pair, depth) of the earliest collision
+        for u in {0.0, last}:  # every pair starts from both ends: one pinocchio call each
+            self._all_bounds(self._sample(u))
         for k in range(self.n_pairs):
             found = self._first_collision(k, last, hit[0] if hit else math.inf)
             if found is not None and (hit is None or found[0] < hit[0]):

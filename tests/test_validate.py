@@ -134,3 +134,15 @@ def test_clearance_matches_the_mbm_reference_values():
         p = planbench.load_problems(f"mbm:{pid}")[0]
         ev = evaluate(p, PlanResult(PlanStatus.SUCCESS, p.start[None, :]))
         assert ev.min_clearance == pytest.approx(ref[pid]["start"]["erd_f065"]["clearance"], abs=2e-6)
+
+
+def test_unusable_paths_are_rejected_by_name(free_problem):
+    start = free_problem.start
+    inf = PlanResult(PlanStatus.SUCCESS, np.stack([start, np.full(7, np.inf)]))
+    assert "NaN or infinite" in evaluate(free_problem, inf).failure
+    narrow = PlanResult(PlanStatus.SUCCESS, np.zeros((3, 6)))
+    assert "6 columns" in evaluate(free_problem, narrow).failure
+    empty = evaluate(free_problem, PlanResult(PlanStatus.SUCCESS, np.zeros((0, 7))))
+    assert not empty.success and "no path" in empty.failure
+    with pytest.raises(ValueError, match="shape"):
+        PlanResult(PlanStatus.SUCCESS, np.zeros(7))  # one row given flat: not an (N, nq) path
