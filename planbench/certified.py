@@ -180,6 +180,7 @@ class CertifiedChecker:
         self._pair_names = [(_display(names[a]), _display(names[b])) for a, b in self._pairs]
         self._placed = {"hull": -1, "exact": -1}
         self._deepest = {}
+        self._found = math.inf
         self._keys = 0
         self.queries = 0
         self.exact_queries = 0
@@ -226,6 +227,8 @@ class CertifiedChecker:
                 d = s.bound[k] = float(results[k].min_distance)
                 if self._hull_is_exact[k]:
                     s.exact[k] = d
+                    if d < self._found and self._obstacle_pair[k]:
+                        self._found = d
 
     def _bound(self, s: _Sample, k: int) -> float:
         """A lower bound of pair ``k``'s distance at ``s``: exact when known, else the hulls'."""
@@ -237,6 +240,8 @@ class CertifiedChecker:
             d = s.bound[k] = self._query("hull", s, k)
             if self._hull_is_exact[k]:
                 s.exact[k] = d
+                if d < self._found and self._obstacle_pair[k]:
+                    self._found = d
         return d
 
     def _exact(self, s: _Sample, k: int) -> float:
@@ -244,6 +249,8 @@ class CertifiedChecker:
         if d is None:
             self.exact_queries += 1
             d = s.exact[k] = self._query("exact", s, k)
+            if d < self._found and self._obstacle_pair[k]:
+                self._found = d
             if d < 0:
                 self._deepest[k] = max(self._deepest.get(k, 0.0), -d)
         return d
@@ -264,6 +271,7 @@ class CertifiedChecker:
         self._cum_lists: dict[int, list[float]] = {}
         self._samples: dict[float, _Sample] = {}
         self._deepest: dict[int, float] = {}  # pair -> deepest penetration seen [m]
+        self._found = math.inf  # smallest exact robot-obstacle distance computed [m]
         self._leaves: list[tuple[float, int, int, _Sample, _Sample]] = []
         self._tiebreak = 0
         try:
@@ -434,9 +442,7 @@ class CertifiedChecker:
             return math.inf, math.inf
         self._limit = math.inf  # clearance queries never change the verdict
         cfg = self.settings
-        found = min(
-            (d for s in self._samples.values() for k, d in s.exact.items() if self._obstacle_pair[k]), default=math.inf
-        )
+        found = self._found  # the smallest exact robot-obstacle distance computed so far
         budget = self.queries + cfg.max_clearance_queries
         while heap and self.queries < budget:
             lower, _, k, s0, s1 = heap[0]
@@ -455,9 +461,10 @@ class CertifiedChecker:
                     found = min(found, a.exact.get(k, math.inf), b.exact.get(k, math.inf))
                     self._tiebreak += 1
                     heapq.heappush(heap, (max(lower, min(da, db, (da + db - mm) / 2)), self._tiebreak, k, a, b))
-            else:  # a short interval: its exact end distances
-                d0, d1 = self._exact(s0, k), self._exact(s1, k)
-                found = min(found, d0, d1)
+            else:  # a short interval: the exact distance at its closer end (only exact ones are "found")
+                near_start = k not in s0.exact and (k in s1.exact or self._bound(s0, k) <= self._bound(s1, k))
+                found = min(found, self._exact(s0 if near_start else s1, k))
+                d0, d1 = self._bound(s0, k), self._bound(s1, k)
                 self._tiebreak += 1
                 heapq.heappush(heap, (max(lower, min(d0, d1, (d0 + d1 - m) / 2)), self._tiebreak, k, s0, s1))
         if not heap:  # a path of one configuration
