@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["correlate_axis", "lazy_points", "sample_points"]
+__all__ = ["correlate_axis", "lazy_points", "lazy_points_serial", "sample_points"]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -187,71 +187,87 @@ def _effective(k, w, out):  # type: ignore[no-untyped-def]
         out[m - c + j + 1] += w * k[j]
 
 
-@njit(parallel=True, cache=True, fastmath=True)
-def lazy_points(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
-    """Interpolated field at each point from the occupancy grid directly (see ``lazy.py``).
-
-    The trilinear weights are folded into 1D kernels over the (2m+2)^3 block around the point, and
-    the block is contracted one axis at a time: y with two rows of weights into two z-lines, then z
-    and x by dot products. ``out`` (N, 3) float64 receives (F_x, F_y, F_z).
-    """
+@njit(cache=True, fastmath=True)
+def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p):  # type: ignore
+    """The field at ``points[p]`` into ``out[p]``: the body of :func:`lazy_points` (shared by its
+    parallel and serial drivers, so both compute the same numbers)."""
     nx, ny, nz = grid.shape
     m = max(along.shape[0], across.shape[0]) // 2
     size = 2 * m + 2
     dt = grid.dtype.type
     o = dt(outside)
+    base = np.empty(3, np.int64)
+    P = np.empty((3, size), grid.dtype)
+    T = np.empty((3, size), grid.dtype)
+    for a in range(3):
+        u = (points[p, a] - origin[a]) / resolution - 0.5
+        f = math.floor(u)
+        base[a] = np.int64(f) - m
+        _effective(along, u - f, P[a])
+        _effective(across, u - f, T[a])
+    x0 = max(base[0], 0)
+    x1 = min(base[0] + size, nx)
+    y0 = max(base[1], 0)
+    y1 = min(base[1] + size, ny)
+    z0 = max(base[2], 0)
+    z1 = min(base[2] + size, nz)
+    ox = base[0]
+    oy = base[1]
+    oz = base[2]
+    at = np.empty(size, grid.dtype)  # z-line weighted by T_y
+    ap = np.empty(size, grid.dtype)  # z-line weighted by P_y
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    nzb = z1 - z0
+    for ix in range(x0, x1):
+        for j in range(size):
+            at[j] = 0.0
+            ap[j] = 0.0
+        at_s = at[z0 - oz:z1 - oz]
+        ap_s = ap[z0 - oz:z1 - oz]
+        for iy in range(y0, y1):
+            ty = T[1, iy - oy]
+            py = P[1, iy - oy]
+            row = grid[ix, iy, z0:z1]
+            for j in range(nzb):
+                v = row[j] - o
+                at_s[j] += ty * v
+                ap_s[j] += py * v
+        tt = 0.0
+        tp = 0.0
+        pt = 0.0
+        for j in range(size):
+            tt += at[j] * T[2, j]
+            tp += at[j] * P[2, j]
+            pt += ap[j] * T[2, j]
+        fx += P[0, ix - ox] * tt
+        fy += T[0, ix - ox] * pt
+        fz += T[0, ix - ox] * tp
+    out[p, 0] = fx
+    out[p, 1] = fy
+    out[p, 2] = fz
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def lazy_points(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
+    """Interpolated field at each point from the occupancy grid directly (see ``lazy.py``), the
+    points shared out over numba's threads (:mod:`planbench.field.threads` decides when).
+
+    The trilinear weights are folded into 1D kernels over the (2m+2)^3 block around the point, and
+    the block is contracted one axis at a time: y with two rows of weights into two z-lines, then z
+    and x by dot products. ``out`` (N, 3) float64 receives (F_x, F_y, F_z).
+    """
     for p in prange(points.shape[0]):
-        base = np.empty(3, np.int64)
-        P = np.empty((3, size), grid.dtype)
-        T = np.empty((3, size), grid.dtype)
-        for a in range(3):
-            u = (points[p, a] - origin[a]) / resolution - 0.5
-            f = math.floor(u)
-            base[a] = np.int64(f) - m
-            _effective(along, u - f, P[a])
-            _effective(across, u - f, T[a])
-        x0 = max(base[0], 0)
-        x1 = min(base[0] + size, nx)
-        y0 = max(base[1], 0)
-        y1 = min(base[1] + size, ny)
-        z0 = max(base[2], 0)
-        z1 = min(base[2] + size, nz)
-        ox = base[0]
-        oy = base[1]
-        oz = base[2]
-        at = np.empty(size, grid.dtype)  # z-line weighted by T_y
-        ap = np.empty(size, grid.dtype)  # z-line weighted by P_y
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        nzb = z1 - z0
-        for ix in range(x0, x1):
-            for j in range(size):
-                at[j] = 0.0
-                ap[j] = 0.0
-            at_s = at[z0 - oz:z1 - oz]
-            ap_s = ap[z0 - oz:z1 - oz]
-            for iy in range(y0, y1):
-                ty = T[1, iy - oy]
-                py = P[1, iy - oy]
-                row = grid[ix, iy, z0:z1]
-                for j in range(nzb):
-                    v = row[j] - o
-                    at_s[j] += ty * v
-                    ap_s[j] += py * v
-            tt = 0.0
-            tp = 0.0
-            pt = 0.0
-            for j in range(size):
-                tt += at[j] * T[2, j]
-                tp += at[j] * P[2, j]
-                pt += ap[j] * T[2, j]
-            fx += P[0, ix - ox] * tt
-            fy += T[0, ix - ox] * pt
-            fz += T[0, ix - ox] * tp
-        out[p, 0] = fx
-        out[p, 1] = fy
-        out[p, 2] = fz
+        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p)
+
+
+@njit(cache=True, fastmath=True)
+def lazy_points_serial(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
+    """:func:`lazy_points` on the calling thread only: no parallel region is entered, so a small
+    call never waits for (or wakes) numba's thread pool."""
+    for p in range(points.shape[0]):
+        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p)
 
 
 @njit(cache=True)

@@ -11,6 +11,10 @@ multiply-adds per point for a block of ``S`` cells a side, not ``8 * 3 * L W H``
 Cells beyond the grid hold ``outside``; as the kernels sum to zero they contribute nothing once
 ``outside`` is subtracted, so the result equals the full field with its default margin, at every
 point in space (far from the grid it is exactly zero).
+
+With numba, a call that reads at most :data:`~planbench.field.threads.SERIAL_MAX_CELLS` grid cells
+(a planner's few dozen control points) runs on the calling thread; larger ones share the points
+out over numba's threads. Both give the same numbers (to rounding).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import numpy as np
 from planbench.field import backend as _backend
 from planbench.field.interpolate import as_points
 from planbench.field.kernels import Kernels
+from planbench.field.threads import serial_lazy
 from planbench.occupancy import OccupancyGrid
 
 __all__ = ["lazy_field"]
@@ -39,8 +44,10 @@ def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray,
     data = np.ascontiguousarray(grid.data)
     if _backend.resolve(backend) == "numba":
         along, across = kernels.factors(data.dtype)
-        _backend.compiled().lazy_points(data, grid.outside, grid.origin, grid.resolution,
-                                        along, across, pts, out)
+        compiled = _backend.compiled()
+        kernel = (compiled.lazy_points_serial if serial_lazy(len(pts), kernels.support)
+                  else compiled.lazy_points)  # small calls stay on this thread (see .threads)
+        kernel(data, grid.outside, grid.origin, grid.resolution, along, across, pts, out)
         return out
     for start in range(0, len(pts), _CHUNK):
         sl = slice(start, start + _CHUNK)
