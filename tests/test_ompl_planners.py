@@ -243,7 +243,7 @@ def test_a_search_that_uses_the_whole_time_limit_returns_the_raw_path_unsimplifi
     assert result.info["simplify_time"] == 0.0 and "no time left" in result.info["simplify_skipped"]
 
 
-def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path(blocked, monkeypatch):
+def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path_without_repair(blocked, monkeypatch):
     from planbench.certified import CertifiedChecker, PathVerdict
 
     calls = []
@@ -254,18 +254,77 @@ def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path(blocked, m
         return PathVerdict(False, segment=0) if len(calls) == 1 else original(self, path)
 
     monkeypatch.setattr(CertifiedChecker, "check_path", check_path_rejecting_the_first_path)
-    result = solved(blocked, RRTConnectPlanner)
+    result = solved(blocked, RRTConnectPlanner, repair_attempts=0)
     assert result.info["path_source"] == "reduced" and len(calls) == 3  # simplified, reduced, the harness
+    assert result.info["repaired_segments"] == 0
 
 
 def test_a_path_that_fails_every_check_is_a_collision(blocked, monkeypatch):
     from planbench.certified import CertifiedChecker, PathVerdict
 
     monkeypatch.setattr(CertifiedChecker, "check_path", lambda self, path: PathVerdict(False, segment=0))
-    result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=5.0)
+    result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=5.0, repair_attempts=1)
     assert result.status is PlanStatus.COLLISION
     assert result.info["path_source"] == "none"
+    assert result.info["repaired_segments"] == 0  # the one attempt found no certified detour
     assert result.path is not None
+    assert result.planning_time < 5.0  # a repair's sub-query is bounded (SUBSOLVE_TIME), not the time limit
+
+
+@pytest.fixture(scope="module")
+def grazing():
+    """MBM bookshelf_small/0004, seed 0: OMPL's simplified path grazes the shelf (its sampled motion
+    checks pass, the certified check does not)."""
+    from planbench.datasets import load_problems
+
+    (problem,) = load_problems("mbm:bookshelf_small/0004")
+    return problem
+
+
+def test_a_grazing_simplified_path_is_repaired_and_certifies(grazing):
+    from planbench.certified import CertifiedChecker
+    from planbench.metrics import densify
+    from planbench.validate import ValidationSettings
+
+    certified = CertifiedChecker(grazing.robot, grazing.scene, ValidationSettings().certification())
+    # without certification OMPL returns its simplified path: every sampled check passes, yet it collides
+    unchecked = planbench.plan(grazing, RRTConnectPlanner, seed=0, time_limit=5.0, verify=False)
+    dense, _ = densify(unchecked.path, 0.01)
+    checker = CollisionChecker(grazing.robot, grazing.scene)
+    assert not any(checker.in_collision(q) for q in dense)
+    verdict = certified.check_path(unchecked.path)
+    assert not verdict.free
+    # the same query, certified: the failing segment is re-planned, the rest of the path is kept
+    result = solved(grazing, RRTConnectPlanner, seed=0)
+    assert result.info["path_source"] == "simplified" and result.info["repaired_segments"] >= 1
+    assert certified.check_path(result.path).free
+    s = verdict.segment
+    np.testing.assert_array_equal(result.path[: s + 1], unchecked.path[: s + 1])  # the certified prefix
+    np.testing.assert_array_equal(result.path[-(len(unchecked.path) - s - 1) :], unchecked.path[s + 1 :])
+    assert len(result.path) > len(unchecked.path)
+    # without repair, the simplified path is given up for the (longer) reduced one
+    plain = solved(grazing, RRTConnectPlanner, seed=0, repair_attempts=0)
+    assert plain.info["path_source"] in ("reduced", "raw") and plain.info["repaired_segments"] == 0
+
+
+def test_certified_motion_checks_return_certified_segments_only(grazing):
+    from planbench.certified import CertifiedChecker
+    from planbench.validate import ValidationSettings
+
+    result = solved(grazing, RRTConnectPlanner, seed=0, motion_check="certified")
+    assert result.info["repaired_segments"] == 0  # nothing to repair: every edge was certified when added
+    assert result.info["certified_segments"] > 0
+    certified = CertifiedChecker(grazing.robot, grazing.scene, ValidationSettings().certification())
+    assert certified.check_path(result.path).free
+    simplified = solved(grazing, RRTConnectPlanner, seed=0, simplify_check="certified")
+    assert simplified.info["path_source"] == "simplified" and simplified.info["repaired_segments"] == 0
+
+
+def test_motion_check_settings_are_validated():
+    for bad in ({"motion_check": "exact"}, {"simplify_check": None}, {"repair_attempts": -1}, {"repair_attempts": 1.5}):
+        with pytest.raises(InvalidConfigError, match=next(iter(bad))):
+            RRTConnectPlanner(**bad)
+    assert RRTConnectPlanner().config.motion_check == "sampled"
 
 
 # --- occupancy-grid collision mode ---------------------------------------------------------------

@@ -1,11 +1,14 @@
-"""Sampled motion validation for OMPL's search.
+"""Motion validation for OMPL's search and simplifier: sampled, optionally certified.
 
 A segment ``a -> b`` is checked at ``a + (j / n) (b - a)``, ``j = 1 .. n``, with
 ``n = ceil(max_i |b_i - a_i| / resolution)`` (:func:`planbench.metrics.densify`; ``resolution``
 0.01 rad by default): no joint moves more than ``resolution`` between checked configurations. This
-is what the search uses for its edges (fast, but blind between samples); the path the planner
-returns is then certified by :class:`planbench.certified.CertifiedChecker`, as the harness does
-(see :mod:`.base`). OMPL's own ``DiscreteMotionValidator`` checks at points a Euclidean distance
+is fast, but blind between samples. :class:`CertifiedSegments` adds the harness's certified check
+(:class:`VerdictChecker`, a :class:`planbench.certified.CertifiedChecker` that skips the clearance
+refinement) for the motions that pass the sampled check, and remembers each certified segment; the
+validator from :func:`make_motion_validator` uses it while its ``certify`` flag is set (see
+``motion_check`` / ``simplify_check`` and the repair of failing segments in :mod:`.base`).
+OMPL's own ``DiscreteMotionValidator`` checks at points a Euclidean distance
 apart instead.
 
 The configurations of one motion go to pinocchio in one batch (``computeCollisionsInParallel`` on a
@@ -29,9 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from planbench.certified import CertifiedChecker, PathVerdict
 from planbench.collision import CollisionChecker
 
-__all__ = ["SegmentChecker", "bisection_order"]
+__all__ = ["CertifiedSegments", "SegmentChecker", "VerdictChecker", "bisection_order", "make_motion_validator"]
 
 
 def bisection_order(n: int) -> np.ndarray:
@@ -108,16 +112,87 @@ class SegmentChecker:
         return 0 if k == 0 else int(segment[k]) + 1
 
 
-def make_motion_validator(si: Any, segments: SegmentChecker, nq: int) -> Any:
-    """An OMPL ``MotionValidator`` (Python subclass) that checks motions with ``segments``."""
+class VerdictChecker(CertifiedChecker):
+    """The harness's certified checker without the clearance refinement at the end of a free path
+    (``clearance_lower`` and ``clearance_found`` are NaN): the verdict is the same (the refinement
+    never changes it), the planner only needs the verdict."""
+
+    def _clearance(self) -> tuple[float, float]:
+        return math.nan, math.nan
+
+
+class CertifiedSegments:
+    """Certified checks of single segments, remembered: ``free(a, b)`` runs the sampled check of
+    ``segments`` first (a fast rejection of most blocked motions) and certifies only the motions
+    that pass it. Every certified-free segment is kept (by its two end configurations' bytes), so a
+    path made of such segments is known free without a second check (:meth:`known_free`)."""
+
+    def __init__(self, segments: SegmentChecker, certified: CertifiedChecker) -> None:
+        self.segments = segments
+        self.certified = certified
+        self._free: set[tuple[bytes, bytes]] = set()
+        self.n_certified = 0  # segments certified (the sampled check passed)
+        self.n_rejected = 0  # of those, not certified
+        self.queries = 0  # distance queries spent
+        self.time = 0.0  # [s] spent certifying
+
+    def reset(self) -> None:
+        self._free.clear()
+        self.n_certified = self.n_rejected = self.queries = 0
+        self.time = 0.0
+
+    def free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        if not self.segments.motion_free(a, b):
+            return False
+        key = (a.tobytes(), b.tobytes())
+        if key in self._free:
+            return True
+        verdict = self.check(np.stack([a, b]))
+        if verdict.free:
+            self._free.add(key)
+        return verdict.free
+
+    def check(self, path: np.ndarray) -> PathVerdict:
+        """The certified verdict of ``path`` (counted); its segments are remembered when it is free."""
+        import time
+
+        t0 = time.perf_counter()
+        verdict = self.certified.check_path(path)
+        self.time += time.perf_counter() - t0
+        self.queries += verdict.queries
+        self.n_certified += 1
+        if verdict.free:
+            self._free.update((path[i].tobytes(), path[i + 1].tobytes()) for i in range(len(path) - 1))
+        else:
+            self.n_rejected += 1
+        return verdict
+
+    def mark_free(self, path: np.ndarray) -> None:
+        """Remember the segments of ``path`` as certified free (a failed path's certified prefix)."""
+        self._free.update((path[i].tobytes(), path[i + 1].tobytes()) for i in range(len(path) - 1))
+
+    def known_free(self, path: np.ndarray, i: int) -> bool:
+        """Segment ``i`` of ``path`` was certified free before."""
+        return (path[i].tobytes(), path[i + 1].tobytes()) in self._free
+
+
+def make_motion_validator(
+    si: Any, segments: SegmentChecker, nq: int, certified: CertifiedSegments | None = None
+) -> Any:
+    """An OMPL ``MotionValidator`` (Python subclass) that checks motions with ``segments``, and
+    certifies those that pass while its ``certify`` attribute is true (``certified`` given)."""
     from ompl import base as ob
 
     index = range(nq)
 
     class _HarnessMotionValidator(ob.MotionValidator):
+        certify = False
+
         def checkMotion(self, s1: Any, s2: Any, *rest: Any) -> bool:  # noqa: N802 (OMPL's name)
             a = np.array([s1[i] for i in index])
             b = np.array([s2[i] for i in index])
+            if self.certify and certified is not None:
+                return certified.free(a, b)
             return segments.motion_free(a, b)
 
     return _HarnessMotionValidator(si)
