@@ -111,3 +111,54 @@ def test_first_collision_of_a_path_matches_the_collision_checker():
     assert hits  # the straight line runs through the cage
     assert segments.first_collision(path) == int(segment[hits[0]]) + 1
     assert segments.first_collision(path[:1]) is None
+
+
+# --- certified motion checks --------------------------------------------------------------------
+
+
+def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinement():
+    # VerdictChecker overrides CertifiedChecker._clearance: if that hook is renamed, the NaN
+    # clearances below fail (the verdicts would still be the harness's)
+    from planbench.certified import CertifiedChecker
+    from planbench.validate import ValidationSettings
+    from planbench_plugins.ompl_planners.motion import VerdictChecker
+
+    (problem,) = load_problems("mbm:bookshelf_small/0002")
+    robot = problem.robot
+    settings = ValidationSettings().certification()
+    harness = CertifiedChecker(robot, problem.scene, settings)
+    verdicts = VerdictChecker(robot, problem.scene, settings)
+    checker = CollisionChecker(robot, problem.scene)
+    rng = np.random.default_rng(4)
+    free = [q for q in rng.uniform(robot.lower, robot.upper, size=(150, 7)) if not checker.in_collision(q)]
+    answers, fewer = [], 0
+    for a in free[:25]:
+        b = np.clip(a + rng.normal(0.0, 0.3, size=7), robot.lower, robot.upper)
+        reference, fast = harness.check_segment(a, b), verdicts.check_segment(a, b)
+        assert (fast.free, fast.segment) == (reference.free, reference.segment)
+        if fast.free:
+            assert np.isnan(fast.clearance_lower) and np.isfinite(reference.clearance_lower)
+            fewer += fast.queries < reference.queries
+        answers.append(fast.free)
+    assert any(answers) and not all(answers)
+    assert fewer > 0
+
+
+def test_certified_segments_samples_first_and_remembers_certified_segments():
+    from planbench.validate import ValidationSettings
+    from planbench_plugins.ompl_planners.motion import CertifiedSegments, SegmentChecker, VerdictChecker
+
+    (problem,) = load_problems("mbm:cage/0002")
+    robot = problem.robot
+    checker = CollisionChecker(robot, problem.scene)
+    segs = CertifiedSegments(
+        SegmentChecker(checker, 0.01), VerdictChecker(robot, problem.scene, ValidationSettings().certification())
+    )
+    start, goal = problem.start, problem.goal.q
+    assert not segs.free(start, goal)  # through the cage: the sampled check rejects it
+    assert segs.n_certified == 0  # ... before any distance query
+    mid = start + 0.01 * (goal - start)
+    assert segs.free(start, mid) and segs.n_certified == 1
+    assert segs.free(start, mid) and segs.n_certified == 1  # remembered, not certified again
+    path = np.array([start, mid])
+    assert segs.known_free(path, 0) and not segs.known_free(path[::-1], 0)
