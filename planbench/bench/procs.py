@@ -31,6 +31,8 @@ import sys
 import threading
 import time
 
+from planbench.field.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
+
 __all__ = [
     "THREAD_VARIABLES",
     "OutputFile",
@@ -42,7 +44,6 @@ __all__ = [
     "watch_parent",
 ]
 
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 PR_SET_PDEATHSIG = 1
 OUTPUT_MAX_BYTES = 16 * 2**20
@@ -54,11 +55,13 @@ OUTPUT_HEADER = "--- worker output (tail) ---"
 
 
 def limit_threads(threads: int) -> None:
-    """Cap the thread pools of OpenMP, BLAS and numba in this process (before any is imported), so
-    parallel workers do not oversubscribe the cores and a run's arithmetic does not depend on
-    ``--jobs``."""
-    for name in THREAD_VARIABLES:
-        os.environ[name] = str(threads)
+    """Cap the thread pools of OpenMP, BLAS and numba in this process, so parallel workers do not
+    oversubscribe the cores, idle OpenMP threads sleep instead of spinning, and a run's arithmetic
+    does not depend on ``--jobs`` (:func:`planbench.field.threads.limit_threads`: environment for
+    what loads later, the pools of what is loaded already, numpy's OpenBLAS included)."""
+    from planbench.field.threads import limit_threads as limit_compute_threads
+
+    limit_compute_threads(threads)
 
 
 def detach(parent_pid: int) -> None:
