@@ -90,7 +90,7 @@ def run_one(problem_id: str, planner: str, settings: dict[str, object], time_lim
     result = planbench.plan(problem, instance, seed=seed, time_limit=time_limit)
     ev = planbench.evaluate(problem, result)
     info = result.info or {}
-    keep = ("path_source", "verify_time", "solve_time", "simplify_time", "repaired_segments", "certified_segments")
+    keep = ("path_source", "verify_time", "solve_time", "simplify_time", "repaired_segments", "certified_checks")
     return {
         "success": bool(ev.success),
         "status": result.status.value,

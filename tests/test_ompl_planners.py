@@ -307,13 +307,13 @@ def test_a_grazing_simplified_path_is_repaired_and_certifies(grazing):
     assert plain.info["path_source"] in ("reduced", "raw") and plain.info["repaired_segments"] == 0
 
 
-def test_certified_motion_checks_return_certified_segments_only(grazing):
+def test_certified_motion_checks_return_certified_checks_only(grazing):
     from planbench.certified import CertifiedChecker
     from planbench.validate import ValidationSettings
 
     result = solved(grazing, RRTConnectPlanner, seed=0, motion_check="certified")
     assert result.info["repaired_segments"] == 0  # nothing to repair: every edge was certified when added
-    assert result.info["certified_segments"] > 0
+    assert result.info["certified_checks"] > 0
     certified = CertifiedChecker(grazing.robot, grazing.scene, ValidationSettings().certification())
     assert certified.check_path(result.path).free
     simplified = solved(grazing, RRTConnectPlanner, seed=0, simplify_check="certified")

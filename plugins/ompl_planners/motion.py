@@ -131,8 +131,8 @@ class CertifiedSegments:
         self.segments = segments
         self.certified = certified
         self._free: set[tuple[bytes, bytes]] = set()
-        self.n_certified = 0  # segments certified (the sampled check passed)
-        self.n_rejected = 0  # of those, not certified
+        self.n_certified = 0  # certified checks (segments that passed the sampled check, paths, points)
+        self.n_rejected = 0  # of those, not free
         self.queries = 0  # distance queries spent
         self.time = 0.0  # [s] spent certifying
 
