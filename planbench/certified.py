@@ -75,6 +75,9 @@ class CertificationSettings:
     """Distance queries one path may take before it is refused as not certifiable."""
     max_clearance_queries: int = 2_000
     """Extra distance queries spent on tightening the clearance bound (never on the verdict)."""
+    measure_clearance: bool = True
+    """Bracket a free path's clearance (``clearance_lower``, ``clearance_found``); False gives the
+    verdict alone, with NaN clearances (a planner checking its own motions needs no more)."""
 
     def __post_init__(self) -> None:
         for name in ("required_clearance", "distance_accuracy", "resolution", "clearance_gap"):
@@ -329,7 +332,7 @@ class CertifiedChecker:
             if found is not None and (hit is None or found[0] < hit[0]):
                 hit = found
         if hit is None:
-            lower, found_min = self._clearance()
+            lower, found_min = self._clearance() if cfg.measure_clearance else (math.nan, math.nan)
             return PathVerdict(
                 True,
                 clearance_lower=lower,

@@ -117,17 +117,15 @@ def test_first_collision_of_a_path_matches_the_collision_checker():
 
 
 def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinement():
-    # VerdictChecker overrides CertifiedChecker._clearance: if that hook is renamed, the NaN
-    # clearances below fail (the verdicts would still be the harness's)
     from planbench.certified import CertifiedChecker
     from planbench.validate import ValidationSettings
-    from planbench_plugins.ompl_planners.motion import VerdictChecker
+    from planbench_plugins.ompl_planners.motion import verdict_checker
 
     (problem,) = load_problems("mbm:bookshelf_small/0002")
     robot = problem.robot
     settings = ValidationSettings().certification()
     harness = CertifiedChecker(robot, problem.scene, settings)
-    verdicts = VerdictChecker(robot, problem.scene, settings)
+    verdicts = verdict_checker(problem)
     checker = CollisionChecker(robot, problem.scene)
     rng = np.random.default_rng(4)
     free = [q for q in rng.uniform(robot.lower, robot.upper, size=(150, 7)) if not checker.in_collision(q)]
@@ -145,15 +143,12 @@ def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinem
 
 
 def test_certified_segments_samples_first_and_remembers_certified_segments():
-    from planbench.validate import ValidationSettings
-    from planbench_plugins.ompl_planners.motion import CertifiedSegments, SegmentChecker, VerdictChecker
+    from planbench_plugins.ompl_planners.motion import CertifiedSegments, SegmentChecker, verdict_checker
 
     (problem,) = load_problems("mbm:cage/0002")
     robot = problem.robot
     checker = CollisionChecker(robot, problem.scene)
-    segs = CertifiedSegments(
-        SegmentChecker(checker, 0.01), VerdictChecker(robot, problem.scene, ValidationSettings().certification())
-    )
+    segs = CertifiedSegments(SegmentChecker(checker, 0.01), verdict_checker(problem))
     start, goal = problem.start, problem.goal.q
     assert not segs.free(start, goal)  # through the cage: the sampled check rejects it
     assert segs.n_certified == 0  # ... before any distance query

@@ -80,13 +80,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from planbench.certified import CertifiedChecker
 from planbench.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
-from planbench.validate import ValidationSettings
 
-from .motion import CertifiedSegments, SegmentChecker, VerdictChecker, make_motion_validator
+from .motion import CertifiedSegments, SegmentChecker, make_motion_validator, verdict_checker
 
 __all__ = ["OMPLConfig", "OMPLAnyConfig", "OMPLPlanner", "geometric_planners", "planner_parameters"]
 
@@ -247,7 +247,7 @@ class OMPLPlanner(Planner):
         self._checker_key: tuple[Any, ...] | None = None
         self._checker_problem: Problem | None = None
         self._segments: dict[float, SegmentChecker] = {}
-        self._certified: tuple[Problem, VerdictChecker] | None = None
+        self._certified: tuple[Problem, CertifiedChecker] | None = None
 
     @property
     def planner_name(self) -> str:
@@ -259,10 +259,9 @@ class OMPLPlanner(Planner):
         self._checker_for(problem)
         self._certified_for(problem)
 
-    def _certified_for(self, problem: Problem) -> VerdictChecker:
+    def _certified_for(self, problem: Problem) -> CertifiedChecker:
         if self._certified is None or self._certified[0] is not problem:
-            settings = ValidationSettings().certification()
-            self._certified = (problem, VerdictChecker(problem.robot, problem.scene, settings))
+            self._certified = (problem, verdict_checker(problem))
         return self._certified[1]
 
     def _checker_for(self, problem: Problem) -> CollisionChecker:
