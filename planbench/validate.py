@@ -31,7 +31,11 @@ from planbench.certified import CertificationSettings, CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem, pose_error
 
-__all__ = ["ValidationSettings", "Evaluation", "evaluate"]
+__all__ = ["VALIDATOR", "ValidationSettings", "Evaluation", "evaluate"]
+
+VALIDATOR = "certified/1"
+"""What "validated" means, by version: stored with every benchmark's settings, so results judged by
+an earlier validator (``sampled`` every 0.01 rad, before this one) are never mixed with these."""
 
 
 @dataclass(frozen=True)

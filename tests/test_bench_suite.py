@@ -1,5 +1,7 @@
 """Suite files: the format, the built-in suites, and errors that name the file and the problem."""
 
+import json
+
 import pytest
 
 from planbench.bench.benchmark import select
@@ -152,3 +154,9 @@ def test_bench_memory_limit_option_reaches_the_suite():
         assert _bench_suite(args).memory_limit == expected
     args = parser.parse_args(["bench", "--problems", "mbm:box/0001"])
     assert _bench_suite(args).memory_limit == load_suite("smoke").memory_limit
+
+
+def test_settings_name_the_validator_so_older_verdicts_are_never_resumed_into():
+    from planbench.validate import VALIDATOR
+
+    assert json.loads(load_suite("smoke").settings_json())["validator"] == VALIDATOR

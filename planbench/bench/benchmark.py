@@ -136,7 +136,8 @@ def prepare(
         if settings != json.loads(suite.settings_json()):
             raise PlanbenchError(
                 f"{db.path}: suite {suite.name!r} was run with settings {settings}, now {suite.settings_json()}; "
-                "resuming would mix them: use another --out"
+                "resuming would mix them: use another --out (or give the same settings, e.g. --memory-limit; "
+                "results of another validator cannot be resumed)"
             )
         old = {p["label"]: (p["planner"], p["settings"]) for p in definition.get("planners", [])}
         for p in planners:

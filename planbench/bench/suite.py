@@ -180,9 +180,12 @@ class Suite:
         return d
 
     def settings_json(self) -> str:
-        """The settings that change results (limits, validation), as canonical JSON."""
+        """The settings that change results (limits, validation and the validator's version), as
+        canonical JSON."""
+        from planbench.validate import VALIDATOR
+
         keys = ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout", "validation")
-        return json.dumps({k: getattr(self, k) for k in keys}, sort_keys=True)
+        return json.dumps({"validator": VALIDATOR, **{k: getattr(self, k) for k in keys}}, sort_keys=True)
 
     def entry(self, label: str) -> PlannerEntry:
         for p in self.planners:
