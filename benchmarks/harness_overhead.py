@@ -6,9 +6,11 @@ run), and the harness overhead per run (process isolation + validation) against 
 
 Per run, from the results database (all seconds):
 - planning: ``planning_time`` (the timed query, measured by the harness);
-- validation: ``validation_time`` (``planbench.evaluate`` re-checking the path in the worker);
-- isolation: ``elapsed - wall_time``: from the parent sending the run to receiving its record,
-  minus the worker's own time for it (pipes, pickling, scheduling, the database write);
+- validation: ``validation_time`` (``planbench.evaluate`` certifying the path in the slot's
+  validator process, where no planner code runs);
+- isolation: ``elapsed - wall_time``: from the parent sending the run to receiving its verdict,
+  minus the worker's and the validator's own time for it (encoding, pipes, scheduling, the
+  database write);
 - worker start: the one-off cost of spawning the worker processes, amortised over their runs.
 """
 
