@@ -182,7 +182,7 @@ class CertifiedChecker:
         names = [o.name for o in self.geometry_model.geometryObjects]
         self._pair_names = [(_display(names[a]), _display(names[b])) for a, b in self._pairs]
         self._placed = {"hull": -1, "exact": -1}
-        self._deepest = {}
+        self._deepest: dict[int, float] = {}  # pair -> deepest penetration seen [m]
         self._found = math.inf
         self._keys = 0
         self.queries = 0
@@ -273,7 +273,7 @@ class CertifiedChecker:
         self._cum = np.vstack([np.zeros((1, self.n_pairs)), np.cumsum(seg_motion, axis=0)])  # (N, pairs)
         self._cum_lists: dict[int, list[float]] = {}
         self._samples: dict[float, _Sample] = {}
-        self._deepest: dict[int, float] = {}  # pair -> deepest penetration seen [m]
+        self._deepest = {}
         self._found = math.inf  # smallest exact robot-obstacle distance computed [m]
         self._leaves: list[tuple[float, int, int, _Sample, _Sample]] = []
         self._tiebreak = 0

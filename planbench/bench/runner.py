@@ -371,7 +371,7 @@ class Runner:
     def _receive(self, child: _Child) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """Every message waiting from ``child``, parsed (never unpickled); :class:`_ChildFailed` when
         one cannot be read."""
-        out = []
+        out: list[tuple[dict[str, Any], dict[str, Any]]] = []
         try:
             while not child.closed and child.conn.poll():
                 if len(out) >= MAX_MESSAGES_PER_WAIT:

@@ -167,7 +167,7 @@ def plan_one(task: dict[str, Any], notify: Callable[[str], None] = lambda phase:
         timing = {k: fields[k] for k in ("planning_time", "setup_time")}
         return clean_result({**fields, **base, "wall_time": wall, "prepared": True})
     except BadField as bad:
-        return error_fields(f"the planner's result is unusable: {bad}", wall_time=wall, **_timing(timing))
+        return error_fields(f"the planner's result is unusable: {bad}", "", wall_time=wall, **_timing(timing))
     except Exception as exc:  # the planner's objects raised while being read
         message = f"the planner's result could not be read: {type(exc).__name__}"
         return error_fields(message, traceback.format_exc(), wall_time=wall, **_timing(timing))
@@ -242,8 +242,12 @@ def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) 
             return
         _set_memory_limit(float(task.get("memory_limit", 0.0) or 0.0))
         run = task["run"]
+
+        def notify(phase: str, run: Any = run) -> None:
+            _send(conn, {"type": "phase", "run": run, "phase": phase})
+
         try:
-            fields = plan_one(task, lambda phase, run=run: _send(conn, {"type": "phase", "run": run, "phase": phase}))
+            fields = plan_one(task, notify)
         except Exception as exc:  # planbench's own fault, or a planner that broke it: still a row
             fields = error_fields(f"the worker failed: {type(exc).__name__}: {exc}", traceback.format_exc())
         for stream in (sys.stdout, sys.stderr):

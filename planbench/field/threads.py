@@ -156,11 +156,11 @@ def _limit_numba(threads: int, layer: str | None) -> None:
                     f"NUMBA_THREADING_LAYER={layer} before the first parallel call"
                 )
         else:
-            numba.config.THREADING_LAYER = layer
+            numba.config.THREADING_LAYER = layer  # type: ignore[attr-defined]
     if started:  # the pool keeps its size; this thread's regions use ``threads`` of it
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     else:  # the pool will be started with ``threads`` (without starting it now)
-        numba.config.NUMBA_NUM_THREADS = threads
+        numba.config.NUMBA_NUM_THREADS = threads  # type: ignore[attr-defined]
         parallel.NUM_THREADS = threads
 
 
