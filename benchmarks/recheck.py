@@ -7,7 +7,7 @@ the runs, the validated successes and how many of those the dense check finds co
 must be zero). Problems: MotionBenchMaker selectors, plus generated scenes the repository does not
 ship (random boxes, spheres, cylinders and thin plates around the arm) for the Panda and the UR5.
 
-    python benchmarks/recheck.py --mbm "mbm:*/0021-0022" --generated 6 --time-limit 2
+    python benchmarks/recheck.py --mbm "mbm:*/0021-0022" --generated 6 --time-limit 2 --seed 1
 """
 
 from __future__ import annotations
@@ -83,11 +83,12 @@ def main() -> None:
     ap.add_argument("--planners", default=PLANNERS)
     ap.add_argument("--time-limit", type=float, default=2.0)
     ap.add_argument("--resolution", type=float, default=1e-4, help="dense re-check resolution [rad]")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the generated scenes")
     args = ap.parse_args()
 
     problems = planbench.load_problems(args.mbm) if args.mbm else []
     for robot in ("panda", "ur5"):
-        problems += generated_problems(robot, args.generated, seed=1)
+        problems += generated_problems(robot, args.generated, seed=args.seed)
     counts: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0])
     bad: list[str] = []
     for p in problems:
