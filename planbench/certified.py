@@ -269,8 +269,11 @@ class CertifiedChecker:
         self._limit = self.settings.max_queries
         self._path = path
         self._delta = np.diff(path, axis=0)
-        seg_motion = np.abs(self._delta) @ self.motion_weights.T  # (N - 1, pairs) [m]
-        self._cum = np.vstack([np.zeros((1, self.n_pairs)), np.cumsum(seg_motion, axis=0)])  # (N, pairs)
+        # per pair (rows), the motion bound from the path's start to each waypoint [m]: the bound is
+        # linear in |dq|, so it is the weights times each joint's prefix sum of |dq|
+        joint_travel = np.zeros((path.shape[1], len(path)))
+        np.cumsum(np.abs(self._delta).T, axis=1, out=joint_travel[:, 1:])
+        self._cum = self.motion_weights @ joint_travel
         self._cum_lists: dict[int, list[float]] = {}
         self._samples: dict[float, _Sample] = {}
         self._deepest = {}
@@ -306,10 +309,18 @@ class CertifiedChecker:
 
     def _motion(self, k: int, u0: float, u1: float) -> float:
         """Pair ``k``'s motion bound [m] along the path from ``u0`` to ``u1``."""
+        return _cum_at(self._cum_list(k), u1) - _cum_at(self._cum_list(k), u0)
+
+    def _cum_list(self, k: int) -> Any:
+        """Pair ``k``'s prefix sums of motion bounds: a list for short paths (fastest scalar access
+        in the search), the array row itself for long ones (converting thousands of waypoints per
+        pair costs more than the search reads)."""
+        if self._cum.shape[1] > 256:
+            return self._cum[k]
         cum = self._cum_lists.get(k)
         if cum is None:
-            cum = self._cum_lists[k] = self._cum[:, k].tolist()
-        return _cum_at(cum, u1) - _cum_at(cum, u0)
+            cum = self._cum_lists[k] = self._cum[k].tolist()
+        return cum
 
     @staticmethod
     def _split(u0: float, u1: float) -> float:
@@ -375,13 +386,16 @@ class CertifiedChecker:
         # The hot loop of certification (a pair in near-contact takes thousands of intervals): the
         # interval's end samples and their bounds travel on the stack, the motion bound comes from
         # the pair's prefix sums, and only a new midpoint costs a distance query.
-        cum = self._cum_lists.get(k)
-        if cum is None:
-            cum = self._cum_lists[k] = self._cum[:, k].tolist()
         resolution = cfg.resolution
         obstacle_pair = self._obstacle_pair[k]
         end = self._sample(last)
-        stack = [(0.0, last, start, end, self._bound(start, k), self._bound(end, k))]
+        d0, d1, m = self._bound(start, k), self._bound(end, k), float(self._cum[k, -1])
+        if (d0 + d1 - m) / 2 - acc >= floor:  # most pairs: certified along the whole path at once
+            if obstacle_pair:
+                self._leaf(k, start, end, d0, d1, m)
+            return None
+        cum = self._cum_list(k)
+        stack = [(0.0, last, start, end, d0, d1)]
         while stack:
             u0, u1, s0, s1, d0, d1 = stack.pop()
             if u0 >= stop:
@@ -479,12 +493,13 @@ class CertifiedChecker:
         return float(min(lower, found)), float(found)
 
 
-def _cum_at(cum: list[float], u: float) -> float:
-    """A piecewise-linear prefix sum at path parameter ``u``."""
+def _cum_at(cum: Any, u: float) -> float:
+    """A piecewise-linear prefix sum at path parameter ``u`` (``cum`` a list or an array row)."""
     i = int(u)
-    if u == i:
-        return cum[i]
-    return cum[i] + (u - i) * (cum[i + 1] - cum[i])
+    a = cum[i]
+    if u != i:
+        a = a + (u - i) * (cum[i + 1] - a)
+    return float(a)
 
 
 def _fresh_request(req: Any) -> None:
