@@ -49,6 +49,7 @@ def main() -> None:
     ap.add_argument("--planners", default="ompl-rrtconnect,matrix-field")
     ap.add_argument("--time-limit", type=float, default=5.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--per-path", action="store_true", help="also print every path's timings and queries")
     args = ap.parse_args()
 
     problems = planbench.load_problems(args.problems)
@@ -72,6 +73,13 @@ def main() -> None:
             t_cert = median_time(lambda c=certified, x=path: c.check_path(x), args.repeats)
             t_samp = median_time(lambda c=sampled, x=path: sampled_check(c, x), args.repeats)
             rows.append((t_cert, t_samp, verdict.queries, verdict.exact_queries, verdict.free, sampled_free))
+            if args.per_path:
+                print(
+                    f"  {planner} {p.id}: {len(path)} waypoints, certified {t_cert * 1e3:.1f} ms "
+                    f"({'free' if verdict.free else 'rejected'}, {verdict.queries} queries, "
+                    f"{verdict.exact_queries} exact), sampled {t_samp * 1e3:.1f} ms "
+                    f"({'free' if sampled_free else 'rejected'})"
+                )
         if not rows:
             print(f"{planner:<18} no solved paths")
             continue
