@@ -436,7 +436,8 @@ class CertifiedChecker:
         return self._clearance_at(s)
 
     def _clearance_at(self, s: _Sample) -> float:
-        order = sorted((self._bound(s, k), k) for k in range(self.n_pairs) if self._obstacle_pair[k])
+        self._all_bounds(s)
+        order = sorted((s.bound[k], k) for k in range(self.n_pairs) if self._obstacle_pair[k])
         best = math.inf
         for bound, k in order:
             if bound >= best:
