@@ -95,11 +95,13 @@ class PathVerdict:
     """The certified checker's answer for one path.
 
     ``free``: every segment is proven free. Otherwise ``segment`` is the first segment with a
-    collision, ``fraction`` where along it (0 at its first waypoint, 1 at its last) the first
-    colliding configuration found lies, ``pair`` the two bodies (robot link, link or
-    ``obstacle:<name>``), ``depth`` [m] how deep they penetrate there (0 for a contact that could not
-    be proven free) and ``reason`` a sentence. Clearances [m] are over robot-obstacle pairs, along
-    the whole path when it is free (up to the collision otherwise); ``inf`` without obstacles.
+    collision, ``fraction`` where along it (0 at its first waypoint, 1 at its last) the collision
+    begins (to within ``resolution`` of motion), ``pair`` the two bodies (robot link, link or
+    ``obstacle:<name>``), ``depth`` [m] the deepest penetration of that pair the search met (0 for a
+    contact that could not be proven free) and ``reason`` a sentence. Clearances [m] are over
+    robot-obstacle pairs along the whole path of a free one (NaN when not measured, see
+    ``measure_clearance``; for a collision, ``clearance_found`` is minus the depth); ``inf`` without
+    obstacles.
     """
 
     free: bool
@@ -355,7 +357,7 @@ class CertifiedChecker:
         u, k, depth = hit
         seg = min(int(u), len(self._path) - 2) if len(self._path) > 1 else 0
         reason = (
-            f"penetration depth {depth * 1000:.3f} mm"
+            f"penetrating (deepest point found: {depth * 1000:.3f} mm)"
             if depth > 0
             else f"closer than {cfg.required_clearance * 1000:g} mm and not provably free at micrometre scale"
         )
