@@ -199,3 +199,16 @@ class MemoryHogPlanner(Planner):
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
         hog = np.empty(int(self.config.gib * 2**30), dtype=np.uint8)
         return PlanResult(PlanStatus.STEP_LIMIT, message=f"reserved {hog.nbytes} bytes")
+
+
+class ClockLiarPlanner(Planner):
+    """Takes 1 s but freezes the worker's ``time.perf_counter`` while it plans, so the harness in
+    its process measures (almost) no planning time."""
+
+    name = "bench-clock-liar"
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        frozen = time.perf_counter()
+        time.perf_counter = lambda: frozen  # type: ignore[assignment]
+        time.sleep(1.0)
+        return PlanResult(PlanStatus.TIMEOUT, message="took 1 s, says 0")

@@ -266,3 +266,13 @@ def test_planners_are_checked_in_a_probe_process_with_named_errors(tmp_path):
     optional += '[[planners]]\nplanner = "straight-line"\n'
     outcome = run_benchmark(parse_suite(suite(optional), "opt.toml"), tmp_path / "c.db", jobs=1)
     assert outcome.ran == 1 and outcome.skipped_planners and "missing" in outcome.skipped_planners[0]
+
+
+def test_a_planner_that_freezes_the_worker_clock_is_charged_the_time_the_parent_saw(tmp_path):
+    planners = f'[[planners]]\nlabel = "liar"\nplanner = "{A}:ClockLiarPlanner"\nfresh_process = true\n'
+    s = parse_suite(suite(planners, time_limit=3.0), "liar.toml")
+    run_benchmark(s, tmp_path / "r.db", jobs=1)
+    with ResultsDB(tmp_path / "r.db") as db:
+        (row,) = db.rows()
+    assert row["planning_time"] >= 0.95  # it slept 1 s; its own process measured about 0
+    assert "the parent's time is recorded" in row["message"]

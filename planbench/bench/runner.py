@@ -105,6 +105,33 @@ def failure_record(status: str, message: str, traceback: str = "", planning_time
     }
 
 
+PLAN_TIME_SLACK = (0.5, 0.1)
+"""A worker's planning time below ``ratio * observed - seconds`` of the plan phase the parent saw
+itself is not believed (the slack covers sending the result; a clock patched in the worker does not
+fit in it)."""
+
+
+def _check_planning_time(record: Record, observed: float | None) -> None:
+    """Replace a planning time the worker under-reports with the plan phase the parent timed.
+
+    The harness times planning in the worker, where planner code runs and could patch the clock;
+    the parent's own clock bounds it from above (the phase also holds the hand-off of the result).
+    """
+    evaluation = record.get("evaluation") or {}
+    reported = evaluation.get("planning_time")
+    if observed is None or type(reported) is not float or not math.isfinite(reported):
+        return
+    ratio, seconds = PLAN_TIME_SLACK
+    if reported >= ratio * observed - seconds:
+        return
+    evaluation["planning_time"] = observed
+    note = (
+        f"planning time: the worker reported {reported:.3f} s, the parent saw a {observed:.3f} s plan phase; "
+        "the parent's time is recorded"
+    )
+    record["message"] = f"{record.get('message') or ''} [{note}]".strip()
+
+
 def record_from(fields: dict[str, Any], evaluation: dict[str, Any] | None, validation_time: float) -> Record:
     """The record of a run from its checked raw result and the validator's verdict (None when there
     is nothing to validate: the run could not be prepared)."""
@@ -275,6 +302,7 @@ class Runner:
         assert task is not None
         record["elapsed"] = time.monotonic() - slot.dispatched
         _note_memory_limit(record, task)
+        _check_planning_time(record, slot.timings.get("plan"))
         slot.task, slot.fields, slot.phase, slot.deadline = None, None, "", math.inf
         on_record(task, record)
 
