@@ -463,3 +463,9 @@ def test_two_bench_processes_on_one_file(tmp_path):
         assert ro.count() == 3
     third = subprocess.run([*args, "--resume"], env=env, capture_output=True, text=True, timeout=120)
     assert third.returncode == 0 and "0 to run" in third.stdout
+
+
+def test_a_bench_refused_before_any_run_leaves_no_results_file(tmp_path, capsys):
+    out = tmp_path / "new.db"
+    _refused(["bench", "--suite", "smoke", "--problems", "mbm:box/9990-9999", "--out", str(out)], capsys, "9990")
+    assert not out.exists() and not Path(f"{out}-wal").exists() and not Path(f"{out}.lock").exists()

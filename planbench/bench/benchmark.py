@@ -202,8 +202,14 @@ def run_benchmark(
     ``on_start(n_to_run, n_already_done, skipped_planners)`` and ``on_record(task, record)`` let the
     caller show progress; records are in the database before ``on_record`` is called.
     """
+    created = not Path(out).exists()
     with ResultsDB(out) as db, db.lock_for_writing():
-        tasks, n_done, skipped = prepare(suite, db, resume=resume, overwrite=overwrite)
+        try:
+            tasks, n_done, skipped = prepare(suite, db, resume=resume, overwrite=overwrite)
+        except PlanbenchError:
+            if created:  # refused before any run: leave no empty results file behind
+                _remove_results_file(db)
+            raise
         if on_start is not None:
             on_start(len(tasks), n_done, skipped)
 
@@ -233,3 +239,12 @@ def run_benchmark(
         Runner(jobs).run(tasks, write)
         wall = time.perf_counter() - t0
         return BenchmarkOutcome(suite.name, str(db.path), len(tasks) + n_done, n_done, len(tasks), wall, skipped)
+
+
+def _remove_results_file(db: ResultsDB) -> None:
+    """Delete a results file this call created (and SQLite's side files), holding no runs."""
+    if db.count():
+        return
+    db.close()
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{db.path}{suffix}").unlink(missing_ok=True)
