@@ -231,9 +231,7 @@ class CertifiedChecker:
                 self._spend()
                 d = s.bound[k] = float(results[k].min_distance)
                 if self._hull_is_exact[k]:
-                    s.exact[k] = d
-                    if d < self._found and self._obstacle_pair[k]:
-                        self._found = d
+                    self._note_exact(s, k, d)
 
     def _bound(self, s: _Sample, k: int) -> float:
         """A lower bound of pair ``k``'s distance at ``s``: exact when known, else the hulls'."""
@@ -244,21 +242,25 @@ class CertifiedChecker:
         if d is None:
             d = s.bound[k] = self._query("hull", s, k)
             if self._hull_is_exact[k]:
-                s.exact[k] = d
-                if d < self._found and self._obstacle_pair[k]:
-                    self._found = d
+                self._note_exact(s, k, d)
         return d
 
     def _exact(self, s: _Sample, k: int) -> float:
         d = s.exact.get(k)
         if d is None:
             self.exact_queries += 1
-            d = s.exact[k] = self._query("exact", s, k)
-            if d < self._found and self._obstacle_pair[k]:
-                self._found = d
-            if d < 0:
-                self._deepest[k] = max(self._deepest.get(k, 0.0), -d)
+            d = self._query("exact", s, k)
+            self._note_exact(s, k, d)
         return d
+
+    def _note_exact(self, s: _Sample, k: int, d: float) -> None:
+        """Keep pair ``k``'s exact distance at ``s``, the smallest robot-obstacle one found and each
+        pair's deepest penetration."""
+        s.exact[k] = d
+        if d < self._found and self._obstacle_pair[k]:
+            self._found = d
+        if d < 0:
+            self._deepest[k] = max(self._deepest.get(k, 0.0), -d)
 
     # -- paths -------------------------------------------------------------------------------------
 
@@ -391,8 +393,12 @@ class CertifiedChecker:
         resolution = cfg.resolution
         obstacle_pair = self._obstacle_pair[k]
         end = self._sample(last)
+        # A certificate: both ends and the interval's lower bound (d0 + d1 - m) / 2 at least the
+        # required clearance plus the distance accuracy. The ends are checked on their own too, so
+        # a waypoint is judged the same whether it ends a segment or lies inside a path.
+        need = floor + acc
         d0, d1, m = self._bound(start, k), self._bound(end, k), float(self._cum[k, -1])
-        if (d0 + d1 - m) / 2 - acc >= floor:  # most pairs: certified along the whole path at once
+        if d0 >= need and d1 >= need and d0 + d1 - m >= 2 * need:  # most pairs: the whole path at once
             if obstacle_pair:
                 self._leaf(k, start, end, d0, d1, m)
             return None
@@ -403,23 +409,23 @@ class CertifiedChecker:
             if u0 >= stop:
                 continue
             m = _cum_at(cum, u1) - _cum_at(cum, u0)
-            if (d0 + d1 - m) / 2 - acc >= floor:
+            if d0 >= need and d1 >= need and d0 + d1 - m >= 2 * need:
                 if obstacle_pair:
                     self._leaf(k, s0, s1, d0, d1, m)
                 continue
-            if (k not in s0.exact or k not in s1.exact) and (min(d0, d1) - acc < floor or m <= resolution):
+            if (k not in s0.exact or k not in s1.exact) and (min(d0, d1) < need or m <= resolution):
                 # an end inside a hull (or at micrometre scale): bisecting on hull bounds cannot
                 # certify, the exact distances may (hulls far below their mesh are rare: measured,
                 # exact distances on every failed interval made MBM paths slower, not faster)
                 d0, d1 = self._exact(s0, k), self._exact(s1, k)
-                if (d0 + d1 - m) / 2 - acc >= floor:
+                if d0 >= need and d1 >= need and d0 + d1 - m >= 2 * need:
                     if obstacle_pair:
                         self._leaf(k, s0, s1, d0, d1, m)
                     continue
             if m <= resolution:
                 # the collision starts within the resolution before u1 (or, when u1 is free, a
                 # contact that cannot be proven free); depth: the deepest point the search saw
-                return (u1 if d1 - acc < floor else u0), k, max(0.0, -d1, self._deepest.get(k, 0.0))
+                return (u1 if d1 < need else u0), k, max(0.0, -d1, self._deepest.get(k, 0.0))
             um = self._split(u0, u1)
             sm = self._sample(um)
             dm = self._bound(sm, k)

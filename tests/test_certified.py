@@ -185,3 +185,25 @@ def test_evaluate_reports_clearance_at_a_single_configuration_exactly():
     assert ev.min_clearance == pytest.approx(CollisionChecker.for_problem(p).clearance(p.start), abs=1e-6)
     assert ev.min_clearance_bound <= ev.min_clearance
     assert math.isfinite(ev.mean_clearance)
+
+
+def test_a_waypoint_within_the_distance_accuracy_is_refused_also_at_the_end_of_a_segment():
+    """Coal's distances are accurate to about 1 um, so two ends of one interval can disagree by that
+    much: a waypoint closer than the accuracy must be refused on its own, not certified from the
+    other end (a planner checking segment by segment would otherwise accept what the harness,
+    checking the whole path, refuses)."""
+
+    class EndTouching(CertifiedChecker):  # the path's last configuration reads 0.5 um from everything
+        def _all_bounds(self, s):
+            super()._all_bounds(s)
+            if s.u == len(self._path) - 1:
+                for k in range(self.n_pairs):
+                    s.bound[k] = min(s.bound[k], 5e-7)
+                    s.exact[k] = min(s.exact.get(k, s.bound[k]), 5e-7)
+
+    p = planbench.load_problems("mbm:box/0001")[0]
+    b = p.start.copy()
+    b[6] += 1e-4  # a tiny motion: the far end alone would certify the segment
+    verdict = EndTouching(p.robot, p.scene).check_segment(p.start, b)
+    assert not verdict.free and verdict.segment == 0 and verdict.fraction == 1.0
+    assert CertifiedChecker(p.robot, p.scene).check_segment(p.start, b).free  # the real distances
