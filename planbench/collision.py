@@ -80,19 +80,6 @@ class CollisionChecker:
             pin.computeCollisions(self._model, self._bp_data, self._broadphase, np.asarray(q, dtype=float), True)
         )
 
-    def first_collision(self, path: np.ndarray, resolution: float) -> int | None:
-        """Index of the first waypoint of ``path`` at or after its first collision, or None when
-        the whole path is free. Segments are checked densely, so that no joint moves more than
-        ``resolution`` [rad] between checked configurations (as :func:`planbench.evaluate` does);
-        a collision inside segment ``k`` gives ``k + 1``."""
-        from planbench.metrics import densify
-
-        dense, segment = densify(np.asarray(path, dtype=float), resolution)
-        for i, q in enumerate(dense):
-            if self.in_collision(q):
-                return 0 if i == 0 else int(segment[i]) + 1
-        return None
-
     def in_collision_all_pairs(self, q: np.ndarray) -> bool:
         """``in_collision`` without the broadphase: every pair goes to coal's narrowphase (the
         reference that the broadphase is checked against; slower)."""

@@ -31,7 +31,7 @@ from planbench.certified import CertificationSettings, CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem, pose_error
 
-__all__ = ["VALIDATOR", "ValidationSettings", "Evaluation", "evaluate"]
+__all__ = ["VALIDATOR", "ValidationSettings", "Evaluation", "evaluate", "verdict_checker"]
 
 VALIDATOR = "certified/1"
 """What "validated" means, by version: stored with every benchmark's settings, so results judged by
@@ -72,11 +72,12 @@ class ValidationSettings:
         if self.max_distance_queries < 1 or self.clearance_samples < 1:
             raise ValueError("max_distance_queries and clearance_samples must be >= 1")
 
-    def certification(self) -> CertificationSettings:
+    def certification(self, measure_clearance: bool = True) -> CertificationSettings:
         return CertificationSettings(
             required_clearance=self.required_clearance,
             clearance_gap=self.clearance_gap,
             max_queries=self.max_distance_queries,
+            measure_clearance=measure_clearance,
         )
 
 
@@ -112,7 +113,7 @@ class Evaluation:
     collision_segment: int = -1  # first segment found in collision (-1: none)
     collision_fraction: float = math.nan  # where along it (0: its first waypoint, 1: its last)
     collision_pair: str = ""  # "<robot link> / <link or obstacle:name>"
-    penetration_depth: float = math.nan  # [m] at that point (0: closer than allowed, not provably free)
+    penetration_depth: float = math.nan  # [m] deepest found for that pair (0: too close, not provably free)
     checks: dict[str, bool] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
@@ -187,9 +188,6 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     checks["collision_free"] = verdict.free
     if not verdict.free:
         failures.append(verdict.describe() if verdict.segment >= 0 else verdict.reason)
-        clearances = np.array([verdict.clearance_found])
-    else:
-        clearances = _clearance_samples(checker, path, settings.clearance_samples)
     dense, _ = metrics.densify(path, settings.ee_resolution)
     ee_points = np.array([robot.frame_pose(q).translation for q in dense])
 
@@ -228,7 +226,7 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         ee_path_length=metrics.polyline_length(ee_points),
         min_clearance=float(verdict.clearance_found),
         min_clearance_bound=float(verdict.clearance_lower),
-        mean_clearance=float(clearances.mean()) if verdict.free else math.nan,
+        mean_clearance=_mean_clearance(checker, path, settings.clearance_samples) if verdict.free else math.nan,
         duration=metrics.execution_duration(path, robot.velocity_limit),
         trajectory_duration=trajectory_duration,
         smoothness=metrics.turning_angle(path),
@@ -247,15 +245,22 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     )
 
 
-def _clearance_samples(checker: CertifiedChecker, path: np.ndarray, n: int) -> np.ndarray:
-    """Clearance at ``n`` configurations evenly spaced by joint-space length along ``path``."""
+def verdict_checker(problem: Problem) -> CertifiedChecker:
+    """The harness's certified checker for ``problem`` (default settings, cached on the problem)
+    without the clearance refinement of a free path: the same verdicts, which is all a planner
+    checking its own path needs."""
+    return CertifiedChecker.for_problem(problem, ValidationSettings().certification(measure_clearance=False))
+
+
+def _mean_clearance(checker: CertifiedChecker, path: np.ndarray, n: int) -> float:
+    """Mean clearance [m] at ``n`` configurations evenly spaced by joint-space length along ``path``."""
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     if len(path) == 1 or cum[-1] == 0:
-        return np.array([checker.clearance(path[0])])
+        return checker.clearance(path[0])
     at = np.linspace(0.0, cum[-1], n)
     q = np.stack([np.interp(at, cum, path[:, j]) for j in range(path.shape[1])], axis=1)
-    return np.array([checker.clearance(c) for c in q])
+    return float(np.mean([checker.clearance(c) for c in q]))
 
 
 def _reported_checks(result: PlanResult) -> int | None:

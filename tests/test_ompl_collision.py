@@ -97,29 +97,12 @@ def test_motion_checks_agree_with_the_harness_on_every_segment():
     assert early_stops > 0  # a blocked motion stops at its first collision
 
 
-def test_first_collision_of_a_path_matches_the_collision_checker():
-    from planbench_plugins.ompl_planners.motion import SegmentChecker
-
-    (problem,) = load_problems("mbm:cage/0002")
-    checker = CollisionChecker(problem.robot, problem.scene)
-    segments = SegmentChecker(checker, 0.01)
-    from planbench.metrics import densify
-
-    path = np.array([problem.start, 0.5 * (problem.start + problem.goal.q), problem.goal.q])
-    dense, segment = densify(path, 0.01)
-    hits = [k for k, q in enumerate(dense) if checker.in_collision(q)]
-    assert hits  # the straight line runs through the cage
-    assert segments.first_collision(path) == int(segment[hits[0]]) + 1
-    assert segments.first_collision(path[:1]) is None
-
-
 # --- certified motion checks --------------------------------------------------------------------
 
 
 def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinement():
     from planbench.certified import CertifiedChecker
-    from planbench.validate import ValidationSettings
-    from planbench_plugins.ompl_planners.motion import verdict_checker
+    from planbench.validate import ValidationSettings, verdict_checker
 
     (problem,) = load_problems("mbm:bookshelf_small/0002")
     robot = problem.robot
@@ -143,7 +126,8 @@ def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinem
 
 
 def test_certified_segments_samples_first_and_remembers_certified_segments():
-    from planbench_plugins.ompl_planners.motion import CertifiedSegments, SegmentChecker, verdict_checker
+    from planbench.validate import verdict_checker
+    from planbench_plugins.ompl_planners.motion import CertifiedSegments, SegmentChecker
 
     (problem,) = load_problems("mbm:cage/0002")
     robot = problem.robot

@@ -303,10 +303,9 @@ class IKLoopPlanner(Planner):
         the whole trajectory, certified as the harness certifies it, else only the last configuration."""
         if not self.config.verify_path:
             return len(path) - 1 if checker.in_collision(path[-1]) else None
-        from planbench.certified import CertifiedChecker
-        from planbench.validate import ValidationSettings
+        from planbench.validate import verdict_checker
 
-        verdict = CertifiedChecker.for_problem(problem, ValidationSettings().certification()).check_path(path)
+        verdict = verdict_checker(problem).check_path(path)
         if verdict.free:
             return None
         return max(0, verdict.segment) + (1 if verdict.fraction > 0 else 0)

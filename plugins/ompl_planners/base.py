@@ -80,13 +80,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from planbench.certified import CertifiedChecker
 from planbench.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
+from planbench.validate import verdict_checker
 
-from .motion import CertifiedSegments, SegmentChecker, make_motion_validator, verdict_checker
+from .motion import CertifiedSegments, SegmentChecker, make_motion_validator
 
 __all__ = ["OMPLConfig", "OMPLAnyConfig", "OMPLPlanner", "geometric_planners", "planner_parameters"]
 
@@ -247,7 +247,6 @@ class OMPLPlanner(Planner):
         self._checker_key: tuple[Any, ...] | None = None
         self._checker_problem: Problem | None = None
         self._segments: dict[float, SegmentChecker] = {}
-        self._certified: tuple[Problem, CertifiedChecker] | None = None
 
     @property
     def planner_name(self) -> str:
@@ -257,12 +256,7 @@ class OMPLPlanner(Planner):
     def setup(self, problem: Problem) -> None:
         """Build the collision checker (and in grid mode, voxelize the scene) and the certified one."""
         self._checker_for(problem)
-        self._certified_for(problem)
-
-    def _certified_for(self, problem: Problem) -> CertifiedChecker:
-        if self._certified is None or self._certified[0] is not problem:
-            self._certified = (problem, verdict_checker(problem))
-        return self._certified[1]
+        verdict_checker(problem)  # built here, untimed; cached on the problem
 
     def _checker_for(self, problem: Problem) -> CollisionChecker:
         c = self.config
@@ -295,7 +289,7 @@ class OMPLPlanner(Planner):
         robot = problem.robot
         checker = self._checker_for(problem)
         motions = self._segments_for(checker, c.resolution)
-        certified = CertifiedSegments(motions, self._certified_for(problem))
+        certified = CertifiedSegments(motions, verdict_checker(problem))
         counted: list[Any] = [checker, motions]
         checks_before = sum(x.n_checks for x in counted)
         params = {**self.default_params, **c.params}

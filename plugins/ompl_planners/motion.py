@@ -4,7 +4,7 @@ A segment ``a -> b`` is checked at ``a + (j / n) (b - a)``, ``j = 1 .. n``, with
 ``n = ceil(max_i |b_i - a_i| / resolution)`` (:func:`planbench.metrics.densify`; ``resolution``
 0.01 rad by default): no joint moves more than ``resolution`` between checked configurations. This
 is fast, but blind between samples. :class:`CertifiedSegments` adds the harness's certified check
-(:func:`verdict_checker`, a :class:`planbench.certified.CertifiedChecker` that skips the clearance
+(:func:`planbench.validate.verdict_checker`, the harness's checker without the clearance
 refinement) for the motions that pass the sampled check, and remembers each certified segment; the
 validator from :func:`make_motion_validator` uses it while its ``certify`` flag is set (see
 ``motion_check`` / ``simplify_check`` and the repair of failing segments in :mod:`.base`).
@@ -26,7 +26,6 @@ valid part of a blocked motion (KPIECE1, LBKPIECE1) then drop it, as with any Py
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import deque
 from typing import Any
@@ -36,7 +35,7 @@ import numpy as np
 from planbench.certified import CertifiedChecker, PathVerdict
 from planbench.collision import CollisionChecker
 
-__all__ = ["CertifiedSegments", "SegmentChecker", "bisection_order", "make_motion_validator", "verdict_checker"]
+__all__ = ["CertifiedSegments", "SegmentChecker", "bisection_order", "make_motion_validator"]
 
 
 def bisection_order(n: int) -> np.ndarray:
@@ -100,26 +99,6 @@ class SegmentChecker:
         s = (np.arange(1, n + 1) / n)[:, None]
         states = a + s * d
         return self._first_hit(states[self._order(n)]) < 0
-
-    def first_collision(self, path: np.ndarray) -> int | None:
-        """Like :meth:`CollisionChecker.first_collision`: the index of the first waypoint at or after
-        the first collision along ``path`` (densified as the harness does), or None when it is free."""
-        from planbench.metrics import densify
-
-        dense, segment = densify(np.asarray(path, dtype=float), self.resolution)
-        k = self._first_hit(dense)
-        if k < 0:
-            return None
-        return 0 if k == 0 else int(segment[k]) + 1
-
-
-def verdict_checker(problem: Any) -> CertifiedChecker:
-    """The harness's certified checker for ``problem`` without the clearance refinement at the end
-    of a free path (NaN clearances): the same verdicts, which is all a planner needs."""
-    from planbench.validate import ValidationSettings
-
-    settings = dataclasses.replace(ValidationSettings().certification(), measure_clearance=False)
-    return CertifiedChecker(problem.robot, problem.scene, settings)
 
 
 class CertifiedSegments:
