@@ -104,8 +104,10 @@ class SegmentChecker:
 class CertifiedSegments:
     """Certified checks of single segments, remembered: ``free(a, b)`` runs the sampled check of
     ``segments`` first (a fast rejection of most blocked motions) and certifies only the motions
-    that pass it. Every certified-free segment is kept (by its two end configurations' bytes), so a
-    path made of such segments is known free without a second check (:meth:`known_free`)."""
+    that pass it. Every certified-free segment is kept (by its two end configurations' bytes), so
+    the same motion is never certified twice (:meth:`known_free`). A returned path is still
+    certified whole, as the harness does: segments certified apart can disagree with the whole-path
+    check about a contact within micrometres."""
 
     def __init__(self, segments: SegmentChecker, certified: CertifiedChecker) -> None:
         self.segments = segments
@@ -146,10 +148,6 @@ class CertifiedSegments:
         else:
             self.n_rejected += 1
         return verdict
-
-    def mark_free(self, path: np.ndarray) -> None:
-        """Remember the segments of ``path`` as certified free (a failed path's certified prefix)."""
-        self._free.update((path[i].tobytes(), path[i + 1].tobytes()) for i in range(len(path) - 1))
 
     def known_free(self, path: np.ndarray, i: int) -> bool:
         """Segment ``i`` of ``path`` was certified free before."""
