@@ -1,0 +1,27 @@
+"""The field planners give the same paths as recorded before a refactoring (tests/record_paths.py).
+
+The recorded set covers four MotionBenchMaker families, a generated UR5 and Panda scene, every
+field planner, both step backends, the lazy field and the tool repulsion. Paths are compared
+waypoint by waypoint; a refactoring that reorders floating-point operations may move them by
+rounding, far below a micro-radian.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from record_paths import CASES, OUT, case_key, load_case, plan_case
+
+RECORDED = np.load(OUT)
+ALL_CASES = json.loads(CASES.read_text())
+
+
+@pytest.mark.parametrize("case", ALL_CASES, ids=case_key)
+def test_same_path_as_recorded(case: dict) -> None:
+    path = np.asarray(plan_case(case, load_case(case)).path, dtype=float)
+    recorded = RECORDED[case_key(case)]
+    assert path.shape == recorded.shape, f"{len(path)} waypoints, recorded {len(recorded)}"
+    np.testing.assert_allclose(path, recorded, rtol=0, atol=1e-6)
