@@ -48,8 +48,9 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     import pinocchio as pin
 
     problem = planbench.load_problems(problem_id)[0]
-    cfg = MatrixFieldConfig(stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False,
-                            goal_tolerance_scale=1e-9)
+    cfg = MatrixFieldConfig(
+        stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False, goal_tolerance_scale=1e-9
+    )
     planner = MatrixFieldPlanner(cfg)
     planner.setup(problem)
     totals = []
@@ -82,8 +83,26 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     prm = fast.pack_params(cfg)
     qd, dg = np.zeros(robot.nq), np.zeros(6)
     step = fast.step_compiled if compiled else fast.step_numpy
-    args = (kin.S, kin.J, kin.p, kin.R, goal.position, goal.rotation, q, lower, upper, vmax, kin.points, F,
-            kin.support, kin.descendants, tool, prm, qd, dg)
+    args = (
+        kin.S,
+        kin.J,
+        kin.p,
+        kin.R,
+        goal.position,
+        goal.rotation,
+        q,
+        lower,
+        upper,
+        vmax,
+        kin.points,
+        F,
+        kin.support,
+        kin.descendants,
+        tool,
+        prm,
+        qd,
+        dg,
+    )
 
     parts = {
         "pinocchio": _median_us(pin_calls),
@@ -95,24 +114,46 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     return {"step": step_us, **parts, "control_points": float(len(prep["points"]))}
 
 
-def run_mbm(selector: str, config: dict[str, Any], time_limit: float = 5.0, straight: bool = True,
-            verbose: bool = False) -> dict[str, Any]:
+def run_mbm(
+    selector: str, config: dict[str, Any], time_limit: float = 5.0, straight: bool = True, verbose: bool = False
+) -> dict[str, Any]:
     problems = planbench.load_problems(selector)
     rows = []
     for problem in problems:
         fam = problem.metadata.get("family", "?")
         r = planbench.plan(problem, MatrixFieldPlanner, time_limit=time_limit, **config)
         ev = planbench.evaluate(problem, r)
-        reason = "success" if ev.success else (r.status.value if r.status is not planbench.PlanStatus.SUCCESS
-                                                else "invalid:" + ev.failure.split(":")[0][:30])
-        row = dict(family=fam, id=problem.id, ok=ev.success, reason=reason, time=r.planning_time,
-                   setup=r.setup_time, qlen=ev.joint_path_length, eelen=ev.ee_path_length,
-                   clearance=ev.min_clearance, steps=r.info.get("steps", 0))
+        reason = (
+            "success"
+            if ev.success
+            else (
+                r.status.value
+                if r.status is not planbench.PlanStatus.SUCCESS
+                else "invalid:" + ev.failure.split(":")[0][:30]
+            )
+        )
+        row = dict(
+            family=fam,
+            id=problem.id,
+            ok=ev.success,
+            reason=reason,
+            time=r.planning_time,
+            setup=r.setup_time,
+            qlen=ev.joint_path_length,
+            eelen=ev.ee_path_length,
+            clearance=ev.min_clearance,
+            steps=r.info.get("steps", 0),
+        )
         if straight:
             s = planbench.plan(problem, "straight-line", time_limit=time_limit)
             es = planbench.evaluate(problem, s)
-            row.update(sl_ok=es.success, sl_qlen=es.joint_path_length, sl_eelen=es.ee_path_length,
-                       sl_clearance=es.min_clearance, sl_time=s.planning_time)
+            row.update(
+                sl_ok=es.success,
+                sl_qlen=es.joint_path_length,
+                sl_eelen=es.ee_path_length,
+                sl_clearance=es.min_clearance,
+                sl_time=s.planning_time,
+            )
         rows.append(row)
         if verbose:
             print(problem.id, reason, f"{r.planning_time * 1e3:.1f} ms", ev.failure[:80], flush=True)
@@ -130,26 +171,39 @@ def summarize(rows: list[dict[str, Any]], straight: bool = True) -> dict[str, An
         rr = [r for r in rows if fam in ("all", r["family"])]
         ok = [r for r in rr if r["ok"]]
         s: dict[str, Any] = dict(
-            n=len(rr), success=len(ok) / len(rr), time_ms=1e3 * _med([r["time"] for r in rr]),
-            setup_ms=1e3 * _med([r["setup"] for r in rr]), qlen=_med([r["qlen"] for r in ok]),
-            eelen=_med([r["eelen"] for r in ok]), clearance=_med([r["clearance"] for r in ok]),
-            reasons=dict(Counter(r["reason"] for r in rr if not r["ok"])))
+            n=len(rr),
+            success=len(ok) / len(rr),
+            time_ms=1e3 * _med([r["time"] for r in rr]),
+            setup_ms=1e3 * _med([r["setup"] for r in rr]),
+            qlen=_med([r["qlen"] for r in ok]),
+            eelen=_med([r["eelen"] for r in ok]),
+            clearance=_med([r["clearance"] for r in ok]),
+            reasons=dict(Counter(r["reason"] for r in rr if not r["ok"])),
+        )
         if straight:
             sok = [r for r in rr if r["sl_ok"]]
-            s.update(sl_success=len(sok) / len(rr), sl_qlen=_med([r["sl_qlen"] for r in sok]),
-                     sl_eelen=_med([r["sl_eelen"] for r in sok]), sl_clearance=_med([r["sl_clearance"] for r in sok]))
+            s.update(
+                sl_success=len(sok) / len(rr),
+                sl_qlen=_med([r["sl_qlen"] for r in sok]),
+                sl_eelen=_med([r["sl_eelen"] for r in sok]),
+                sl_clearance=_med([r["sl_clearance"] for r in sok]),
+            )
         out[fam] = s
     return out
 
 
 def print_summary(summary: dict[str, Any]) -> None:
-    print(f"{'family':18s} {'n':>4s} {'succ':>6s} {'t_med ms':>9s} {'setup ms':>9s} {'q len':>6s} {'ee len':>7s} "
-          f"{'clear':>6s} | {'SL succ':>7s} {'SL q':>6s} {'SL ee':>6s} {'SL clr':>6s}  failures")
+    print(
+        f"{'family':18s} {'n':>4s} {'succ':>6s} {'t_med ms':>9s} {'setup ms':>9s} {'q len':>6s} {'ee len':>7s} "
+        f"{'clear':>6s} | {'SL succ':>7s} {'SL q':>6s} {'SL ee':>6s} {'SL clr':>6s}  failures"
+    )
     for fam, s in summary.items():
-        print(f"{fam:18s} {s['n']:4d} {s['success']:6.0%} {s['time_ms']:9.1f} {s['setup_ms']:9.1f} {s['qlen']:6.2f} "
-              f"{s['eelen']:7.2f} {s['clearance']:6.3f} | {s.get('sl_success', float('nan')):7.0%} "
-              f"{s.get('sl_qlen', float('nan')):6.2f} {s.get('sl_eelen', float('nan')):6.2f} "
-              f"{s.get('sl_clearance', float('nan')):6.3f}  {s['reasons']}")
+        print(
+            f"{fam:18s} {s['n']:4d} {s['success']:6.0%} {s['time_ms']:9.1f} {s['setup_ms']:9.1f} {s['qlen']:6.2f} "
+            f"{s['eelen']:7.2f} {s['clearance']:6.3f} | {s.get('sl_success', float('nan')):7.0%} "
+            f"{s.get('sl_qlen', float('nan')):6.2f} {s.get('sl_eelen', float('nan')):6.2f} "
+            f"{s.get('sl_clearance', float('nan')):6.3f}  {s['reasons']}"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:

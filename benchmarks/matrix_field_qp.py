@@ -38,8 +38,9 @@ PLANNERS = {"matrix-field": MatrixFieldPlanner, "matrix-field-qp": MatrixFieldQP
 def bench_step(problem_id: str = "mbm:box/0001", steps: int = 300) -> dict[str, dict[str, float]]:
     """Median per-step times [us] of the QP planner for every installed backend, and of matrix-field."""
     problem = planbench.load_problems(problem_id)[0]
-    endless = dict(stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False,
-                   goal_tolerance_scale=1e-9)
+    endless = dict(
+        stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False, goal_tolerance_scale=1e-9
+    )
     out: dict[str, dict[str, float]] = {}
     for solver in installed_solvers():
         planner = MatrixFieldQPPlanner(solver=solver, **endless)
@@ -51,13 +52,15 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 300) -> dict[str, 
             runs.append(((time.perf_counter() - t0) / max(1, r.info["steps"]), r))
         per_step, r = sorted(runs, key=lambda x: x[0])[1]
         out[f"matrix-field-qp ({solver})"] = {
-            "step": per_step * 1e6, "build": float(np.nanmedian(r.info["qp_build_time"])) * 1e6,
+            "step": per_step * 1e6,
+            "build": float(np.nanmedian(r.info["qp_build_time"])) * 1e6,
             "solve": float(np.nanmedian(r.info["qp_solve_time"])) * 1e6,
             "solve p95": float(np.nanpercentile(r.info["qp_solve_time"], 95)) * 1e6,
             # means add up: step (a mean) = build mean + solve mean + the rest of the loop
             "build mean": float(np.nanmean(r.info["qp_build_time"])) * 1e6,
             "solve mean": float(np.nanmean(r.info["qp_solve_time"])) * 1e6,
-            "steps": float(r.info["steps"])}
+            "steps": float(r.info["steps"]),
+        }
     mf = MatrixFieldPlanner(**endless)
     mf.setup(problem)
     times = []
@@ -79,12 +82,27 @@ def run_one(problem: Any, planner: str, settings: dict[str, Any], time_limit: fl
     else:
         reason = r.status.value
     info = r.info
-    return dict(planner=planner, family=problem.metadata.get("family", "?"), id=problem.id,
-                number=int(problem.id.rsplit("/", 1)[-1]), ok=ev.success, reason=reason, status=r.status.value,
-                message=r.message[:200], time=r.planning_time, setup=r.setup_time, qlen=ev.joint_path_length,
-                eelen=ev.ee_path_length, clearance=ev.min_clearance, limit_violation=ev.max_limit_violation,
-                velocity_ratio=ev.max_velocity_ratio, has_path=r.path is not None, steps=info.get("steps", 0),
-                solver_time=info.get("solver_time", float("nan")), build_time=info.get("build_time", float("nan")))
+    return dict(
+        planner=planner,
+        family=problem.metadata.get("family", "?"),
+        id=problem.id,
+        number=int(problem.id.rsplit("/", 1)[-1]),
+        ok=ev.success,
+        reason=reason,
+        status=r.status.value,
+        message=r.message[:200],
+        time=r.planning_time,
+        setup=r.setup_time,
+        qlen=ev.joint_path_length,
+        eelen=ev.ee_path_length,
+        clearance=ev.min_clearance,
+        limit_violation=ev.max_limit_violation,
+        velocity_ratio=ev.max_velocity_ratio,
+        has_path=r.path is not None,
+        steps=info.get("steps", 0),
+        solver_time=info.get("solver_time", float("nan")),
+        build_time=info.get("build_time", float("nan")),
+    )
 
 
 def _med(values: list[float]) -> float:
@@ -97,23 +115,36 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     for fam in sorted({r["family"] for r in rows}) + ["all"]:
         rr = [r for r in rows if fam in ("all", r["family"])]
         ok = [r for r in rr if r["ok"]]
-        out[fam] = dict(n=len(rr), success=len(ok) / len(rr), time_ms=1e3 * _med([r["time"] for r in rr]),
-                        qlen=_med([r["qlen"] for r in ok]), eelen=_med([r["eelen"] for r in ok]),
-                        clearance=_med([r["clearance"] for r in ok]),
-                        solver_share=_med([r["solver_time"] / r["time"] for r in rr if r["time"] > 0]),
-                        reasons=dict(Counter(r["reason"] for r in rr if not r["ok"])))
+        out[fam] = dict(
+            n=len(rr),
+            success=len(ok) / len(rr),
+            time_ms=1e3 * _med([r["time"] for r in rr]),
+            qlen=_med([r["qlen"] for r in ok]),
+            eelen=_med([r["eelen"] for r in ok]),
+            clearance=_med([r["clearance"] for r in ok]),
+            solver_share=_med([r["solver_time"] / r["time"] for r in rr if r["time"] > 0]),
+            reasons=dict(Counter(r["reason"] for r in rr if not r["ok"])),
+        )
     return out
 
 
 def violations(rows: list[dict[str, Any]]) -> dict[str, float]:
     with_path = [r for r in rows if r["has_path"]]
-    return dict(runs=len(rows), with_path=len(with_path),
-                max_limit_violation=max((r["limit_violation"] for r in with_path), default=float("nan")),
-                max_velocity_ratio=max((r["velocity_ratio"] for r in with_path), default=float("nan")))
+    return dict(
+        runs=len(rows),
+        with_path=len(with_path),
+        max_limit_violation=max((r["limit_violation"] for r in with_path), default=float("nan")),
+        max_velocity_ratio=max((r["velocity_ratio"] for r in with_path), default=float("nan")),
+    )
 
 
-def run_mbm(selector: str, settings: dict[str, dict[str, Any]], planners: list[str], time_limit: float = 5.0,
-            verbose: bool = False) -> list[dict[str, Any]]:
+def run_mbm(
+    selector: str,
+    settings: dict[str, dict[str, Any]],
+    planners: list[str],
+    time_limit: float = 5.0,
+    verbose: bool = False,
+) -> list[dict[str, Any]]:
     rows = []
     for problem in planbench.load_problems(selector):
         for name in planners:
@@ -129,11 +160,15 @@ def print_table(rows: list[dict[str, Any]], report_from: int) -> None:
         mine = [r for r in rows if r["planner"] == name]
         shown = [r for r in mine if r["number"] >= report_from]
         print(f"\n{name}: problems {report_from:04d}-0100 ({len(shown)} runs)")
-        print(f"{'family':18s} {'succ':>6s} {'t_med ms':>9s} {'q len':>6s} {'ee len':>7s} {'clear':>6s} "
-              f"{'solver%':>7s}  failures")
+        print(
+            f"{'family':18s} {'succ':>6s} {'t_med ms':>9s} {'q len':>6s} {'ee len':>7s} {'clear':>6s} "
+            f"{'solver%':>7s}  failures"
+        )
         for fam, s in summarize(shown).items() if shown else ():
-            print(f"{fam:18s} {s['success']:6.1%} {s['time_ms']:9.1f} {s['qlen']:6.2f} {s['eelen']:7.2f} "
-                  f"{s['clearance']:6.3f} {s['solver_share']:7.0%}  {s['reasons']}")
+            print(
+                f"{fam:18s} {s['success']:6.1%} {s['time_ms']:9.1f} {s['qlen']:6.2f} {s['eelen']:7.2f} "
+                f"{s['clearance']:6.3f} {s['solver_share']:7.0%}  {s['reasons']}"
+            )
         print(f"over all {len(mine)} runs:", json.dumps(violations(mine)))
 
 
@@ -151,8 +186,11 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("-v", action="store_true")
     tu = sub.add_parser("tune")
     tu.add_argument("--selector", default="mbm:*/0001-0020")
-    tu.add_argument("--grid", default='[{"solver": "daqp"}, {"solver": "daqp", "velocity_dampers": true}]',
-                    help="JSON list of MatrixFieldQPConfig settings to compare")
+    tu.add_argument(
+        "--grid",
+        default='[{"solver": "daqp"}, {"solver": "daqp", "velocity_dampers": true}]',
+        help="JSON list of MatrixFieldQPConfig settings to compare",
+    )
     args = ap.parse_args(argv)
     if args.cmd == "step":
         for label, res in bench_step(args.problem).items():
@@ -160,8 +198,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{label:30s} " + "  ".join(parts))
     elif args.cmd == "mbm":
         t0 = time.perf_counter()
-        rows = run_mbm(args.selector, {"matrix-field-qp": json.loads(args.config)}, args.planners.split(","),
-                       verbose=args.v)
+        rows = run_mbm(
+            args.selector, {"matrix-field-qp": json.loads(args.config)}, args.planners.split(","), verbose=args.v
+        )
         print_table(rows, args.report_from)
         print(f"wall time {time.perf_counter() - t0:.0f} s")
         if args.json:
@@ -173,9 +212,15 @@ def main(argv: list[str] | None = None) -> int:
             rows = run_mbm(args.selector, {"matrix-field-qp": cfg}, ["matrix-field-qp"])
             s = summarize(rows)
             per = " ".join(f"{f[:10]}={v['success']:.0%}" for f, v in s.items() if f != "all")
-            print(json.dumps(cfg), f"success {s['all']['success']:.1%} t_med {s['all']['time_ms']:.0f} ms", per,
-                  json.dumps(violations(rows)), json.dumps(s["all"]["reasons"]),
-                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(
+                json.dumps(cfg),
+                f"success {s['all']['success']:.1%} t_med {s['all']['time_ms']:.0f} ms",
+                per,
+                json.dumps(violations(rows)),
+                json.dumps(s["all"]["reasons"]),
+                f"({time.perf_counter() - t0:.0f} s)",
+                flush=True,
+            )
     return 0
 
 

@@ -58,14 +58,19 @@ def bench_step(problem_ids: tuple[str, ...] = STEP_PROBLEMS, n_configs: int = 8)
         assert ref.path is not None, ref.message
         idx = np.linspace(0, len(ref.path) - 1, n_configs).astype(int)
         for name, cls in PLANNERS.items():
-            planner = cls(stall_ratio=0.0, max_steps=500, collision_check_every=0, verify_path=False,
-                          goal_tolerance_scale=1e-9)
+            planner = cls(
+                stall_ratio=0.0, max_steps=500, collision_check_every=0, verify_path=False, goal_tolerance_scale=1e-9
+            )
             planner.setup(problem)
             prep = planner._prepared
             assert prep is not None
             rep = prep["repulsion"]
-            kin = ArmKinematics(problem.robot, problem.robot.frame_id(problem.goal.pose.frame), prep["points"],
-                                compiled=planner.use_numba)
+            kin = ArmKinematics(
+                problem.robot,
+                problem.robot.frame_id(problem.goal.pose.frame),
+                prep["points"],
+                compiled=planner.use_numba,
+            )
             for q in ref.path[idx]:
                 kin.update(q)
                 out[name]["repulsion"].append(_median_us(lambda rep=rep, kin=kin: rep.forces(kin)))
@@ -73,8 +78,10 @@ def bench_step(problem_ids: tuple[str, ...] = STEP_PROBLEMS, n_configs: int = 8)
             t0 = time.perf_counter()
             r = planner.plan(problem, time_limit=60.0, rng=np.random.default_rng(0))
             out[name]["step"].append((time.perf_counter() - t0) / max(1, r.info["steps"]) * 1e6)
-    return {name: {k: statistics.median(v) if k != "pairs" else float(np.mean(v)) for k, v in d.items()}
-            for name, d in out.items()}
+    return {
+        name: {k: statistics.median(v) if k != "pairs" else float(np.mean(v)) for k, v in d.items()}
+        for name, d in out.items()
+    }
 
 
 def _reason(result: Any, ev: Any) -> str:
@@ -85,8 +92,13 @@ def _reason(result: Any, ev: Any) -> str:
     return result.status.value
 
 
-def run_mbm(selector: str, planners: dict[str, tuple[type, dict[str, Any]]], time_limit: float = 5.0,
-            verbose: bool = False, jsonl: str | None = None) -> list[dict[str, Any]]:
+def run_mbm(
+    selector: str,
+    planners: dict[str, tuple[type, dict[str, Any]]],
+    time_limit: float = 5.0,
+    verbose: bool = False,
+    jsonl: str | None = None,
+) -> list[dict[str, Any]]:
     """One row per (problem, planner label), all validated by ``planbench.evaluate``.
 
     Problems run interleaved across families (0001 of every family, then 0002, ...), so that a run
@@ -110,9 +122,21 @@ def run_mbm(selector: str, planners: dict[str, tuple[type, dict[str, Any]]], tim
                 continue
             r = planbench.plan(problem, cls, time_limit=time_limit, **settings)
             ev = planbench.evaluate(problem, r)
-            rows.append(dict(planner=label, family=fam, id=problem.id, ok=bool(ev.success), reason=_reason(r, ev),
-                             time=r.planning_time, setup=r.setup_time, qlen=ev.joint_path_length,
-                             eelen=ev.ee_path_length, clearance=ev.min_clearance, steps=r.info.get("steps", 0)))
+            rows.append(
+                dict(
+                    planner=label,
+                    family=fam,
+                    id=problem.id,
+                    ok=bool(ev.success),
+                    reason=_reason(r, ev),
+                    time=r.planning_time,
+                    setup=r.setup_time,
+                    qlen=ev.joint_path_length,
+                    eelen=ev.ee_path_length,
+                    clearance=ev.min_clearance,
+                    steps=r.info.get("steps", 0),
+                )
+            )
             if jsonl:
                 with open(jsonl, "a") as fh:
                     fh.write(json.dumps(rows[-1], default=float) + "\n")
@@ -136,10 +160,16 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, Any]]
             rr = [r for r in mine if fam in ("all", r["family"])]
             ok = [r for r in rr if r["ok"]]
             out[label][fam] = dict(
-                n=len(rr), solved=len(ok), success=len(ok) / len(rr), time_ms=1e3 * _med([r["time"] for r in rr]),
-                setup_ms=1e3 * _med([r["setup"] for r in rr]), qlen=_med([r["qlen"] for r in ok]),
-                eelen=_med([r["eelen"] for r in ok]), clearance=_med([r["clearance"] for r in ok]),
-                reasons=dict(Counter(r["reason"] for r in rr if not r["ok"]).most_common()))
+                n=len(rr),
+                solved=len(ok),
+                success=len(ok) / len(rr),
+                time_ms=1e3 * _med([r["time"] for r in rr]),
+                setup_ms=1e3 * _med([r["setup"] for r in rr]),
+                qlen=_med([r["qlen"] for r in ok]),
+                eelen=_med([r["eelen"] for r in ok]),
+                clearance=_med([r["clearance"] for r in ok]),
+                reasons=dict(Counter(r["reason"] for r in rr if not r["ok"]).most_common()),
+            )
     return out
 
 
@@ -147,15 +177,21 @@ def print_summary(summary: dict[str, dict[str, dict[str, Any]]]) -> None:
     """Markdown tables, one per planner."""
     for label, fams in summary.items():
         print(f"\n{label}\n")
-        print("| family | success | planning ms | setup ms | joint length rad | EE length m | min clearance m "
-              "| failures |")
+        print(
+            "| family | success | planning ms | setup ms | joint length rad | EE length m | min clearance m "
+            "| failures |"
+        )
         print("| --- | --- | --- | --- | --- | --- | --- | --- |")
         for fam, s in fams.items():
             reasons = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in s["reasons"].items()) or "-"
-            qlen, eelen, clear = (f"{v:.{n}f}" if np.isfinite(v) else "-"
-                                  for v, n in ((s["qlen"], 2), (s["eelen"], 2), (s["clearance"], 3)))
-            print(f"| {fam} | {s['success']:.0%} ({s['solved']}/{s['n']}) | {s['time_ms']:.1f} | {s['setup_ms']:.0f} | "
-                  f"{qlen} | {eelen} | {clear} | {reasons} |")
+            qlen, eelen, clear = (
+                f"{v:.{n}f}" if np.isfinite(v) else "-"
+                for v, n in ((s["qlen"], 2), (s["eelen"], 2), (s["clearance"], 3))
+            )
+            print(
+                f"| {fam} | {s['success']:.0%} ({s['solved']}/{s['n']}) | {s['time_ms']:.1f} | {s['setup_ms']:.0f} | "
+                f"{qlen} | {eelen} | {clear} | {reasons} |"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -165,8 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     m = sub.add_parser("mbm")
     m.add_argument("selector", nargs="?", default="mbm:*")
     m.add_argument("--planners", default="matrix-field,edt-field,distance-field")
-    m.add_argument("--config", default="{}",
-                   help='JSON {planner: {setting: value}}, e.g. {"edt-field": {"standoff": 0.1}}')
+    m.add_argument(
+        "--config", default="{}", help='JSON {planner: {setting: value}}, e.g. {"edt-field": {"standoff": 0.1}}'
+    )
     m.add_argument("--time-limit", type=float, default=5.0)
     m.add_argument("--json", help="write the rows and summary to this file")
     m.add_argument("--jsonl", help="append each row here as it ends; rows already there are skipped (resume)")
@@ -176,8 +213,11 @@ def main(argv: list[str] | None = None) -> int:
     sw = sub.add_parser("sweep")
     sw.add_argument("--selector", default="mbm:*/0001-0020")
     sw.add_argument("--jsonl", help="append each row here as it ends (resume)")
-    sw.add_argument("--grid", default='{"edt-field": [0.07, 0.1, 0.12], "distance-field": [0.03, 0.05, 0.1]}',
-                    help="JSON {planner: [standoff, ...]}")
+    sw.add_argument(
+        "--grid",
+        default='{"edt-field": [0.07, 0.1, 0.12], "distance-field": [0.03, 0.05, 0.1]}',
+        help="JSON {planner: [standoff, ...]}",
+    )
     args = ap.parse_args(argv)
     if args.cmd == "step":
         res = bench_step()
@@ -201,8 +241,9 @@ def main(argv: list[str] | None = None) -> int:
                 json.dump({"rows": rows, "summary": summary}, fh, indent=1, default=float)
     else:
         grid = json.loads(args.grid)
-        planners = {f"{name} standoff={s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items()
-                    for s in values}
+        planners = {
+            f"{name} standoff={s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items() for s in values
+        }
         sweep = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl))
         fams = [f for f in next(iter(sweep.values())) if f != "all"]
         print("| planner | success | " + " | ".join(fams) + " |")

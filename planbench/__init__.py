@@ -29,6 +29,7 @@ def __getattr__(name: str) -> object:
         return benchmark
     raise AttributeError(f"module 'planbench' has no attribute {name!r}")
 
+
 __all__ = [
     "benchmark",
     "Evaluation",

@@ -142,8 +142,9 @@ def _read_settings(path: Path) -> RobotSettings:
             position_limits={k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()},
             velocity_limits={k: float(v) for k, v in raw.get("velocity_limits", {}).items()},
             ignore_collision_pairs=tuple((str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])),
-            control_points={str(link): tuple(_point3(p) for p in pts)
-                            for link, pts in raw.get("control_points", {}).items()},
+            control_points={
+                str(link): tuple(_point3(p) for p in pts) for link, pts in raw.get("control_points", {}).items()
+            },
             description=str(raw.get("description", "")),
             source=str(path),
         )
@@ -237,8 +238,9 @@ class Robot:
         self.ee_frame_id = model.getFrameId(settings.ee_frame)
         for link in settings.control_points:
             if not model.existFrame(link):
-                raise UnknownNameError(f"link of control_points of robot {settings.name!r}", link,
-                                       [f.name for f in model.frames])
+                raise UnknownNameError(
+                    f"link of control_points of robot {settings.name!r}", link, [f.name for f in model.frames]
+                )
         if settings.home is not None:
             if len(settings.home) != self.nq:
                 raise RobotFileError(src, f"home has {len(settings.home)} values, the robot plans {self.nq} joints")
@@ -369,8 +371,9 @@ def _hashable(s: RobotSettings) -> RobotSettings:
         fixed_joints=_FrozenDict(s.fixed_joints),
         position_limits=_FrozenDict({k: tuple(v) for k, v in s.position_limits.items()}),
         velocity_limits=_FrozenDict(s.velocity_limits),
-        control_points=_FrozenDict({k: tuple(tuple(float(x) for x in p) for p in v)
-                                    for k, v in s.control_points.items()}),
+        control_points=_FrozenDict(
+            {k: tuple(tuple(float(x) for x in p) for p in v) for k, v in s.control_points.items()}
+        ),
     )
 
 

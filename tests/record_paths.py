@@ -38,7 +38,9 @@ def case_key(case: dict) -> str:
 
 
 def plan_case(case: dict, problem: planbench.Problem) -> planbench.PlanResult:
-    return planbench.plan(problem, planner=case["planner"], seed=case["seed"], time_limit=60.0, **case.get("settings", {}))
+    return planbench.plan(
+        problem, planner=case["planner"], seed=case["seed"], time_limit=60.0, **case.get("settings", {})
+    )
 
 
 def load_case(case: dict) -> planbench.Problem:

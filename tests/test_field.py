@@ -16,15 +16,13 @@ BACKENDS = ["numpy", pytest.param("numba", marks=NEEDS_NUMBA)]
 RES = 0.05
 
 
-def random_grid(rng: np.random.Generator, shape: tuple[int, int, int],
-                outside: float) -> OccupancyGrid:
+def random_grid(rng: np.random.Generator, shape: tuple[int, int, int], outside: float) -> OccupancyGrid:
     """Probabilistic occupancy in [0, 1], mostly low with a few near-certain cells."""
     data = rng.random(shape) ** 3
     return OccupancyGrid(data, origin=[0.3, -0.2, 0.1], resolution=RES, outside=outside)
 
 
-def points_around(rng: np.random.Generator, grid: OccupancyGrid, n: int,
-                  beyond: float) -> np.ndarray:
+def points_around(rng: np.random.Generator, grid: OccupancyGrid, n: int, beyond: float) -> np.ndarray:
     """Points inside, on the border of and up to ``beyond`` [m] outside the grid."""
     lo, hi = grid.origin - beyond, grid.upper + beyond
     pts = rng.uniform(lo, hi, (n, 3))
@@ -49,14 +47,13 @@ def test_linear_profile_values_and_sign():
     np.testing.assert_allclose(k.across, [1 / 3, 2 / 3, 1, 2 / 3, 1 / 3])
 
 
-@pytest.mark.parametrize("profile",
-                         ["linear", "gaussian", "inverse-power", lambda d: np.exp(-d / 0.1)])
+@pytest.mark.parametrize("profile", ["linear", "gaussian", "inverse-power", lambda d: np.exp(-d / 0.1)])
 def test_profiles_are_antisymmetric_and_decay(profile):
     k = Kernels.from_cells(11, resolution=RES, profile=profile, gain=2.0)
     c = k.half_length
     assert k.along[c] == 0.0
     np.testing.assert_array_equal(k.along, -k.along[::-1])
-    mag = -k.along[c + 1:]
+    mag = -k.along[c + 1 :]
     assert np.all(mag > 0) and np.all(np.diff(mag) < 0)
 
 
@@ -84,9 +81,15 @@ def test_spec_converts_metres_to_cells():
     assert len(KernelSpec(reach=0.125).build(RES).along) == 7  # 2.5 cells rounds up to 3
 
 
-@pytest.mark.parametrize("length, width, match", [
-    (4, None, "odd"), (1, None, ">= 3"), (5, 2, "width must be odd"), (5.0, None, "whole number"),
-])
+@pytest.mark.parametrize(
+    "length, width, match",
+    [
+        (4, None, "odd"),
+        (1, None, ">= 3"),
+        (5, 2, "width must be odd"),
+        (5.0, None, "whole number"),
+    ],
+)
 def test_bad_sizes_raise_clear_errors(length, width, match):
     with pytest.raises(InvalidConfigError, match=match):
         Kernels.from_cells(length, width, resolution=RES)
@@ -172,8 +175,7 @@ def test_float32_matches_float64(backend):
     assert f32.components.dtype == np.float32
     np.testing.assert_allclose(f32.components, f64.components, rtol=0, atol=1e-5)
     pts = points_around(rng, grid, 20, beyond=0.2)
-    np.testing.assert_allclose(lazy_field(grid32, kernels, pts, backend=backend),
-                               f64.sample(pts), rtol=0, atol=1e-5)
+    np.testing.assert_allclose(lazy_field(grid32, kernels, pts, backend=backend), f64.sample(pts), rtol=0, atol=1e-5)
 
 
 def test_margin_zero_agrees_inside_and_fades_outside():
@@ -203,8 +205,10 @@ def test_wall_on_plus_x_pushes_towards_minus_x(backend):
     grid = wall_grid()
     kernels = Kernels.from_cells(9, 5, resolution=RES)
     p = np.array([[20.5, 6.5, 6.5]]) * RES  # two cells in front of the wall, centred across it
-    for f in (full_field(grid, kernels, backend=backend).sample(p, backend=backend),
-              lazy_field(grid, kernels, p, backend=backend)):
+    for f in (
+        full_field(grid, kernels, backend=backend).sample(p, backend=backend),
+        lazy_field(grid, kernels, p, backend=backend),
+    ):
         assert f[0, 0] < 0
         assert f[0, 1] == pytest.approx(0.0, abs=1e-6) and f[0, 2] == pytest.approx(0.0, abs=1e-6)
 

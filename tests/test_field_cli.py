@@ -58,8 +58,9 @@ def test_field_slice_plot(tmp_path):
 
 
 def test_benchmark_runs_and_prints_every_column():
-    settings = BenchSettings(sizes=(12,), lengths=(5,), dtypes=("float32",), repeat=1, min_repeat=1,
-                             budget=0.0, points=4)
+    settings = BenchSettings(
+        sizes=(12,), lengths=(5,), dtypes=("float32",), repeat=1, min_repeat=1, budget=0.0, points=4
+    )
     rows = run(settings)
     assert len(rows) == 1
     t = rows[0].times

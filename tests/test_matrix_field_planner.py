@@ -187,8 +187,10 @@ def test_control_points_from_the_robot_file_and_from_settings(tmp_path):
     from planbench.robot import _settings_dir
 
     text = (_settings_dir() / "panda.toml").read_text()
-    text = text.replace("[fixed_joints]", '[control_points]\npanda_hand = [[0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]\n'
-                                          'panda_link1 = []\n\n[fixed_joints]')
+    text = text.replace(
+        "[fixed_joints]",
+        "[control_points]\npanda_hand = [[0.0, 0.0, 0.05], [0.0, 0.0, 0.1]]\npanda_link1 = []\n\n[fixed_joints]",
+    )
     path = tmp_path / "panda_cp.toml"
     path.write_text(text)
     robot = load_robot(path)

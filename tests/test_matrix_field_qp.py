@@ -25,8 +25,9 @@ def robot():
 
 
 def problem_from(robot, start, goal_q, scene=None, pid="test:qp"):
-    return Problem.create(robot, scene or Scene(name="empty"), np.asarray(start, float), np.asarray(goal_q, float),
-                          id=pid)
+    return Problem.create(
+        robot, scene or Scene(name="empty"), np.asarray(start, float), np.asarray(goal_q, float), id=pid
+    )
 
 
 def prepared(problem, **settings):
@@ -187,8 +188,11 @@ def test_backends_give_the_same_step(robot, solver):
     problem = problem_from(robot, start, goal)
     wall = elbow_wall_problem(robot)
     # velocity limits active; no constraint active; velocity dampers in the QP
-    for prob, q, fast in ((problem, start, {"speed_max": 5.0}), (problem, start + 0.05, {}),
-                          (wall, wall.start, {"velocity_dampers": True})):
+    for prob, q, fast in (
+        (problem, start, {"speed_max": 5.0}),
+        (problem, start + 0.05, {}),
+        (wall, wall.start, {"velocity_dampers": True}),
+    ):
         a = prepared(prob, solver=SOLVERS[0], **fast).step_at(q)[1]
         b = prepared(prob, solver=solver, **fast).step_at(q)[1]
         assert np.allclose(a, b, atol=1e-5), (SOLVERS[0], solver, a, b)

@@ -80,8 +80,17 @@ def test_orientation_error_takes_the_short_arc_and_zero_at_goal():
 
 def test_attraction_caps_angular_speed():
     R_goal = Rotation.from_rotvec([0, 3.0, 0]).as_matrix()
-    v = T.attraction(np.zeros(3), np.eye(3), np.zeros(3), R_goal, speed_max=0.5, sigmoid_gain=20,
-                     position_gain=1, orientation_gain=4, angular_speed_max=1.5)
+    v = T.attraction(
+        np.zeros(3),
+        np.eye(3),
+        np.zeros(3),
+        R_goal,
+        speed_max=0.5,
+        sigmoid_gain=20,
+        position_gain=1,
+        orientation_gain=4,
+        angular_speed_max=1.5,
+    )
     assert np.allclose(v[:3], 0) and np.allclose(v[3:], [0, 1.5, 0])
 
 
@@ -130,8 +139,9 @@ def test_manipulability_gradient_matches_finite_differences(robot):
         kin.update(q)
         assert m == pytest.approx(T.manipulability(kin.J), rel=1e-9)  # same for EE and spatial J
         h = 1e-6
-        num = [(T.manipulability(spatial(q + h * e)) - T.manipulability(spatial(q - h * e))) / (2 * h)
-               for e in np.eye(7)]
+        num = [
+            (T.manipulability(spatial(q + h * e)) - T.manipulability(spatial(q - h * e))) / (2 * h) for e in np.eye(7)
+        ]
         assert np.allclose(grad, num, atol=1e-7)
 
 
@@ -254,9 +264,20 @@ def test_wall_field_follows_kernel_profile():
     assert wall_field(k, 0.2) == 0.0  # beyond the reach
 
 
-@pytest.mark.parametrize("bad", [dict(dt=0), dict(speed_max=-1), dict(field_mode="dense"), dict(max_steps=0),
-                                 dict(standoff=0.3), dict(damping="auto"), dict(slowdown_min=2.0),
-                                 dict(control_points={"panda_hand": [[1, 2]]}), dict(repulsion_gain=float("nan"))])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(dt=0),
+        dict(speed_max=-1),
+        dict(field_mode="dense"),
+        dict(max_steps=0),
+        dict(standoff=0.3),
+        dict(damping="auto"),
+        dict(slowdown_min=2.0),
+        dict(control_points={"panda_hand": [[1, 2]]}),
+        dict(repulsion_gain=float("nan")),
+    ],
+)
 def test_config_validation(bad):
     with pytest.raises(InvalidConfigError):
         MatrixFieldConfig(**bad)
@@ -269,8 +290,9 @@ def test_config_defaults_and_overrides_freeze():
 
 
 # --- the compiled step equals the composition of the task functions ------------------------
-@pytest.mark.skipif(not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba(),
-                    reason="numba not installed")
+@pytest.mark.skipif(
+    not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba(), reason="numba not installed"
+)
 @pytest.mark.parametrize("damping", ["adaptive", "fixed"])
 def test_compiled_step_matches_numpy_reference(robot, damping):
     from planbench_plugins.matrix_field import fast
@@ -296,8 +318,26 @@ def test_compiled_step_matches_numpy_reference(robot, damping):
         out = []
         for fn, k in ((fast.step_compiled, kin), (fast.step_numpy, ref_kin)):
             qd, dg = np.zeros(7), np.zeros(6)
-            fn(k.S, k.J, k.p, k.R, p_goal, R_goal, q, lo, hi, vmax, k.points, F, k.support, k.descendants,
-               tool, prm, qd, dg)
+            fn(
+                k.S,
+                k.J,
+                k.p,
+                k.R,
+                p_goal,
+                R_goal,
+                q,
+                lo,
+                hi,
+                vmax,
+                k.points,
+                F,
+                k.support,
+                k.descendants,
+                tool,
+                prm,
+                qd,
+                dg,
+            )
             out.append((qd, dg))
         assert np.allclose(out[0][0], out[1][0], atol=1e-10, rtol=1e-8)
         assert np.allclose(out[0][1], out[1][1], atol=1e-10, rtol=1e-8)

@@ -122,8 +122,14 @@ def test_distance_repulsion_points_away_from_a_wall_and_vanishes_beyond_d0(robot
         if g.parentJoint == 0:
             continue
         M = data.oMi[g.parentJoint] * g.placement
-        d = coal.distance(g.geometry, coal.Transform3s(M.rotation, M.translation), wall_geom, wall_pose,
-                          coal.DistanceRequest(), coal.DistanceResult())
+        d = coal.distance(
+            g.geometry,
+            coal.Transform3s(M.rotation, M.translation),
+            wall_geom,
+            wall_pose,
+            coal.DistanceRequest(),
+            coal.DistanceResult(),
+        )
         link = rep.link_names.index(g.name.rpartition("_")[0])
         assert rep.distance[link] <= d + 1e-6 or (d >= D0 and rep.distance[link] == np.inf)
     # the nearest link exactly at the stand-off is pushed at speed_max (the gain's derivation)

@@ -19,5 +19,4 @@ from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.field.lazy import lazy_field
 from planbench.field.surface import surface_grid
 
-__all__ = ["KernelSpec", "Kernels", "MatrixField", "PROFILES", "TAPERS", "full_field", "lazy_field",
-           "surface_grid"]
+__all__ = ["KernelSpec", "Kernels", "MatrixField", "PROFILES", "TAPERS", "full_field", "lazy_field", "surface_grid"]

@@ -76,7 +76,7 @@ def _lines(src, dst, k, sign):  # type: ignore[no-untyped-def]
     chunks = min(m, 256)
     for b in prange(chunks):
         buf = np.zeros(n + 2 * c, src.dtype)
-        mid = buf[c:c + n]
+        mid = buf[c : c + n]
         for r in range(b * m // chunks, (b + 1) * m // chunks):
             s = src[r]
             d = dst[r]
@@ -87,14 +87,15 @@ def _lines(src, dst, k, sign):  # type: ignore[no-untyped-def]
             for t in range(1, c + 1):
                 w = k[c + t]
                 sw = sign * w
-                sp = buf[c + t:c + t + n]
-                sm = buf[c - t:c - t + n]
+                sp = buf[c + t : c + t + n]
+                sm = buf[c - t : c - t + n]
                 for j in range(n):
                     d[j] += w * sp[j] + sw * sm[j]
 
 
-def correlate_axis(src: np.ndarray, dst: np.ndarray, k: np.ndarray, axis: int, sign: float,
-                   planes: tuple[int, int] | None = None) -> None:
+def correlate_axis(
+    src: np.ndarray, dst: np.ndarray, k: np.ndarray, axis: int, sign: float, planes: tuple[int, int] | None = None
+) -> None:
     """``dst = correlate1d(src, k, axis)`` with zeros beyond the ends; ``k`` symmetric (``sign``
     +1) or antisymmetric (-1) and in the arrays' dtype. ``src``, ``dst``: C-contiguous 3D.
     ``planes`` = (i0, i1) limits an axis-1 pass to those planes of axis 0."""
@@ -122,7 +123,7 @@ def _embed_lines(grid, outside, m, T, P, h, c):  # type: ignore[no-untyped-def]
     o = grid.dtype.type(outside)
     for i in prange(n0):
         buf = np.zeros(n + 2 * pad, grid.dtype)  # line of G - outside, zeros beyond the grid
-        mid = buf[pad + m:pad + m + n2]
+        mid = buf[pad + m : pad + m + n2]
         for j in range(n1):
             row = grid[i, j]
             for q in range(n2):
@@ -130,26 +131,25 @@ def _embed_lines(grid, outside, m, T, P, h, c):  # type: ignore[no-untyped-def]
             dh = h[i + m, j + m]
             dc = c[i + m, j + m]
             k0 = T[ct]
-            centre = buf[pad:pad + n]
+            centre = buf[pad : pad + n]
             for q in range(n):
                 dh[q] = k0 * centre[q]
                 dc[q] = 0.0
             for t in range(1, ct + 1):
                 w = T[ct + t]
-                sp = buf[pad + t:pad + t + n]
-                sm = buf[pad - t:pad - t + n]
+                sp = buf[pad + t : pad + t + n]
+                sm = buf[pad - t : pad - t + n]
                 for q in range(n):
                     dh[q] += w * (sp[q] + sm[q])
             for t in range(1, cp + 1):
                 w = P[cp + t]
-                sp = buf[pad + t:pad + t + n]
-                sm = buf[pad - t:pad - t + n]
+                sp = buf[pad + t : pad + t + n]
+                sm = buf[pad - t : pad - t + n]
                 for q in range(n):
                     dc[q] += w * (sp[q] - sm[q])
 
 
-def field_from_grid(grid: np.ndarray, outside: float, m: int, P: np.ndarray,
-                    T: np.ndarray) -> np.ndarray:
+def field_from_grid(grid: np.ndarray, outside: float, m: int, P: np.ndarray, T: np.ndarray) -> np.ndarray:
     """The three components (3, n0 + 2m, n1 + 2m, n2 + 2m) of the field of ``grid`` (with
     ``outside`` beyond it), in the grid's dtype; ``P`` and ``T`` in that dtype too.
 
@@ -168,7 +168,7 @@ def field_from_grid(grid: np.ndarray, outside: float, m: int, P: np.ndarray,
     correlate_axis(f_y, tmp, T, 0, 1.0)
     correlate_axis(tmp, f_y, P, 1, -1.0)  # F_y = P_y T_x T_z G'
     tmp[:m] = 0.0
-    tmp[m + n0:] = 0.0
+    tmp[m + n0 :] = 0.0
     correlate_axis(f_z, tmp, T, 1, 1.0, grid_planes)
     correlate_axis(tmp, f_z, T, 0, 1.0)  # F_z = T_x T_y P_z G'
     return out
@@ -224,8 +224,8 @@ def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p
         for j in range(size):
             at[j] = 0.0
             ap[j] = 0.0
-        at_s = at[z0 - oz:z1 - oz]
-        ap_s = ap[z0 - oz:z1 - oz]
+        at_s = at[z0 - oz : z1 - oz]
+        ap_s = ap[z0 - oz : z1 - oz]
         for iy in range(y0, y1):
             ty = T[1, iy - oy]
             py = P[1, iy - oy]

@@ -30,8 +30,7 @@ def resolve(backend: str) -> str:
     if backend == "auto":
         return "numba" if have_numba() else "numpy"
     if backend == "numba" and not have_numba():
-        raise InvalidConfigError("field backend 'numba' needs numba: pip install numba "
-                                 "(or use backend='numpy')")
+        raise InvalidConfigError("field backend 'numba' needs numba: pip install numba (or use backend='numpy')")
     return backend
 
 

@@ -71,8 +71,13 @@ class Row:
     extrapolated: set[str] = field(default_factory=set)
 
 
-def median_times(fns: Mapping[str, Callable[[], object]], repeat: int, min_repeat: int,
-                 budget: float, before: Callable[[], object] | None = None) -> dict[str, float]:
+def median_times(
+    fns: Mapping[str, Callable[[], object]],
+    repeat: int,
+    min_repeat: int,
+    budget: float,
+    before: Callable[[], object] | None = None,
+) -> dict[str, float]:
     """Median wall time [s] of each function, run round-robin so that the machine's noise hits
     them alike; up to ``repeat`` rounds, fewer once ``budget`` [s] is spent (at least
     ``min_repeat``). ``before`` runs untimed before each call. The garbage collector is off."""
@@ -103,7 +108,7 @@ def bench_grid(n: int, dtype: str, seed: int) -> OccupancyGrid:
     while data.mean() < 0.1:
         lo = rng.integers(0, n, 3)
         size = rng.integers(max(1, n // 20), max(2, n // 5), 3)
-        data[lo[0]:lo[0] + size[0], lo[1]:lo[1] + size[1], lo[2]:lo[2] + size[2]] = 1.0
+        data[lo[0] : lo[0] + size[0], lo[1] : lo[1] + size[1], lo[2] : lo[2] + size[2]] = 1.0
     return OccupancyGrid(data, np.zeros(3), RESOLUTION)
 
 
@@ -141,19 +146,16 @@ def run(settings: BenchSettings, progress: Callable[[str], None] | None = None) 
                     "edt+grad": lambda: np.gradient(distance_transform_edt(free)),
                 }
                 if settings.scipy:
-                    fns["scipy1d"] = lambda: full_field(grid, kernels, dt, margin=0,
-                                                        backend="numpy")
+                    fns["scipy1d"] = lambda: full_field(grid, kernels, dt, margin=0, backend="numpy")
                 if settings.fft:
                     fns["fft"] = lambda: fft_field(grid, kernels, np.dtype(dt).type)
                 say(f"{n}^3 L={length} {dt}: " + ", ".join(fns))
-                row.times.update(median_times(fns, settings.repeat, settings.min_repeat,
-                                              settings.budget))
+                row.times.update(median_times(fns, settings.repeat, settings.min_repeat, settings.budget))
                 if settings.dense:
                     if dense_rate is None:
                         say(f"{n}^3 L={length} {dt}: dense 3D correlation (one component, once)")
                         kx = kernels.dense(0)
-                        one = median_times({"d": lambda: correlate(grid.data, kx, mode="constant")},
-                                           1, 1, 0.0)["d"]
+                        one = median_times({"d": lambda: correlate(grid.data, kx, mode="constant")}, 1, 1, 0.0)["d"]
                         dense_rate = one / (n**3 * length**3)
                     row.times["dense"] = 3 * dense_rate * n**3 * length**3
                     if rows:
@@ -161,8 +163,7 @@ def run(settings: BenchSettings, progress: Callable[[str], None] | None = None) 
                 say(f"{n}^3 L={length} {dt}: point queries")
                 pts = grid.origin + rng.uniform(0.1, 0.9, (settings.points, 3)) * n * RESOLUTION
                 precomputed = full_field(grid, kernels, dt)
-                queries = {"lazy": lambda: lazy_field(grid, kernels, pts),
-                           "sample": lambda: precomputed.sample(pts)}
+                queries = {"lazy": lambda: lazy_field(grid, kernels, pts), "sample": lambda: precomputed.sample(pts)}
                 row.times.update(median_times(queries, 300, 50, 1.0))
                 cold = median_times(queries, 30, 10, 2.0, before=evict)
                 row.times.update({f"{k} cold": v for k, v in cold.items()})
@@ -187,17 +188,44 @@ def _ratio(row: Row, num: str, den: str) -> str:
 
 def format_table(rows: list[Row], points: int) -> str:
     """A markdown table of the rows (times in ms, point queries in us)."""
-    head = ["grid", "L", "dtype", "full ms", "+margin ms", "scipy1d ms", "fft ms", "dense ms",
-            "edt+grad ms", "edt/full", "edt/+margin", "dense/full",
-            f"lazy {points} pts us", f"sample {points} pts us", "lazy cold us", "sample cold us"]
+    head = [
+        "grid",
+        "L",
+        "dtype",
+        "full ms",
+        "+margin ms",
+        "scipy1d ms",
+        "fft ms",
+        "dense ms",
+        "edt+grad ms",
+        "edt/full",
+        "edt/+margin",
+        "dense/full",
+        f"lazy {points} pts us",
+        f"sample {points} pts us",
+        "lazy cold us",
+        "sample cold us",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [f"{r.n}^3", str(r.length), r.dtype, _ms(r, "full"), _ms(r, "+margin"),
-                 _ms(r, "scipy1d"), _ms(r, "fft"), _ms(r, "dense"), _ms(r, "edt+grad"),
-                 _ratio(r, "edt+grad", "full"), _ratio(r, "edt+grad", "+margin"),
-                 _ratio(r, "dense", "full"), f"{r.times['lazy'] * 1e6:.0f}",
-                 f"{r.times['sample'] * 1e6:.1f}", f"{r.times['lazy cold'] * 1e6:.0f}",
-                 f"{r.times['sample cold'] * 1e6:.0f}"]
+        cells = [
+            f"{r.n}^3",
+            str(r.length),
+            r.dtype,
+            _ms(r, "full"),
+            _ms(r, "+margin"),
+            _ms(r, "scipy1d"),
+            _ms(r, "fft"),
+            _ms(r, "dense"),
+            _ms(r, "edt+grad"),
+            _ratio(r, "edt+grad", "full"),
+            _ratio(r, "edt+grad", "+margin"),
+            _ratio(r, "dense", "full"),
+            f"{r.times['lazy'] * 1e6:.0f}",
+            f"{r.times['sample'] * 1e6:.1f}",
+            f"{r.times['lazy cold'] * 1e6:.0f}",
+            f"{r.times['sample cold'] * 1e6:.0f}",
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -213,21 +241,29 @@ def environment() -> str:
         import numba as nb
 
         numba = nb.__version__
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-            f"python {platform.python_version()}, numpy {np.__version__}, "
-            f"scipy {scipy.__version__}, numba {numba}")
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"python {platform.python_version()}, numpy {np.__version__}, "
+        f"scipy {scipy.__version__}, numba {numba}"
+    )
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The benchmark's command-line options (shared by the CLI and ``benchmarks/field.py``)."""
     d = BenchSettings()
     p.add_argument("--sizes", type=int, nargs="+", default=list(d.sizes), help="cells per side")
-    p.add_argument("--lengths", type=int, nargs="+", default=list(d.lengths),
-                   help="kernel lengths L in cells (odd; kernels are L^3)")
+    p.add_argument(
+        "--lengths",
+        type=int,
+        nargs="+",
+        default=list(d.lengths),
+        help="kernel lengths L in cells (odd; kernels are L^3)",
+    )
     p.add_argument("--dtypes", nargs="+", choices=["float32", "float64"], default=list(d.dtypes))
     p.add_argument("--repeat", type=int, default=d.repeat, help="runs per measurement (median)")
-    p.add_argument("--budget", type=float, default=d.budget,
-                   help="seconds after which a row stops repeating (min 3 rounds)")
+    p.add_argument(
+        "--budget", type=float, default=d.budget, help="seconds after which a row stops repeating (min 3 rounds)"
+    )
     p.add_argument("--points", type=int, default=d.points, help="points per lazy/sample query")
     p.add_argument("--quick", action="store_true", help="64^3 and 128^3, L=21 only")
     p.add_argument("--no-scipy", action="store_true", help="skip the correlate1d backend")
@@ -239,9 +275,17 @@ def run_from_args(args: argparse.Namespace) -> int:
     sizes, lengths = (tuple(args.sizes), tuple(args.lengths))
     if args.quick:
         sizes, lengths = (64, 128), (21,)
-    settings = BenchSettings(sizes=sizes, lengths=lengths, dtypes=tuple(args.dtypes),
-                             repeat=args.repeat, budget=args.budget, points=args.points,
-                             scipy=not args.no_scipy, fft=not args.no_fft, dense=not args.no_dense)
+    settings = BenchSettings(
+        sizes=sizes,
+        lengths=lengths,
+        dtypes=tuple(args.dtypes),
+        repeat=args.repeat,
+        budget=args.budget,
+        points=args.points,
+        scipy=not args.no_scipy,
+        fft=not args.no_fft,
+        dense=not args.no_dense,
+    )
     for length in lengths:  # bad lengths fail before any timing
         Kernels.from_cells(length)
     started = time.perf_counter()
@@ -249,9 +293,11 @@ def run_from_args(args: argparse.Namespace) -> int:
     print()
     print(format_table(rows, settings.points))
     print()
-    print(f"Medians of up to {settings.repeat} round-robin runs (at least {settings.min_repeat});"
-          f" point queries: medians of up to 300 repeats of the same points (warm caches) and of "
-          f"30 after evicting the CPU caches (cold). '~': extrapolated from dense 3D correlation "
-          f"of one component at {sizes[0]}^3, L={lengths[0]}.")
+    print(
+        f"Medians of up to {settings.repeat} round-robin runs (at least {settings.min_repeat});"
+        f" point queries: medians of up to 300 repeats of the same points (warm caches) and of "
+        f"30 after evicting the CPU caches (cold). '~': extrapolated from dense 3D correlation "
+        f"of one component at {sizes[0]}^3, L={lengths[0]}."
+    )
     print(f"{environment()}; total {time.perf_counter() - started:.0f} s")
     return 0

@@ -68,8 +68,13 @@ class MatrixField:
         return self.components[:, m:-m, m:-m, m:-m]
 
 
-def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float32,
-               margin: int | None = None, backend: str = "auto") -> MatrixField:
+def full_field(
+    grid: OccupancyGrid,
+    kernels: Kernels,
+    dtype: DTypeLike = np.float32,
+    margin: int | None = None,
+    backend: str = "auto",
+) -> MatrixField:
     """The matrix field of ``grid`` for ``kernels``, computed in ``dtype`` (float32 or float64).
 
     ``margin``: cells of field stored beyond the grid on each side; ``None`` = ``kernels.support``
@@ -88,7 +93,7 @@ def full_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.floa
         components = _backend.compiled().field_from_grid(data, grid.outside, m, P, T)
     else:
         g = np.zeros(tuple(n + 2 * m for n in grid.shape), dtype=dt)
-        inner = g[m:m + grid.shape[0], m:m + grid.shape[1], m:m + grid.shape[2]]
+        inner = g[m : m + grid.shape[0], m : m + grid.shape[1], m : m + grid.shape[2]]
         np.subtract(grid.data, grid.outside, out=inner, casting="unsafe")
         components = correlate_separable(g, kernels, backend="numpy")
     components.setflags(write=False)

@@ -40,8 +40,7 @@ def sample_field(field: MatrixField, points: np.ndarray, backend: str = "auto") 
     pts = as_points(points)
     if _backend.resolve(backend) == "numba":
         out = np.empty((len(pts), 3))
-        _backend.compiled().sample_points(field.components, field.origin, field.resolution,
-                                          field.margin, pts, out)
+        _backend.compiled().sample_points(field.components, field.origin, field.resolution, field.margin, pts, out)
         return out
     comp = field.components
     shape = np.array(comp.shape[1:])

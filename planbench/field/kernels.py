@@ -82,11 +82,19 @@ class KernelSpec:
                 raise InvalidConfigError(
                     f"kernel {name} {value:g} m is under half a cell of {resolution:g} m, so the "
                     f"kernel would be 1 cell (it needs >= 3): use {name} >= {resolution:g} m "
-                    "or a finer grid")
+                    "or a finer grid"
+                )
         return Kernels.from_cells(
-            2 * half_l + 1, 2 * half_w + 1, resolution=resolution, profile=self.profile,
-            taper=self.taper, gain=self.gain, sigma=self.sigma, taper_sigma=self.taper_sigma,
-            power=self.power)
+            2 * half_l + 1,
+            2 * half_w + 1,
+            resolution=resolution,
+            profile=self.profile,
+            taper=self.taper,
+            gain=self.gain,
+            sigma=self.sigma,
+            taper_sigma=self.taper_sigma,
+            power=self.power,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,10 +115,10 @@ class Kernels:
         if along[len(along) // 2] != 0.0 or not np.array_equal(along, -along[::-1]):
             raise InvalidConfigError(
                 "the profile along the axis must be antisymmetric (P[c + s] == -P[c - s], "
-                "P[c] == 0); build kernels with KernelSpec or Kernels.from_cells")
+                "P[c] == 0); build kernels with KernelSpec or Kernels.from_cells"
+            )
         if not np.array_equal(across, across[::-1]):
-            raise InvalidConfigError(
-                "the taper across the axis must be symmetric (T[c + t] == T[c - t])")
+            raise InvalidConfigError("the taper across the axis must be symmetric (T[c + t] == T[c - t])")
         _positive(self.resolution, "resolution", "m/cell")
         for arr in (along, across):
             arr.setflags(write=False)
@@ -119,11 +127,19 @@ class Kernels:
         object.__setattr__(self, "resolution", float(self.resolution))
 
     @classmethod
-    def from_cells(cls, length: int, width: int | None = None, *, resolution: float = 1.0,
-                   profile: str | ProfileFn = "linear",
-                   taper: str | ProfileFn = "linear",
-                   gain: float = 1.0, sigma: float | None = None, taper_sigma: float | None = None,
-                   power: float = 2.0) -> Kernels:
+    def from_cells(
+        cls,
+        length: int,
+        width: int | None = None,
+        *,
+        resolution: float = 1.0,
+        profile: str | ProfileFn = "linear",
+        taper: str | ProfileFn = "linear",
+        gain: float = 1.0,
+        sigma: float | None = None,
+        taper_sigma: float | None = None,
+        power: float = 2.0,
+    ) -> Kernels:
         """Kernels of ``length`` cells along the axis and ``width`` across (default: ``length``).
 
         Both must be odd and >= 3. ``resolution`` [m/cell] converts cell offsets to the distances
@@ -132,13 +148,13 @@ class Kernels:
         width = length if width is None else width
         for name, n in (("length", length), ("width", width)):
             if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
-                raise InvalidConfigError(
-                    f"kernel {name} must be a whole number of cells, got {n!r}")
+                raise InvalidConfigError(f"kernel {name} must be a whole number of cells, got {n!r}")
             if n < 3 or n % 2 == 0:
                 hint = f"use {max(3, n + 1 if n % 2 == 0 else 3)}"
                 raise InvalidConfigError(
                     f"kernel {name} must be odd and >= 3 cells (a centre cell and at least one "
-                    f"on each side), got {n}; {hint}")
+                    f"on each side), got {n}; {hint}"
+                )
         resolution = _positive(resolution, "resolution", "m/cell")
         gain = _positive(gain, "gain", "-")
         c, w = (length - 1) // 2, (width - 1) // 2
@@ -175,7 +191,8 @@ class Kernels:
         if abs(self.resolution - resolution) > 1e-9 * resolution:
             raise InvalidConfigError(
                 f"kernels were built for resolution {self.resolution:g} m but the grid has "
-                f"{resolution:g} m; build them with KernelSpec.build(grid.resolution)")
+                f"{resolution:g} m; build them with KernelSpec.build(grid.resolution)"
+            )
 
     def factors(self, dtype: DTypeLike) -> tuple[np.ndarray, np.ndarray]:
         """``(along, across)`` cast to ``dtype`` (cached: the hot paths call this every tick)."""
@@ -218,15 +235,15 @@ def _positive(value: float, name: str, unit: str) -> float:
 def _vector(arr: np.ndarray, name: str) -> np.ndarray:
     v = np.array(arr, dtype=np.float64)
     if v.ndim != 1 or len(v) < 3 or len(v) % 2 == 0:
-        raise InvalidConfigError(
-            f"kernel factor {name} must be 1D with an odd length >= 3, got shape {v.shape}")
+        raise InvalidConfigError(f"kernel factor {name} must be 1D with an odd length >= 3, got shape {v.shape}")
     if not np.all(np.isfinite(v)):
         raise InvalidConfigError(f"kernel factor {name} must be finite")
     return v
 
 
-def _profile_magnitude(profile: str | ProfileFn, d: np.ndarray, c: int, resolution: float,
-                       sigma: float | None, power: float) -> np.ndarray:
+def _profile_magnitude(
+    profile: str | ProfileFn, d: np.ndarray, c: int, resolution: float, sigma: float | None, power: float
+) -> np.ndarray:
     if callable(profile):
         return _user_values(profile, d, "profile")
     if profile == "linear":
@@ -236,32 +253,34 @@ def _profile_magnitude(profile: str | ProfileFn, d: np.ndarray, c: int, resoluti
         return np.exp(-(d**2) / (2 * s**2))
     if profile == "inverse-power":
         return (resolution / d) ** _positive(power, "power", "-")
-    raise InvalidConfigError(f"unknown kernel profile {profile!r}; use one of {PROFILES} or a "
-                             "function of the distance [m]")
+    raise InvalidConfigError(
+        f"unknown kernel profile {profile!r}; use one of {PROFILES} or a function of the distance [m]"
+    )
 
 
-def _taper_values(taper: str | ProfileFn, d: np.ndarray, w: int, resolution: float,
-                  taper_sigma: float | None) -> np.ndarray:
+def _taper_values(
+    taper: str | ProfileFn, d: np.ndarray, w: int, resolution: float, taper_sigma: float | None
+) -> np.ndarray:
     if callable(taper):
         return _user_values(taper, d, "taper")
     if taper == "linear":
         return (w + 1 - d / resolution) / (w + 1)
     if taper == "gaussian":
-        s = (w * resolution / 2 if taper_sigma is None
-             else _positive(taper_sigma, "taper_sigma", "m"))
+        s = w * resolution / 2 if taper_sigma is None else _positive(taper_sigma, "taper_sigma", "m")
         return np.exp(-(d**2) / (2 * s**2))
     if taper == "constant":
         return np.ones_like(d)
-    raise InvalidConfigError(f"unknown kernel taper {taper!r}; use one of {TAPERS} or a function "
-                             "of the distance [m]")
+    raise InvalidConfigError(f"unknown kernel taper {taper!r}; use one of {TAPERS} or a function of the distance [m]")
 
 
 def _user_values(fn: ProfileFn, d: np.ndarray, what: str) -> np.ndarray:
     values = np.asarray(fn(d.copy()), dtype=np.float64)
     if values.shape != d.shape:
-        raise InvalidConfigError(f"a {what} function must return one value per distance (shape "
-                                 f"{d.shape}), got shape {values.shape}")
+        raise InvalidConfigError(
+            f"a {what} function must return one value per distance (shape {d.shape}), got shape {values.shape}"
+        )
     if not np.all(np.isfinite(values)) or np.any(values < 0):
-        raise InvalidConfigError(f"a {what} function must return finite values >= 0; the sign "
-                                 "convention is applied by planbench")
+        raise InvalidConfigError(
+            f"a {what} function must return finite values >= 0; the sign convention is applied by planbench"
+        )
     return values

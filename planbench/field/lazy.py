@@ -32,8 +32,7 @@ __all__ = ["lazy_field"]
 _CHUNK = 64  # points per numpy block gather (memory: _CHUNK * S^3 values)
 
 
-def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray,
-               backend: str = "auto") -> np.ndarray:
+def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray, backend: str = "auto") -> np.ndarray:
     """Field (N, 3) float64 at points (N, 3) [m], computed from ``grid`` without a full pass.
 
     Works in the grid's dtype (float32 grids are summed in float32).
@@ -45,8 +44,9 @@ def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray,
     if _backend.resolve(backend) == "numba":
         along, across = kernels.factors(data.dtype)
         compiled = _backend.compiled()
-        kernel = (compiled.lazy_points_serial if serial_lazy(len(pts), kernels.support)
-                  else compiled.lazy_points)  # small calls stay on this thread (see .threads)
+        kernel = (
+            compiled.lazy_points_serial if serial_lazy(len(pts), kernels.support) else compiled.lazy_points
+        )  # small calls stay on this thread (see .threads)
         kernel(data, grid.outside, grid.origin, grid.resolution, along, across, pts, out)
         return out
     for start in range(0, len(pts), _CHUNK):
@@ -55,8 +55,7 @@ def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray,
     return out
 
 
-def _lazy_numpy(data: np.ndarray, grid: OccupancyGrid, kernels: Kernels,
-                pts: np.ndarray) -> np.ndarray:
+def _lazy_numpy(data: np.ndarray, grid: OccupancyGrid, kernels: Kernels, pts: np.ndarray) -> np.ndarray:
     m = kernels.support
     u = (pts - grid.origin) / grid.resolution - 0.5
     f = np.floor(u)

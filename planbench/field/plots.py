@@ -32,8 +32,9 @@ def _save(fig: Figure, out: str | Path | None) -> Figure:
     return fig
 
 
-def plot_profiles(reach: float = 0.2, resolution: float = 0.01, out: str | Path | None = None,
-                  highlight: str | None = None) -> Figure:
+def plot_profiles(
+    reach: float = 0.2, resolution: float = 0.01, out: str | Path | None = None, highlight: str | None = None
+) -> Figure:
     """Profiles ``P(s)`` along the axis for every built-in profile type, and the tapers ``T``.
 
     ``reach`` [m], ``resolution`` [m/cell]. Values are those of the kernels planbench builds
@@ -48,15 +49,17 @@ def plot_profiles(reach: float = 0.2, resolution: float = 0.01, out: str | Path 
         ax_p.plot(s, k.along, "o-", ms=2.5, lw=lw, label=name)
     ax_p.axhline(0, color="0.6", lw=0.8)
     ax_p.axvline(0, color="0.6", lw=0.8)
-    ax_p.set(title="Profile P along the axis (an obstacle at +s pushes to -s)",
-             xlabel="offset s of the occupied cell along the axis [m]", ylabel="kernel value")
+    ax_p.set(
+        title="Profile P along the axis (an obstacle at +s pushes to -s)",
+        xlabel="offset s of the occupied cell along the axis [m]",
+        ylabel="kernel value",
+    )
     ax_p.legend()
     for name in TAPERS:
         k = KernelSpec(reach=reach, taper=name).build(resolution)
         t = (np.arange(len(k.across)) - k.half_width) * resolution
         ax_t.plot(t, k.across, "o-", ms=2.5, lw=1.5, label=name)
-    ax_t.set(title="Taper T across the axis", xlabel="offset across the axis [m]",
-             ylabel="weight", ylim=(0, 1.08))
+    ax_t.set(title="Taper T across the axis", xlabel="offset across the axis [m]", ylabel="weight", ylim=(0, 1.08))
     ax_t.legend()
     fig.suptitle(f"Matrix-field kernel factors (reach {reach:g} m, {resolution:g} m cells)")
     return _save(fig, out)
@@ -84,13 +87,19 @@ def plot_kernel(kernels: Kernels, out: str | Path | None = None, title: str = ""
     ax3.set(title="K_x on the slice z = 0", xlabel="x [m]", ylabel="y [m]", zlabel="value")
     for n, (sl, label) in enumerate(((k[:, :, w], "y"), (k[:, w, :], "z"))):
         ax = fig.add_subplot(2, 2, 3 + n)
-        im = ax.imshow(sl.T, origin="lower", cmap="coolwarm", norm=norm, aspect="equal",
-                       extent=(s[0] - r / 2, s[-1] + r / 2, t[0] - r / 2, t[-1] + r / 2))
-        ax.set(title=f"K_x on the slice {'z' if label == 'y' else 'y'} = 0", xlabel="x [m]",
-               ylabel=f"{label} [m]")
+        im = ax.imshow(
+            sl.T,
+            origin="lower",
+            cmap="coolwarm",
+            norm=norm,
+            aspect="equal",
+            extent=(s[0] - r / 2, s[-1] + r / 2, t[0] - r / 2, t[-1] + r / 2),
+        )
+        ax.set(title=f"K_x on the slice {'z' if label == 'y' else 'y'} = 0", xlabel="x [m]", ylabel=f"{label} [m]")
         fig.colorbar(im, ax=ax, shrink=0.85)
-    fig.suptitle(title or f"Kernel K_x: {len(kernels.along)} x {len(kernels.across)} x "
-                 f"{len(kernels.across)} cells of {r:g} m")
+    fig.suptitle(
+        title or f"Kernel K_x: {len(kernels.along)} x {len(kernels.across)} x {len(kernels.across)} cells of {r:g} m"
+    )
     return _save(fig, out)
 
 
@@ -107,9 +116,16 @@ def parse_slice(text: str) -> tuple[int, float]:
     return AXES.index(axis), coord
 
 
-def plot_field_slice(grid: OccupancyGrid, field: MatrixField, axis: int, value: float,
-                     out: str | Path | None = None, title: str = "", samples: int = 160,
-                     arrows: int = 28) -> Figure:
+def plot_field_slice(
+    grid: OccupancyGrid,
+    field: MatrixField,
+    axis: int,
+    value: float,
+    out: str | Path | None = None,
+    title: str = "",
+    samples: int = 160,
+    arrows: int = 28,
+) -> Figure:
     """The field on the plane ``axis = value`` [m] over the grid's extent (plus the margin).
 
     Colour: ``|F|`` (log-scaled); arrows: the in-plane direction of ``F`` (unit length, drawn where
@@ -134,8 +150,7 @@ def plot_field_slice(grid: OccupancyGrid, field: MatrixField, axis: int, value: 
     extent = (u[0], u[-1], v[0], v[-1])
     positive = mag[mag > 0]
     floor = max(positive.max() * 1e-3, positive.min()) if positive.size else 1.0
-    im = ax.imshow(np.log10(np.maximum(mag, floor)).T, origin="lower", extent=extent,
-                   cmap="magma", aspect="equal")
+    im = ax.imshow(np.log10(np.maximum(mag, floor)).T, origin="lower", extent=extent, cmap="magma", aspect="equal")
     fig.colorbar(im, ax=ax, shrink=0.8, label="log10 |F| (field magnitude)")
     ax.contourf(U, V, occ, levels=[0.5, 1.01], colors=["0.75"], hatches=["//"], alpha=0.9)
     ax.contour(U, V, occ, levels=[0.5], colors=["white"], linewidths=0.8)
@@ -145,9 +160,16 @@ def plot_field_slice(grid: OccupancyGrid, field: MatrixField, axis: int, value: 
     norm = np.hypot(Fu, Fv)
     show = norm > 1e-9 * max(norm.max(), 1e-300)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ax.quiver(U[::step_u, ::step_v][show], V[::step_u, ::step_v][show], (Fu / norm)[show],
-                  (Fv / norm)[show], color="cyan", scale=arrows * 1.3, width=0.0025, pivot="mid")
-    ax.set(xlim=(u[0], u[-1]), ylim=(v[0], v[-1]), xlabel=f"{AXES[u_ax]} [m]",
-           ylabel=f"{AXES[v_ax]} [m]")
+        ax.quiver(
+            U[::step_u, ::step_v][show],
+            V[::step_u, ::step_v][show],
+            (Fu / norm)[show],
+            (Fv / norm)[show],
+            color="cyan",
+            scale=arrows * 1.3,
+            width=0.0025,
+            pivot="mid",
+        )
+    ax.set(xlim=(u[0], u[-1]), ylim=(v[0], v[-1]), xlabel=f"{AXES[u_ax]} [m]", ylabel=f"{AXES[v_ax]} [m]")
     ax.set_title(title or f"Matrix field on the plane {AXES[axis]} = {value:g} m")
     return _save(fig, out)

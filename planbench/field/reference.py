@@ -27,14 +27,18 @@ def window_sums(grid: OccupancyGrid, kernels: Kernels, cells: np.ndarray) -> np.
     # A padded copy of G covering every window: grid cells where they exist, `outside` elsewhere.
     pad_lo = np.maximum(0, -lo)
     pad_hi = np.maximum(0, hi - np.array(grid.shape))
-    padded = np.pad(grid.data.astype(np.float64), list(zip(pad_lo, pad_hi, strict=True)), mode="constant",
-                    constant_values=grid.outside)
+    padded = np.pad(
+        grid.data.astype(np.float64),
+        list(zip(pad_lo, pad_hi, strict=True)),
+        mode="constant",
+        constant_values=grid.outside,
+    )
     shift = pad_lo
     dense = [_centred3(kernels.dense(a), m) for a in range(3)]
     out = np.empty((len(cells), 3))
     for n, c in enumerate(cells):
         s = c - m + shift
-        window = padded[s[0]:s[0] + 2 * m + 1, s[1]:s[1] + 2 * m + 1, s[2]:s[2] + 2 * m + 1]
+        window = padded[s[0] : s[0] + 2 * m + 1, s[1] : s[1] + 2 * m + 1, s[2] : s[2] + 2 * m + 1]
         out[n] = [np.sum(window * k) for k in dense]
     return out
 
@@ -54,17 +58,14 @@ def brute_force_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray)
     return out
 
 
-def dense_field(grid: OccupancyGrid, kernels: Kernels,
-                components: tuple[int, ...] = (0, 1, 2)) -> np.ndarray:
+def dense_field(grid: OccupancyGrid, kernels: Kernels, components: tuple[int, ...] = (0, 1, 2)) -> np.ndarray:
     """Field (len(components), nx, ny, nz) on the grid's cells by dense 3D correlation."""
     from scipy.ndimage import correlate
 
-    return np.stack([correlate(grid.data, kernels.dense(a), mode="constant", cval=grid.outside)
-                     for a in components])
+    return np.stack([correlate(grid.data, kernels.dense(a), mode="constant", cval=grid.outside) for a in components])
 
 
-def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float64,
-              workers: int = -1) -> np.ndarray:
+def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float64, workers: int = -1) -> np.ndarray:
     """Field (3, nx, ny, nz) on the grid's cells by FFT: one forward transform of ``G - outside``
     (zero-padded so nothing wraps around), one per kernel, and three inverse transforms."""
     from scipy import fft
@@ -77,10 +78,9 @@ def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float
     for a in range(3):
         k = kernels.dense(a).astype(dtype)
         # Correlation is convolution with the flipped kernel, shifted by the kernel's half size.
-        conv = fft.irfftn(g_hat * fft.rfftn(k[::-1, ::-1, ::-1], shape, workers=workers), shape,
-                          workers=workers)
+        conv = fft.irfftn(g_hat * fft.rfftn(k[::-1, ::-1, ::-1], shape, workers=workers), shape, workers=workers)
         h = [(n - 1) // 2 for n in k.shape]
-        out[a] = conv[h[0]:h[0] + g.shape[0], h[1]:h[1] + g.shape[1], h[2]:h[2] + g.shape[2]]
+        out[a] = conv[h[0] : h[0] + g.shape[0], h[1] : h[1] + g.shape[1], h[2] : h[2] + g.shape[2]]
     return out
 
 
@@ -88,4 +88,3 @@ def _centred3(k: np.ndarray, m: int) -> np.ndarray:
     """Zero-pad a centred 3D kernel to (2m+1)^3."""
     pads = [((2 * m + 1 - n) // 2,) * 2 for n in k.shape]
     return np.pad(k, pads)
-

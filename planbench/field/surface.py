@@ -29,5 +29,4 @@ def surface_grid(grid: OccupancyGrid) -> OccupancyGrid:
     faces[1, 1, 1] = False  # the 6 face neighbours, not the cell itself
     freest = minimum_filter(grid.data, footprint=faces, mode="constant", cval=grid.outside)
     data = grid.data * (1.0 - freest)
-    return OccupancyGrid(data.astype(grid.data.dtype), grid.origin.copy(), grid.resolution,
-                         grid.outside)
+    return OccupancyGrid(data.astype(grid.data.dtype), grid.origin.copy(), grid.resolution, grid.outside)

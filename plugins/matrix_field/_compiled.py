@@ -27,6 +27,7 @@ def chol(A, n):  # type: ignore[no-untyped-def]
                 L[i, j] = s / L[j, j]
     return L
 
+
 @nb.njit(cache=True)
 def chol_solve(L, b, n):  # type: ignore[no-untyped-def]
     y = np.empty(n)
@@ -41,6 +42,7 @@ def chol_solve(L, b, n):  # type: ignore[no-untyped-def]
             s -= L[k, i] * y[k]
         y[i] = s / L[i, i]
     return y
+
 
 @nb.njit(cache=True)
 def orient(R, Rg):  # type: ignore[no-untyped-def]
@@ -72,9 +74,28 @@ def orient(R, Rg):  # type: ignore[no-untyped-def]
         out[0], out[1], out[2] = x * k, y * k, z * k
     return out
 
+
 @nb.njit(cache=True)
-def step(S, J, p, R, p_goal, R_goal, q, lower, upper, qd_max, points, F, support, descendants,  # type: ignore[no-untyped-def]
-         tool, prm, qd_out, diag):
+def step(
+    S,
+    J,
+    p,
+    R,
+    p_goal,
+    R_goal,
+    q,
+    lower,
+    upper,
+    qd_max,
+    points,
+    F,
+    support,
+    descendants,  # type: ignore[no-untyped-def]
+    tool,
+    prm,
+    qd_out,
+    diag,
+):
     v_max, k_sig, k_p, k_w, w_max = prm[0], prm[1], prm[2], prm[3], prm[4]
     k_m, k_c, k_s, s_min, adaptive = prm[5], prm[6], prm[7], prm[8], prm[9]
     lam_max, m0, dt, k_tool, fade_d = prm[10], prm[11], prm[12], prm[13], prm[14]
@@ -150,8 +171,7 @@ def step(S, J, p, R, p_goal, R_goal, q, lower, upper, qd_max, points, F, support
             t0, t1, t2 = p1 * f2_ - p2 * f1, p2 * f0 - p0 * f2_, p0 * f1 - p1 * f0
             for k in range(n):
                 if support[i, k] != 0.0:
-                    x[k] += (S[0, k] * f0 + S[1, k] * f1 + S[2, k] * f2_
-                             + S[3, k] * t0 + S[4, k] * t1 + S[5, k] * t2)
+                    x[k] += S[0, k] * f0 + S[1, k] * f1 + S[2, k] * f2_ + S[3, k] * t0 + S[4, k] * t1 + S[5, k] * t2
         if k_tool > 0.0:
             for t in range(tool.shape[0]):
                 i = tool[t]
@@ -193,10 +213,10 @@ def step(S, J, p, R, p_goal, R_goal, q, lower, upper, qd_max, points, F, support
         qd_out[k] = min(max(val, lo), hi)
     diag[0], diag[1], diag[2], diag[3], diag[4], diag[5] = err_p, err_r, rep, m, s, lam
 
+
 @nb.njit(cache=True)
 def positions(Rs, ts, joint, local, out):  # type: ignore[no-untyped-def]
     for i in range(joint.shape[0]):
         j = joint[i]
         for a in range(3):
-            out[i, a] = (Rs[j, a, 0] * local[i, 0] + Rs[j, a, 1] * local[i, 1] + Rs[j, a, 2] * local[i, 2]
-                         + ts[j, a])
+            out[i, a] = Rs[j, a, 0] * local[i, 0] + Rs[j, a, 1] * local[i, 1] + Rs[j, a, 2] * local[i, 2] + ts[j, a]

@@ -122,10 +122,24 @@ class IKLoopConfig:
 
     def validate(self) -> None:
         """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
-        positive = ("dt", "speed_max", "sigmoid_gain", "position_gain", "orientation_gain",
-                    "angular_speed_max", "goal_tolerance_scale", "standoff", "control_point_spacing",
-                    "tool_fade_distance", "velocity_scale", "stall_window", "rotation_weight", "slowdown_min",
-                    "damping_factor", "manipulability_threshold")
+        positive = (
+            "dt",
+            "speed_max",
+            "sigmoid_gain",
+            "position_gain",
+            "orientation_gain",
+            "angular_speed_max",
+            "goal_tolerance_scale",
+            "standoff",
+            "control_point_spacing",
+            "tool_fade_distance",
+            "velocity_scale",
+            "stall_window",
+            "rotation_weight",
+            "slowdown_min",
+            "damping_factor",
+            "manipulability_threshold",
+        )
         for name in positive:
             check_number(self, name, lambda v: v > 0, "finite and > 0")
         for name in ("tool_repulsion_gain", "manipulability_gain", "mid_joint_gain", "slowdown_gain", "stall_ratio"):
@@ -137,8 +151,9 @@ class IKLoopConfig:
         for name in ("max_steps", "collision_check_every"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "max_steps" else 0):
-                raise InvalidConfigError(f"{name} must be a whole number >= "
-                                         f"{1 if name == 'max_steps' else 0}, got {v!r}")
+                raise InvalidConfigError(
+                    f"{name} must be a whole number >= {1 if name == 'max_steps' else 0}, got {v!r}"
+                )
         if not isinstance(self.verify_path, bool):
             raise InvalidConfigError(f"verify_path must be true or false, got {self.verify_path!r}")
         for name, choices in (("backend", ("auto", "numba", "numpy")), ("damping", DAMPING_MODES)):
@@ -186,10 +201,13 @@ class MatrixFieldConfig(IKLoopConfig):
         if self.standoff >= self.kernel_reach:
             raise InvalidConfigError(
                 f"standoff {self.standoff} m must be below kernel_reach {self.kernel_reach} m: the "
-                "field is zero beyond the reach, so no gain can push there")
-        for name, choices in (("field_mode", FIELD_MODES),
-                              ("kernel_profile", ("linear", "gaussian", "inverse-power")),
-                              ("kernel_taper", ("linear", "gaussian", "constant"))):
+                "field is zero beyond the reach, so no gain can push there"
+            )
+        for name, choices in (
+            ("field_mode", FIELD_MODES),
+            ("kernel_profile", ("linear", "gaussian", "inverse-power")),
+            ("kernel_taper", ("linear", "gaussian", "constant")),
+        ):
             if getattr(self, name) not in choices:
                 raise InvalidConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
 
@@ -220,5 +238,6 @@ def _freeze_points(points: Any) -> tuple[tuple[str, tuple[tuple[float, float, fl
     except (TypeError, ValueError) as exc:
         raise InvalidConfigError(
             "control_points must map link names to lists of [x, y, z] points [m] in the link frame, "
-            f"got {points!r} ({exc})") from None
+            f"got {points!r} ({exc})"
+        ) from None
     return tuple(out)

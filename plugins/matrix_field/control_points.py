@@ -79,8 +79,9 @@ def _link_boxes(robot: Any) -> dict[str, tuple[int, Any, np.ndarray, np.ndarray]
     return boxes
 
 
-def place_control_points(robot: Any, spacing: float = 0.12,
-                         overrides: Sequence[tuple[str, Sequence[Sequence[float]]]] | None = None) -> ControlPoints:
+def place_control_points(
+    robot: Any, spacing: float = 0.12, overrides: Sequence[tuple[str, Sequence[Sequence[float]]]] | None = None
+) -> ControlPoints:
     """Control points along every moving link of ``robot`` (see the module docstring).
 
     ``spacing`` [m] is the largest gap between neighbouring points of one link. ``overrides``:

@@ -23,15 +23,30 @@ from planbench_plugins.matrix_field import tasks as T
 
 __all__ = ["PARAMS", "pack_params", "step_numpy", "step_compiled", "control_point_positions", "have_numba"]
 
-PARAMS = ("speed_max", "sigmoid_gain", "position_gain", "orientation_gain", "angular_speed_max",
-          "manipulability_gain", "mid_joint_gain", "slowdown_gain", "slowdown_min", "adaptive",
-          "damping_factor", "manipulability_threshold", "dt", "tool_repulsion_gain", "tool_fade_distance")
+PARAMS = (
+    "speed_max",
+    "sigmoid_gain",
+    "position_gain",
+    "orientation_gain",
+    "angular_speed_max",
+    "manipulability_gain",
+    "mid_joint_gain",
+    "slowdown_gain",
+    "slowdown_min",
+    "adaptive",
+    "damping_factor",
+    "manipulability_threshold",
+    "dt",
+    "tool_repulsion_gain",
+    "tool_fade_distance",
+)
 
 
 def pack_params(cfg: Any) -> np.ndarray:
     """The settings a step needs, as a float array in :data:`PARAMS` order."""
-    return np.array([float(cfg.damping == "adaptive") if name == "adaptive" else float(getattr(cfg, name))
-                     for name in PARAMS])
+    return np.array(
+        [float(cfg.damping == "adaptive") if name == "adaptive" else float(getattr(cfg, name)) for name in PARAMS]
+    )
 
 
 def have_numba() -> bool:
@@ -43,16 +58,42 @@ def have_numba() -> bool:
 _FLOOR2 = 1e-18  # (1e-9 m)^2 added to the DLS matrix: defined at an exact singularity
 
 
-def step_numpy(S, J, p, R, p_goal, R_goal, q, lower, upper, qd_max, points, F, support, descendants,  # type: ignore[no-untyped-def]
-               tool, prm, qd_out, diag) -> None:
+def step_numpy(
+    S,
+    J,
+    p,
+    R,
+    p_goal,
+    R_goal,
+    q,
+    lower,
+    upper,
+    qd_max,
+    points,
+    F,
+    support,
+    descendants,  # type: ignore[no-untyped-def]
+    tool,
+    prm,
+    qd_out,
+    diag,
+) -> None:
     """The reference step, composed of the :mod:`.tasks` functions."""
-    (v_max, k_sig, k_p, k_w, w_max, k_m, k_c, k_s, s_min, adaptive, lam_max, m0, dt, k_tool,
-     fade_d) = prm.tolist()
+    (v_max, k_sig, k_p, k_w, w_max, k_m, k_c, k_s, s_min, adaptive, lam_max, m0, dt, k_tool, fade_d) = prm.tolist()
     e = p_goal - p
     err_p = math.sqrt(float(e @ e))
     err_r = float(np.linalg.norm(T.orientation_error(R, R_goal)))
-    v = T.attraction(p, R, p_goal, R_goal, speed_max=v_max, sigmoid_gain=k_sig, position_gain=k_p,
-                     orientation_gain=k_w, angular_speed_max=w_max)
+    v = T.attraction(
+        p,
+        R,
+        p_goal,
+        R_goal,
+        speed_max=v_max,
+        sigmoid_gain=k_sig,
+        position_gain=k_p,
+        orientation_gain=k_w,
+        angular_speed_max=w_max,
+    )
     x = T.mid_joint_velocity(q, lower, upper, k_c)
     m, grad = T.manipulability_gradient(S, descendants)
     if k_m > 0:
@@ -91,7 +132,8 @@ def step_compiled(*args: Any) -> None:
     _compiled()[0](*args)
 
 
-def control_point_positions(Rs: np.ndarray, ts: np.ndarray, joint: np.ndarray, local: np.ndarray,
-                            out: np.ndarray) -> None:
+def control_point_positions(
+    Rs: np.ndarray, ts: np.ndarray, joint: np.ndarray, local: np.ndarray, out: np.ndarray
+) -> None:
     """``out[i] = Rs[joint[i]] @ local[i] + ts[joint[i]]`` (numba)."""
     _compiled()[1](Rs, ts, joint, local, out)

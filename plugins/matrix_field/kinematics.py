@@ -86,16 +86,21 @@ class ArmKinematics:
         addr = [M.rotation.__array_interface__["data"][0] for M in self._joints]
         taddr = [M.translation.__array_interface__["data"][0] for M in self._joints]
         stride = addr[1] - addr[0] if njoints > 1 else 0
-        if (njoints < 2 or stride <= 0 or any(b - a != stride for a, b in zip(addr, addr[1:], strict=False))
-                or any(t - a != 72 for a, t in zip(addr, taddr, strict=True))
-                or not all(M.rotation.flags["F_CONTIGUOUS"] for M in self._joints)):
+        if (
+            njoints < 2
+            or stride <= 0
+            or any(b - a != stride for a, b in zip(addr, addr[1:], strict=False))
+            or any(t - a != 72 for a, t in zip(addr, taddr, strict=True))
+            or not all(M.rotation.flags["F_CONTIGUOUS"] for M in self._joints)
+        ):
             return False
         raw = (ctypes.c_double * ((stride // 8) * (njoints - 1) + 12)).from_address(addr[0])
         base = np.ctypeslib.as_array(raw)
         R = np.lib.stride_tricks.as_strided(base, (njoints, 3, 3), (stride, 8, 24))  # R[j, a, b]
         t = np.lib.stride_tricks.as_strided(base[9:], (njoints, 3), (stride, 8))
-        ok = all(np.array_equal(R[j], self._Rviews[j]) and np.array_equal(t[j], self._tviews[j])
-                 for j in range(njoints))
+        ok = all(
+            np.array_equal(R[j], self._Rviews[j]) and np.array_equal(t[j], self._tviews[j]) for j in range(njoints)
+        )
         if ok:
             self._Rbuf, self._tbuf = R, t
         return ok

@@ -115,8 +115,16 @@ class ZeroRepulsion:
 class StepInputs:
     """What :meth:`IKLoopPlanner.solve_step` reads besides the kinematics (fixed for one query)."""
 
-    def __init__(self, p_goal: np.ndarray, R_goal: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 qd_max: np.ndarray, tool_joint: int, params: np.ndarray) -> None:
+    def __init__(
+        self,
+        p_goal: np.ndarray,
+        R_goal: np.ndarray,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        qd_max: np.ndarray,
+        tool_joint: int,
+        params: np.ndarray,
+    ) -> None:
         self.p_goal, self.R_goal = p_goal, R_goal
         self.lower, self.upper, self.qd_max = lower, upper, qd_max
         self.tool_joint = tool_joint
@@ -143,12 +151,40 @@ class IKLoopPlanner(Planner):
         """Build the repulsion source for ``problem`` (untimed setup)."""
         raise NotImplementedError
 
-    def solve_step(self, kin: ArmKinematics, q: np.ndarray, inputs: StepInputs, points: np.ndarray, F: np.ndarray,
-                   support: np.ndarray, tool: np.ndarray, qd_out: np.ndarray, diag: np.ndarray) -> None:
+    def solve_step(
+        self,
+        kin: ArmKinematics,
+        q: np.ndarray,
+        inputs: StepInputs,
+        points: np.ndarray,
+        F: np.ndarray,
+        support: np.ndarray,
+        tool: np.ndarray,
+        qd_out: np.ndarray,
+        diag: np.ndarray,
+    ) -> None:
         """Steps 3-7 of the module docstring: write the joint velocity into ``qd_out`` and the
         diagnostics into ``diag``. Default: the closed-form DLS step (compiled or numpy)."""
-        self._step(kin.S, kin.J, kin.p, kin.R, inputs.p_goal, inputs.R_goal, q, inputs.lower, inputs.upper,
-                   inputs.qd_max, points, F, support, kin.descendants, tool, inputs.params, qd_out, diag)
+        self._step(
+            kin.S,
+            kin.J,
+            kin.p,
+            kin.R,
+            inputs.p_goal,
+            inputs.R_goal,
+            q,
+            inputs.lower,
+            inputs.upper,
+            inputs.qd_max,
+            points,
+            F,
+            support,
+            kin.descendants,
+            tool,
+            inputs.params,
+            qd_out,
+            diag,
+        )
 
     # --- setup (untimed by the harness, reported as setup time) ------------------------------
     @property
@@ -181,16 +217,30 @@ class IKLoopPlanner(Planner):
         kin.update(q)
         inputs = self._inputs(problem, frame_id)
         points, F, support, _ = prep["repulsion"].forces(kin)
-        self.solve_step(kin, q, inputs, points, np.zeros_like(F), support, np.zeros(0, dtype=np.intp),
-                        np.zeros(robot.nq), np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics)))
+        self.solve_step(
+            kin,
+            q,
+            inputs,
+            points,
+            np.zeros_like(F),
+            support,
+            np.zeros(0, dtype=np.intp),
+            np.zeros(robot.nq),
+            np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics)),
+        )
 
     def _inputs(self, problem: Problem, frame_id: int) -> StepInputs:
         robot = problem.robot
         goal = problem.goal.pose
-        return StepInputs(np.asarray(goal.position, dtype=float), np.asarray(goal.rotation, dtype=float),
-                          np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float),
-                          self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
-                          int(robot.model.frames[frame_id].parentJoint), fast.pack_params(self.config))
+        return StepInputs(
+            np.asarray(goal.position, dtype=float),
+            np.asarray(goal.rotation, dtype=float),
+            np.asarray(robot.lower, dtype=float),
+            np.asarray(robot.upper, dtype=float),
+            self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
+            int(robot.model.frames[frame_id].parentJoint),
+            fast.pack_params(self.config),
+        )
 
     def control_point_overrides(self, problem: Problem) -> list[tuple[str, Any]]:
         """Per-link control points: the robot's (``[control_points]`` in ``robots/<name>.toml``),
@@ -265,8 +315,7 @@ class IKLoopPlanner(Planner):
             err_p, err_r = dg[0], dg[1]
             e = err_p + rho * err_r
             best[k] = e if k == 0 else min(e, best[k - 1])
-            if checker is not None and check_every > 0 and k % check_every == 0 and k > 0 \
-                    and checker.in_collision(q):
+            if checker is not None and check_every > 0 and k % check_every == 0 and k > 0 and checker.in_collision(q):
                 status, message = PlanStatus.COLLISION, f"the arm is in collision at step {k} (t = {k * dt:.2f} s)"
                 break
             if err_p <= tol_p and err_r <= tol_r:
@@ -274,9 +323,11 @@ class IKLoopPlanner(Planner):
                 break
             if stalled(best, k, window, cfg.stall_ratio):
                 status = PlanStatus.LOCAL_MINIMUM
-                message = (f"local minimum: the goal error fell by less than {cfg.stall_ratio:.0%} over "
-                           f"{cfg.stall_window:g} s (position error {err_p * 1000:.1f} mm, "
-                           f"orientation error {err_r:.3f} rad)")
+                message = (
+                    f"local minimum: the goal error fell by less than {cfg.stall_ratio:.0%} over "
+                    f"{cfg.stall_window:g} s (position error {err_p * 1000:.1f} mm, "
+                    f"orientation error {err_r:.3f} rad)"
+                )
                 break
             if k >= cfg.max_steps:
                 break
@@ -291,8 +342,13 @@ class IKLoopPlanner(Planner):
             hit = self._first_collision(checker, prep["problem"], path[:n])
             if hit is not None:
                 n = hit + 1
-                status, message = PlanStatus.COLLISION, (f"the arm is in collision at step {hit} "
-                                                         f"(t = {hit * dt:.2f} s), found by the certified path check")
+                status, message = (
+                    PlanStatus.COLLISION,
+                    (
+                        f"the arm is in collision at step {hit} "
+                        f"(t = {hit * dt:.2f} s), found by the certified path check"
+                    ),
+                )
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
         info.update(steps=n - 1, dt=dt, repulsion_gain=repulsion.gain, n_control_points=len(prep["points"]))

@@ -19,8 +19,7 @@ from planbench_plugins.matrix_field.control_points import ControlPoints
 from planbench_plugins.matrix_field.kinematics import ArmKinematics
 from planbench_plugins.matrix_field.loop import IKLoopPlanner, Repulsion, ZeroRepulsion, stalled
 
-__all__ = ["MatrixFieldPlanner", "MatrixFieldRepulsion", "stalled", "wall_field", "repulsion_gain",
-           "build_scene_field"]
+__all__ = ["MatrixFieldPlanner", "MatrixFieldRepulsion", "stalled", "wall_field", "repulsion_gain", "build_scene_field"]
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +65,9 @@ def build_scene_field(problem: Problem, config: MatrixFieldConfig) -> tuple[Any,
     from planbench.field import KernelSpec, full_field, surface_grid
     from planbench.occupancy import OccupancyGrid
 
-    kernels = KernelSpec(reach=config.kernel_reach, profile=config.kernel_profile,
-                         taper=config.kernel_taper).build(config.grid_resolution)
+    kernels = KernelSpec(reach=config.kernel_reach, profile=config.kernel_profile, taper=config.kernel_taper).build(
+        config.grid_resolution
+    )
     if len(problem.scene) == 0:
         return None, kernels, None
     grow = kernels.reach + config.grid_resolution

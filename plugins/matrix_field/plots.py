@@ -51,8 +51,14 @@ def _joint_chain(problem: Problem, q: np.ndarray) -> np.ndarray:
 def _equal(ax: Any, pts: np.ndarray) -> None:
     lo, hi = pts.min(0), pts.max(0)
     c, r = 0.5 * (lo + hi), 0.5 * float((hi - lo).max()) + 0.05
-    ax.set(xlim=(c[0] - r, c[0] + r), ylim=(c[1] - r, c[1] + r), zlim=(c[2] - r, c[2] + r),
-           xlabel="x [m]", ylabel="y [m]", zlabel="z [m]")
+    ax.set(
+        xlim=(c[0] - r, c[0] + r),
+        ylim=(c[1] - r, c[1] + r),
+        zlim=(c[2] - r, c[2] + r),
+        xlabel="x [m]",
+        ylabel="y [m]",
+        zlabel="z [m]",
+    )
 
 
 def _prepared(problem: Problem, config: MatrixFieldConfig | None, planner: IKLoopPlanner | None) -> IKLoopPlanner:
@@ -63,8 +69,14 @@ def _prepared(problem: Problem, config: MatrixFieldConfig | None, planner: IKLoo
     return planner
 
 
-def plot_arm_field(problem: Problem, q: np.ndarray, config: MatrixFieldConfig | None = None,
-                   ax: Any = None, out: str | Path | None = None, planner: IKLoopPlanner | None = None) -> Figure:
+def plot_arm_field(
+    problem: Problem,
+    q: np.ndarray,
+    config: MatrixFieldConfig | None = None,
+    ax: Any = None,
+    out: str | Path | None = None,
+    planner: IKLoopPlanner | None = None,
+) -> Figure:
     """The arm at ``q`` (joint chain), the points where the repulsion acts, the repulsive
     velocities ``f_i`` [m/s] there (drawn as 0.2 s of motion) and the obstacles' boxes.
     ``planner``: any loop planner (default: a matrix-field planner with ``config``)."""
@@ -123,9 +135,14 @@ def plot_diagnostics(result: PlanResult, ax: Any = None, out: str | Path | None 
     return _save(fig, out)
 
 
-def plot_result(problem: Problem, result: PlanResult, path_png: str | Path | None = None,
-                config: MatrixFieldConfig | None = None, step: int | None = None,
-                planner: IKLoopPlanner | None = None) -> Figure:
+def plot_result(
+    problem: Problem,
+    result: PlanResult,
+    path_png: str | Path | None = None,
+    config: MatrixFieldConfig | None = None,
+    step: int | None = None,
+    planner: IKLoopPlanner | None = None,
+) -> Figure:
     """Arm with control points and repulsion at ``step`` (default: the step of strongest
     repulsion), the end-effector path, and the diagnostics; written to ``path_png`` when given."""
     fig = Figure(figsize=(17, 5.5), layout="constrained")

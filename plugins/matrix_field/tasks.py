@@ -16,10 +16,23 @@ import math
 import numpy as np
 
 __all__ = [
-    "attraction_velocity", "orientation_error", "attraction", "adaptive_damping", "dls",
-    "dls_with_nullspace", "nullspace_projector", "manipulability", "manipulability_gradient",
-    "mid_joint_velocity", "strongest", "slowdown_factor", "repulsion_joint_velocity", "point_jacobians",
-    "scale_to_velocity_limits", "clamp_to_position_limits", "merge",
+    "attraction_velocity",
+    "orientation_error",
+    "attraction",
+    "adaptive_damping",
+    "dls",
+    "dls_with_nullspace",
+    "nullspace_projector",
+    "manipulability",
+    "manipulability_gradient",
+    "mid_joint_velocity",
+    "strongest",
+    "slowdown_factor",
+    "repulsion_joint_velocity",
+    "point_jacobians",
+    "scale_to_velocity_limits",
+    "clamp_to_position_limits",
+    "merge",
 ]
 
 _HALF_PI = 0.5 * math.pi
@@ -71,9 +84,18 @@ def orientation_error(R: np.ndarray, R_goal: np.ndarray) -> np.ndarray:
     return np.array([x * k, y * k, z * k])
 
 
-def attraction(p: np.ndarray, R: np.ndarray, p_goal: np.ndarray, R_goal: np.ndarray, *, speed_max: float,
-               sigmoid_gain: float, position_gain: float, orientation_gain: float,
-               angular_speed_max: float) -> np.ndarray:
+def attraction(
+    p: np.ndarray,
+    R: np.ndarray,
+    p_goal: np.ndarray,
+    R_goal: np.ndarray,
+    *,
+    speed_max: float,
+    sigmoid_gain: float,
+    position_gain: float,
+    orientation_gain: float,
+    angular_speed_max: float,
+) -> np.ndarray:
     """``v_att = [k_p v ; k_w omega]`` (6,), the angular part capped at ``angular_speed_max`` [rad/s]."""
     out = np.empty(6)
     out[:3] = position_gain * attraction_velocity(p, p_goal, speed_max, sigmoid_gain)
@@ -106,8 +128,9 @@ def dls(J: np.ndarray, v: np.ndarray, damping: float) -> np.ndarray:
     return J.T @ np.linalg.solve(A, v)
 
 
-def dls_with_nullspace(J: np.ndarray, v: np.ndarray, x: np.ndarray, damping: float,
-                       floor: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+def dls_with_nullspace(
+    J: np.ndarray, v: np.ndarray, x: np.ndarray, damping: float, floor: float = 1e-9
+) -> tuple[np.ndarray, np.ndarray]:
     """``(qd_1, N x)`` with one factorisation: ``qd_1 = J_dls^+ v`` and ``N x = x - J_dls^+ J x``.
 
     ``floor`` [m] is added to the damping only to keep the solve defined at an exact singularity.
@@ -148,8 +171,8 @@ def manipulability_gradient(S: np.ndarray, descendants: np.ndarray, eps: float =
     # a_i = v_i x Xv_i + w_i x Xw_i and b_i = w_i x Xv_i, with one cross product of (3, 3n)
     c = _cross_cols(np.concatenate((S[:3], S[3:], S[3:]), axis=1), np.concatenate((X[:3], X[3:], X[:3]), axis=1))
     n = S.shape[1]
-    a = c[:, :n] + c[:, n:2 * n]
-    b = c[:, 2 * n:]
+    a = c[:, :n] + c[:, n : 2 * n]
+    b = c[:, 2 * n :]
     # column k of a @ D^T: the sum of a_i over the descendants i of k
     grad = (S[3:] * (a @ descendants.T) + S[:3] * (b @ descendants.T)).sum(axis=0)
     grad *= m
@@ -175,8 +198,7 @@ def slowdown_factor(repulsion_speed: float, gain: float, minimum: float) -> floa
     return max(minimum, 1.0 / (1.0 + gain * repulsion_speed))
 
 
-def repulsion_joint_velocity(S: np.ndarray, points: np.ndarray, forces: np.ndarray,
-                             support: np.ndarray) -> np.ndarray:
+def repulsion_joint_velocity(S: np.ndarray, points: np.ndarray, forces: np.ndarray, support: np.ndarray) -> np.ndarray:
     """``qd_rep = sum_i J_i^T f_i`` (n,) without forming the point Jacobians.
 
     ``points`` (N, 3) world positions [m], ``forces`` (N, 3) repulsive velocities [m/s],
@@ -207,8 +229,9 @@ def scale_to_velocity_limits(qd: np.ndarray, qd_max: np.ndarray) -> tuple[np.nda
     return qd * c, c
 
 
-def clamp_to_position_limits(q: np.ndarray, qd: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                             dt: float) -> np.ndarray:
+def clamp_to_position_limits(
+    q: np.ndarray, qd: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: float
+) -> np.ndarray:
     """``qd`` clipped per joint so that ``q + qd dt`` stays in ``[lower, upper]``.
 
     Per joint, not one factor for all: a joint resting at its limit would otherwise freeze the

@@ -86,8 +86,14 @@ class MatrixFieldQPConfig(MatrixFieldConfig):
 
     def validate(self) -> None:
         super().validate()
-        for name in ("task_weight", "orientation_weight", "damping_weight", "damper_speed", "damper_stop",
-                     "residual_tolerance"):
+        for name in (
+            "task_weight",
+            "orientation_weight",
+            "damping_weight",
+            "damper_speed",
+            "damper_stop",
+            "residual_tolerance",
+        ):
             check_number(self, name, lambda v: v > 0, "finite and > 0")
         check_number(self, "secondary_weight", lambda v: v >= 0, "finite and >= 0")
         for name in ("velocity_dampers", "damper_tool"):
@@ -97,7 +103,8 @@ class MatrixFieldQPConfig(MatrixFieldConfig):
         if self.solver not in installed:
             raise InvalidConfigError(
                 f"solver {self.solver!r} is not an installed qpsolvers backend; installed: {installed}. "
-                f"Install it with e.g. `pip install qpsolvers[{self.solver}]`, or choose one of those.")
+                f"Install it with e.g. `pip install qpsolvers[{self.solver}]`, or choose one of those."
+            )
 
     @property
     def options(self) -> dict[str, Any]:

@@ -68,8 +68,16 @@ class StepQP:
         return n
 
 
-def objective(J: np.ndarray, v: np.ndarray, x_sec: np.ndarray, *, task_weight: float, orientation_weight: float,
-              secondary_weight: float, damping: float) -> tuple[np.ndarray, np.ndarray]:
+def objective(
+    J: np.ndarray,
+    v: np.ndarray,
+    x_sec: np.ndarray,
+    *,
+    task_weight: float,
+    orientation_weight: float,
+    secondary_weight: float,
+    damping: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(P, c)`` of the objective above; ``v`` is the primary target ``s v_att`` (6,), ``damping``
     is ``mu`` [s^2/rad^2]."""
     w2 = np.array([1.0, 1.0, 1.0, orientation_weight, orientation_weight, orientation_weight])
@@ -80,8 +88,9 @@ def objective(J: np.ndarray, v: np.ndarray, x_sec: np.ndarray, *, task_weight: f
     return P, c
 
 
-def limit_bounds(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, qd_max: np.ndarray,
-                 dt: float) -> tuple[np.ndarray, np.ndarray]:
+def limit_bounds(
+    q: np.ndarray, lower: np.ndarray, upper: np.ndarray, qd_max: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``(lb, ub)``: velocity limits and the position limits over one step, ``q + qd dt`` in
     ``[lower, upper]``. ``lb > ub`` on a joint means no velocity keeps it within both.
 
@@ -97,8 +106,16 @@ def infeasible_joints(lb: np.ndarray, ub: np.ndarray) -> np.ndarray:
     return np.flatnonzero(lb > ub)
 
 
-def velocity_dampers(S: np.ndarray, points: np.ndarray, F: np.ndarray, support: np.ndarray, rows: np.ndarray,
-                     *, speed: float, stop: float) -> tuple[np.ndarray, np.ndarray]:
+def velocity_dampers(
+    S: np.ndarray,
+    points: np.ndarray,
+    F: np.ndarray,
+    support: np.ndarray,
+    rows: np.ndarray,
+    *,
+    speed: float,
+    stop: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """``(G, h)`` of the velocity dampers of control points ``rows`` (those with ``f_i != 0``).
 
     Row ``i``: ``-u_i^T J_i qd <= a_i`` with ``u_i = f_i / |f_i|`` and ``a_i = speed * max(0, 1 -

@@ -57,17 +57,34 @@ class MatrixFieldQPPlanner(MatrixFieldPlanner):
             pass  # the untimed warm-up step at an infeasible start: plan() reports it
 
     # --- one step ----------------------------------------------------------------------------
-    def build_qp(self, kin: ArmKinematics, q: np.ndarray, inputs: StepInputs, points: np.ndarray, F: np.ndarray,
-                 support: np.ndarray, tool: np.ndarray, diag: np.ndarray) -> StepQP:
+    def build_qp(
+        self,
+        kin: ArmKinematics,
+        q: np.ndarray,
+        inputs: StepInputs,
+        points: np.ndarray,
+        F: np.ndarray,
+        support: np.ndarray,
+        tool: np.ndarray,
+        diag: np.ndarray,
+    ) -> StepQP:
         """The step's QP (:mod:`.formulation`) from the matrix-field task terms; writes the six
         standard diagnostics into ``diag[:6]``."""
         cfg = self.config
         p, R, S = kin.p, kin.R, kin.S
         err_p = float(np.linalg.norm(inputs.p_goal - p))
         err_r = float(np.linalg.norm(T.orientation_error(R, inputs.R_goal)))
-        v = T.attraction(p, R, inputs.p_goal, inputs.R_goal, speed_max=cfg.speed_max, sigmoid_gain=cfg.sigmoid_gain,
-                         position_gain=cfg.position_gain, orientation_gain=cfg.orientation_gain,
-                         angular_speed_max=cfg.angular_speed_max)
+        v = T.attraction(
+            p,
+            R,
+            inputs.p_goal,
+            inputs.R_goal,
+            speed_max=cfg.speed_max,
+            sigmoid_gain=cfg.sigmoid_gain,
+            position_gain=cfg.position_gain,
+            orientation_gain=cfg.orientation_gain,
+            angular_speed_max=cfg.angular_speed_max,
+        )
         x_sec = T.mid_joint_velocity(q, inputs.lower, inputs.upper, cfg.mid_joint_gain)
         m, grad = T.manipulability_gradient(S, kin.descendants)
         if cfg.manipulability_gain > 0:
@@ -86,20 +103,40 @@ class MatrixFieldQPPlanner(MatrixFieldPlanner):
                     on[tool] = False
                 rows = np.flatnonzero(on)
                 if len(rows):
-                    G, h = velocity_dampers(S, points, F, support, rows, speed=cfg.damper_speed,
-                                            stop=cfg.damper_stop * cfg.speed_max)
-        lam = (T.adaptive_damping(m, cfg.damping_factor, cfg.manipulability_threshold)
-               if cfg.damping == "adaptive" else cfg.damping_factor)
+                    G, h = velocity_dampers(
+                        S, points, F, support, rows, speed=cfg.damper_speed, stop=cfg.damper_stop * cfg.speed_max
+                    )
+        lam = (
+            T.adaptive_damping(m, cfg.damping_factor, cfg.manipulability_threshold)
+            if cfg.damping == "adaptive"
+            else cfg.damping_factor
+        )
         s = T.slowdown_factor(rep, cfg.slowdown_gain, cfg.slowdown_min) if cfg.slowdown_gain > 0 else 1.0
-        P, c = objective(kin.J, s * v, x_sec, task_weight=cfg.task_weight, orientation_weight=cfg.orientation_weight,
-                         secondary_weight=cfg.secondary_weight,
-                         damping=cfg.task_weight * lam * lam + cfg.damping_weight)
+        P, c = objective(
+            kin.J,
+            s * v,
+            x_sec,
+            task_weight=cfg.task_weight,
+            orientation_weight=cfg.orientation_weight,
+            secondary_weight=cfg.secondary_weight,
+            damping=cfg.task_weight * lam * lam + cfg.damping_weight,
+        )
         lb, ub = limit_bounds(q, inputs.lower, inputs.upper, inputs.qd_max, cfg.dt)
         diag[:6] = (err_p, err_r, rep, m, s, lam)
         return StepQP(P, c, lb, ub, G, h)
 
-    def solve_step(self, kin: ArmKinematics, q: np.ndarray, inputs: StepInputs, points: np.ndarray, F: np.ndarray,
-                   support: np.ndarray, tool: np.ndarray, qd_out: np.ndarray, diag: np.ndarray) -> None:
+    def solve_step(
+        self,
+        kin: ArmKinematics,
+        q: np.ndarray,
+        inputs: StepInputs,
+        points: np.ndarray,
+        F: np.ndarray,
+        support: np.ndarray,
+        tool: np.ndarray,
+        qd_out: np.ndarray,
+        diag: np.ndarray,
+    ) -> None:
         """Build the QP, solve it, write ``qd`` (within the limits exactly) and the diagnostics.
         Raises :class:`~.solve.QPFailure` when there is no valid step."""
         t0 = time.perf_counter()

@@ -35,8 +35,11 @@ class QPFailure(StepFailure):
     summary for the result."""
 
     def __init__(self, message: str, solver: str, solver_status: str) -> None:
-        super().__init__(PlanStatus.INFEASIBLE, message,
-                         {"qp_failure": {"solver": solver, "solver_status": solver_status, "message": message}})
+        super().__init__(
+            PlanStatus.INFEASIBLE,
+            message,
+            {"qp_failure": {"solver": solver, "solver_status": solver_status, "message": message}},
+        )
         self.solver = solver
         self.solver_status = solver_status
 
@@ -67,7 +70,10 @@ class QPSolver:
                 f"infeasible QP: no velocity of {name} keeps it within its velocity limit and inside its "
                 f"position limits after one step (needs {qp.lb[j]:.4g} <= qd <= {qp.ub[j]:.4g} rad/s); "
                 "the configuration is outside the joint limits by more than one step at full speed: "
-                "start inside the limits", self.name, "infeasible (inconsistent bounds, found before the solver)")
+                "start inside the limits",
+                self.name,
+                "infeasible (inconsistent bounds, found before the solver)",
+            )
         P, G = qp.P, qp.G
         if self._sparse:  # a sparse-only backend: convert here, silently, instead of in qpsolvers
             P = self._csc(P)
@@ -77,8 +83,9 @@ class QPSolver:
         try:
             solution = self._qpsolvers.solve_problem(problem, solver=self.name, **self.options)
         except Exception as exc:  # any backend error is a named failure, not an escaping exception
-            raise QPFailure(f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name,
-                            f"error: {exc}") from exc
+            raise QPFailure(
+                f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name, f"error: {exc}"
+            ) from exc
         seconds = time.perf_counter() - t0
         x = solution.x
         if not solution.found or x is None or not np.all(np.isfinite(x)):
@@ -86,9 +93,12 @@ class QPSolver:
             raise QPFailure(f"QP solver {self.name!r} found no solution (status: {status})", self.name, status)
         violation = qp.violation(x)
         if violation > self.residual_tolerance:
-            raise QPFailure(f"QP solver {self.name!r} returned a step that breaks the constraints by {violation:.3g} "
-                            f"(tolerance {self.residual_tolerance:g}); tighten its tolerances through solver_options",
-                            self.name, f"{_status(solution)}, violation {violation:.3g}")
+            raise QPFailure(
+                f"QP solver {self.name!r} returned a step that breaks the constraints by {violation:.3g} "
+                f"(tolerance {self.residual_tolerance:g}); tighten its tolerances through solver_options",
+                self.name,
+                f"{_status(solution)}, violation {violation:.3g}",
+            )
         return np.clip(x, qp.lb, qp.ub), violation, seconds
 
 

@@ -14,5 +14,14 @@ from planbench_plugins.potential_fields.distance import DistanceFieldPlanner, Di
 from planbench_plugins.potential_fields.edt import EDTFieldPlanner, EDTFieldRepulsion
 from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
 
-__all__ = ["DistanceFieldConfig", "DistanceFieldPlanner", "DistanceFieldRepulsion", "EDTFieldConfig",
-           "EDTFieldPlanner", "EDTFieldRepulsion", "PotentialFieldConfig", "khatib_gain", "khatib_magnitude"]
+__all__ = [
+    "DistanceFieldConfig",
+    "DistanceFieldPlanner",
+    "DistanceFieldRepulsion",
+    "EDTFieldConfig",
+    "EDTFieldPlanner",
+    "EDTFieldRepulsion",
+    "PotentialFieldConfig",
+    "khatib_gain",
+    "khatib_magnitude",
+]

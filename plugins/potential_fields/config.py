@@ -38,11 +38,13 @@ class PotentialFieldConfig(IKLoopConfig):
         if self.standoff >= self.influence_distance:
             raise InvalidConfigError(
                 f"standoff {self.standoff} m must be below influence_distance {self.influence_distance} m: "
-                "the push is zero beyond the influence distance, so no gain can push there")
+                "the push is zero beyond the influence distance, so no gain can push there"
+            )
         if self.distance_floor >= self.standoff:
             raise InvalidConfigError(
                 f"distance_floor {self.distance_floor} m must be below standoff {self.standoff} m "
-                "(it only keeps the push finite at contact); use e.g. 0.01")
+                "(it only keeps the push finite at contact); use e.g. 0.01"
+            )
 
 
 @dataclass(frozen=True)

@@ -101,8 +101,11 @@ class DistanceFieldRepulsion:
         self.support = np.array([_support_row(model, int(j)) for j in self.joint]).reshape(len(links), model.nv)
         lo_obs, hi_obs = [], []
         for obstacle in scene.obstacles:
-            gid = gm.addGeometryObject(pin.GeometryObject(
-                f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(), obstacle.collision_geometry()))
+            gid = gm.addGeometryObject(
+                pin.GeometryObject(
+                    f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(), obstacle.collision_geometry()
+                )
+            )
             lo, hi = obstacle.aabb()
             lo_obs.append(lo)
             hi_obs.append(hi)
@@ -178,8 +181,11 @@ class DistanceFieldPlanner(IKLoopPlanner):
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """The robot's hulls and the scene's obstacles in one geometry model; the gain from the stand-off."""
         cfg = self.config
-        gain = cfg.repulsion_gain if cfg.repulsion_gain is not None else khatib_gain(
-            cfg.speed_max, cfg.standoff, cfg.influence_distance)
+        gain = (
+            cfg.repulsion_gain
+            if cfg.repulsion_gain is not None
+            else khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
+        )
         if len(problem.scene) == 0 or gain <= 0:
             return ZeroRepulsion()
         return DistanceFieldRepulsion(problem.robot, problem.scene, gain, cfg.influence_distance, cfg.distance_floor)

@@ -115,8 +115,11 @@ class EDTFieldPlanner(IKLoopPlanner):
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize, distance-transform and differentiate the scene; the gain from the stand-off."""
         cfg = self.config
-        gain = cfg.repulsion_gain if cfg.repulsion_gain is not None else khatib_gain(
-            cfg.speed_max, cfg.standoff, cfg.influence_distance)
+        gain = (
+            cfg.repulsion_gain
+            if cfg.repulsion_gain is not None
+            else khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
+        )
         grid = scene_grid(problem, cfg.grid_resolution, cfg.influence_distance)
         if grid is None or gain <= 0:
             return ZeroRepulsion()
