@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 import planbench
-from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner, fast
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
+from planbench_plugins.ik_loop import ArmKinematics, fast
+from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
 
 
 def _median_us(fn: Any, reps: int = 2000, batches: int = 7) -> float:

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 import planbench
+from planbench_plugins.ik_loop import ArmKinematics
 from planbench_plugins.matrix_field import MatrixFieldPlanner
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
 from planbench_plugins.potential_fields import DistanceFieldPlanner, EDTFieldPlanner
 
 PLANNERS = {"matrix-field": MatrixFieldPlanner, "edt-field": EDTFieldPlanner, "distance-field": DistanceFieldPlanner}

@@ -30,7 +30,7 @@ import numpy as np
 
 from planbench.scene import Scene
 
-__all__ = ["OccupancyGrid"]
+__all__ = ["OccupancyGrid", "scene_grid"]
 
 RULES = ("any", "center", "fraction")
 
@@ -171,6 +171,33 @@ class OccupancyGrid:
         np.add.at(counts, tuple(idx[keep].T), 1)
         grid.data[...] = counts >= min_points
         return grid
+
+
+def scene_grid(
+    scene: Scene, resolution: float, margin: float = 0.0, *, robot: Any = None, aligned: bool = False
+) -> OccupancyGrid | None:
+    """The grid every grid-based planner voxelizes a scene into (rule ``"any"``: a cell touching
+    an obstacle is occupied, so the grid never misses a thin wall).
+
+    Bounds: the obstacles' bounding box grown by ``margin`` [m] (a field's reach plus a cell).
+    With ``robot``, cut to the cube of half-side ``robot.reach() + margin`` around its base,
+    since nothing farther can touch the arm or push a point on it. ``aligned`` rounds the bounds
+    out to multiples of ``resolution`` (an octree's cells lie on that lattice). ``None`` when the
+    scene is empty or no obstacle lies in the cube.
+    """
+    if len(scene) == 0:
+        return None
+    lo, hi = scene.aabb()
+    lo, hi = np.asarray(lo) - margin, np.asarray(hi) + margin
+    if robot is not None:
+        half = robot.reach() + margin
+        lo, hi = np.maximum(lo, -half), np.minimum(hi, half)
+        if np.any(hi <= lo):
+            return None
+    if aligned:
+        lo = np.floor(lo / resolution) * resolution
+        hi = np.maximum(np.ceil(hi / resolution) * resolution, lo + resolution)
+    return OccupancyGrid.from_scene(scene, resolution, bounds=(lo, hi), rule="any")
 
 
 def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.ndarray:  # type: ignore[no-untyped-def]

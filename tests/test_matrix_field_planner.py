@@ -12,8 +12,8 @@ from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import UnknownNameError
 from planbench.robot import load_robot
+from planbench_plugins.ik_loop import StepFailure
 from planbench_plugins.matrix_field import MatrixFieldPlanner
-from planbench_plugins.matrix_field.loop import StepFailure
 
 
 @pytest.fixture(scope="module")
@@ -147,9 +147,9 @@ def test_plot_result_writes_png(robot, tmp_path):
     from planbench_plugins.matrix_field import MatrixFieldConfig, plot_result
 
     problem = wall_problem(robot)
-    config = MatrixFieldConfig(tool_repulsion_gain=1.0)
-    result = planbench.plan(problem, MatrixFieldPlanner(config))
-    fig = plot_result(problem, result, tmp_path / "plan.png", config=config)
+    planner = MatrixFieldPlanner(MatrixFieldConfig(tool_repulsion_gain=1.0))
+    result = planbench.plan(problem, planner)
+    fig = plot_result(problem, result, tmp_path / "plan.png", planner=planner)
     assert (tmp_path / "plan.png").stat().st_size > 10_000
     assert len(fig.axes) == 3
 

@@ -11,7 +11,7 @@ from planbench import PlanStatus, Problem, Scene
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot
-from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner, installed_solvers
 from planbench_plugins.matrix_field_qp.formulation import limit_bounds, objective
 

@@ -9,11 +9,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from planbench.errors import InvalidConfigError
+from planbench.field.scene_field import wall_field
 from planbench.robot import load_robot
+from planbench_plugins.ik_loop import ArmKinematics, stalled
+from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field import MatrixFieldConfig, place_control_points
-from planbench_plugins.matrix_field import tasks as T
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
-from planbench_plugins.matrix_field.planner import stalled, wall_field
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +175,7 @@ def test_kinematics_agree_with_pinocchio(robot, kin):
 
 @pytest.mark.parametrize("compiled", [False, True])
 def test_kinematics_follow_every_update(robot, compiled):
-    if compiled and not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba():
+    if compiled and not __import__("planbench_plugins.ik_loop.fast", fromlist=["x"]).have_numba():
         pytest.skip("numba not installed")
     k = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=compiled)
     rng = np.random.default_rng(11)
@@ -291,11 +291,11 @@ def test_config_defaults_and_overrides_freeze():
 
 # --- the compiled step equals the composition of the task functions ------------------------
 @pytest.mark.skipif(
-    not __import__("planbench_plugins.matrix_field.fast", fromlist=["x"]).have_numba(), reason="numba not installed"
+    not __import__("planbench_plugins.ik_loop.fast", fromlist=["x"]).have_numba(), reason="numba not installed"
 )
 @pytest.mark.parametrize("damping", ["adaptive", "fixed"])
 def test_compiled_step_matches_numpy_reference(robot, damping):
-    from planbench_plugins.matrix_field import fast
+    from planbench_plugins.ik_loop import fast
 
     cfg = MatrixFieldConfig(damping=damping, tool_repulsion_gain=1.0)
     prm = fast.pack_params(cfg)

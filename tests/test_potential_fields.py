@@ -12,7 +12,7 @@ from planbench.conformance import check_planner
 from planbench.errors import InvalidConfigError
 from planbench.occupancy import OccupancyGrid
 from planbench.robot import load_robot
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
+from planbench_plugins.ik_loop import ArmKinematics
 from planbench_plugins.potential_fields import (
     DistanceFieldConfig,
     DistanceFieldPlanner,
@@ -96,7 +96,7 @@ def _distance_repulsion(robot, q, wall_x: float, d0: float = D0):
 
 
 def _no_points():
-    from planbench_plugins.matrix_field.control_points import ControlPoints
+    from planbench_plugins.ik_loop.control_points import ControlPoints
 
     return ControlPoints(np.zeros(0, dtype=int), np.zeros((0, 3)), np.zeros(0), ())
 

@@ -1,8 +1,10 @@
 """Settings of the ``matrix-field-qp`` planner: the matrix-field planner's, plus the QP's.
 
-Everything of :class:`~planbench_plugins.matrix_field.config.MatrixFieldConfig` (time step,
-attraction, field, secondary-task gains, endings) keeps its meaning; what is added here are the
-weights of the QP's objective (see :mod:`.formulation`), the velocity dampers, and the solver.
+Everything of the IK loop's settings (:class:`~planbench_plugins.ik_loop.IKLoopConfig`: time
+step, attraction, secondary-task gains, endings) and of the field's
+(:class:`~planbench.field.scene_field.FieldSettings`) keeps its meaning, as in ``matrix-field``;
+what is added here are the weights of the QP's objective (see :mod:`.formulation`),
+the velocity dampers, and the solver.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from planbench.errors import InvalidConfigError
-from planbench_plugins.matrix_field.config import MatrixFieldConfig, check_number
+from planbench.field.scene_field import FieldSettings
+from planbench_plugins.ik_loop import IKLoopConfig, check_number
 
 __all__ = ["MatrixFieldQPConfig", "installed_solvers"]
 
@@ -25,7 +28,7 @@ def installed_solvers() -> list[str]:
 
 
 @dataclass(frozen=True)
-class MatrixFieldQPConfig(MatrixFieldConfig):
+class MatrixFieldQPConfig(FieldSettings, IKLoopConfig):
     """Settings of :class:`~planbench_plugins.matrix_field_qp.MatrixFieldQPPlanner`.
 
     Objective (one step, decision variable ``qd`` [rad/s]; :mod:`.formulation`)::
@@ -85,7 +88,8 @@ class MatrixFieldQPConfig(MatrixFieldConfig):
         super().__post_init__()
 
     def validate(self) -> None:
-        super().validate()
+        IKLoopConfig.validate(self)
+        self.validate_field()
         for name in (
             "task_weight",
             "orientation_weight",

@@ -10,7 +10,7 @@ The QP of a step, in qpsolvers' form ``min 1/2 x^T P x + c^T x  s.t.  G x <= h, 
 
 so ``P = w_task J^T W^2 J + (w_sec + mu) I`` and ``c = -(w_task s J^T W^2 v_att + w_sec x_sec)``.
 The task terms (``v_att``, ``s``, ``qd_rep``, ``qd_m``, ``qd_c``, ``lambda``) are the matrix-field
-planner's own functions (:mod:`planbench_plugins.matrix_field.tasks`); only the way they are
+planner's own functions (:mod:`planbench_plugins.ik_loop.tasks`); only the way they are
 combined differs. Unconstrained and with ``W = I``, the minimiser is
 ``J^T (J J^T + l^2 I)^-1 s v_att + w_sec / (w_sec + mu) N_l x_sec`` with ``l^2 = (w_sec + mu) /
 w_task``: the matrix-field step before its limits, with damped least squares and a damped
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.ik_loop import tasks as T
 
 __all__ = ["StepQP", "objective", "limit_bounds", "velocity_dampers", "infeasible_joints", "VELOCITY_MARGIN"]
 

@@ -1,8 +1,9 @@
 """The ``matrix-field-qp`` planner: the matrix-field planner with each step solved as a QP.
 
 Everything but the step is the matrix-field planner's (the shared IK loop of
-:mod:`planbench_plugins.matrix_field.loop`, the field, the endings, the diagnostics): this class
-replaces only :meth:`~planbench_plugins.matrix_field.loop.IKLoopPlanner.solve_step`, which builds
+:mod:`planbench_plugins.ik_loop`, the matrix field of :mod:`planbench.field.scene_field`, the
+endings, the diagnostics): this class replaces only
+:meth:`~planbench_plugins.ik_loop.IKLoopPlanner.solve_step`, which builds
 the QP of :mod:`.formulation` from the matrix-field task terms and solves it (:mod:`.solve`).
 Joint position and velocity limits are hard constraints of the QP instead of a scaling and a clip
 after the fact.
@@ -22,12 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from planbench.field.scene_field import scene_repulsion
 from planbench.planner import PlanResult
 from planbench.problem import Problem
-from planbench_plugins.matrix_field import MatrixFieldPlanner
-from planbench_plugins.matrix_field import tasks as T
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
-from planbench_plugins.matrix_field.loop import StepInputs
+from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, StepInputs, ZeroRepulsion
+from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp.config import MatrixFieldQPConfig
 from planbench_plugins.matrix_field_qp.formulation import StepQP, limit_bounds, objective, velocity_dampers
 from planbench_plugins.matrix_field_qp.solve import QPFailure, QPSolver
@@ -35,7 +35,7 @@ from planbench_plugins.matrix_field_qp.solve import QPFailure, QPSolver
 __all__ = ["MatrixFieldQPPlanner"]
 
 
-class MatrixFieldQPPlanner(MatrixFieldPlanner):
+class MatrixFieldQPPlanner(IKLoopPlanner):
     """Matrix-field IK planner with a QP per step (``matrix-field-qp``). See
     :class:`~planbench_plugins.matrix_field_qp.config.MatrixFieldQPConfig`."""
 
@@ -55,6 +55,10 @@ class MatrixFieldQPPlanner(MatrixFieldPlanner):
             super().setup(problem)
         except QPFailure:
             pass  # the untimed warm-up step at an infeasible start: plan() reports it
+
+    def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
+        """The matrix field of the scene, as ``matrix-field``'s (:mod:`planbench.field.scene_field`)."""
+        return scene_repulsion(problem, self.config) or ZeroRepulsion()
 
     # --- one step ----------------------------------------------------------------------------
     def build_qp(

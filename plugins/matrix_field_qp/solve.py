@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from planbench.planner import PlanStatus
-from planbench_plugins.matrix_field.loop import StepFailure
+from planbench_plugins.ik_loop import StepFailure
 from planbench_plugins.matrix_field_qp.formulation import StepQP, infeasible_joints
 
 __all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS"]

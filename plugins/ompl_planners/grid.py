@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from planbench.collision import CollisionChecker
-from planbench.occupancy import OccupancyGrid
+from planbench.occupancy import OccupancyGrid, scene_grid
 from planbench.robot import Robot
 from planbench.scene import Scene
 
@@ -60,13 +60,13 @@ class _GeometryScene:
 
 
 def grid_for_scene(scene: Scene, resolution: float, padding: float = 0.0) -> OccupancyGrid:
-    """The scene voxelized with the ``"any"`` rule on cells aligned to multiples of ``resolution``
-    [m] (bounds: the scene's bounding box grown by ``padding`` [m], rounded out to whole cells)."""
-    lo, hi = scene.aabb()
-    lower = np.floor((np.asarray(lo) - padding) / resolution) * resolution
-    upper = np.ceil((np.asarray(hi) + padding) / resolution) * resolution
-    upper = np.maximum(upper, lower + resolution)
-    return OccupancyGrid.from_scene(scene, resolution, bounds=(lower, upper), rule="any")
+    """The scene voxelized (:func:`planbench.occupancy.scene_grid`, rule ``"any"``) on cells aligned
+    to multiples of ``resolution`` [m], as an octree needs (bounds: the scene's bounding box grown by
+    ``padding`` [m], rounded out to whole cells)."""
+    grid = scene_grid(scene, resolution, padding, aligned=True)
+    if grid is None:
+        raise ValueError("an empty scene has no grid")
+    return grid
 
 
 def occupied_centres(grid: OccupancyGrid, threshold: float = 0.5) -> np.ndarray:

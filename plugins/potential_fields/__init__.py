@@ -1,6 +1,6 @@
 """Potential-field baselines sharing the matrix-field planner's IK loop (issue 6).
 
-Only the repulsion source differs from ``matrix-field`` (:mod:`planbench_plugins.matrix_field.loop`),
+Only the repulsion source differs from ``matrix-field`` (:mod:`planbench_plugins.ik_loop.loop`),
 so comparing them compares the fields. Both use Khatib's profile (:mod:`.khatib`):
 
 - ``distance-field`` (:mod:`.distance`): coal's exact distance and witness point between each

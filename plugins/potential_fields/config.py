@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from planbench.errors import InvalidConfigError
-from planbench_plugins.matrix_field.config import IKLoopConfig, check_number
+from planbench_plugins.ik_loop import IKLoopConfig, check_number
 
 __all__ = ["PotentialFieldConfig", "DistanceFieldConfig", "EDTFieldConfig"]
 

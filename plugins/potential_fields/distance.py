@@ -29,9 +29,7 @@ import numpy as np
 
 from planbench.problem import Problem
 from planbench.robot import _link_of
-from planbench_plugins.matrix_field.control_points import ControlPoints
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
-from planbench_plugins.matrix_field.loop import IKLoopPlanner, Repulsion, ZeroRepulsion
+from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
 from planbench_plugins.potential_fields.config import DistanceFieldConfig
 from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
 
@@ -171,7 +169,7 @@ class DistanceFieldRepulsion:
 
 
 class DistanceFieldPlanner(IKLoopPlanner):
-    """``distance-field``: the shared IK loop (:mod:`planbench_plugins.matrix_field.loop`) with
+    """``distance-field``: the shared IK loop (:mod:`planbench_plugins.ik_loop.loop`) with
     Khatib repulsion from coal's exact distances (:class:`DistanceFieldRepulsion`). Settings:
     :class:`~planbench_plugins.potential_fields.config.DistanceFieldConfig`."""
 

@@ -2,7 +2,7 @@
 
 Setup (untimed):
 
-1. the scene voxelized like the matrix field's (:func:`scene_grid`: rule ``"any"``, 0.02 m cells,
+1. the scene voxelized like the matrix field's (:func:`planbench.occupancy.scene_grid`: rule ``"any"``, 0.02 m cells,
    the scene's box grown by ``d0`` plus one cell, cut to the robot's reach);
 2. signed distance at cell centres from scipy's ``distance_transform_edt``, outside and inside:
    ``sd = edt(free) * r - r/2`` in free cells, ``-(edt(occupied) * r - r/2)`` in occupied ones.
@@ -26,32 +26,13 @@ from typing import Any
 
 import numpy as np
 
+from planbench.occupancy import scene_grid
 from planbench.problem import Problem
-from planbench_plugins.matrix_field.control_points import ControlPoints
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
-from planbench_plugins.matrix_field.loop import IKLoopPlanner, Repulsion, ZeroRepulsion
+from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
 from planbench_plugins.potential_fields.config import EDTFieldConfig
 from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
 
-__all__ = ["EDTFieldPlanner", "EDTFieldRepulsion", "scene_grid", "signed_distance"]
-
-
-def scene_grid(problem: Problem, resolution: float, influence_distance: float) -> Any:
-    """The occupancy grid of ``problem``'s scene, bounded as the matrix field's
-    (:func:`planbench_plugins.matrix_field.planner.build_scene_field` with ``kernel_reach = d0``);
-    ``None`` without obstacles in reach."""
-    from planbench.occupancy import OccupancyGrid
-
-    if len(problem.scene) == 0:
-        return None
-    grow = influence_distance + resolution
-    half = problem.robot.reach() + grow
-    lo, hi = problem.scene.aabb()
-    lo = np.maximum(np.asarray(lo) - grow, -half)
-    hi = np.minimum(np.asarray(hi) + grow, half)
-    if np.any(hi <= lo):
-        return None
-    return OccupancyGrid.from_scene(problem.scene, resolution, bounds=(lo, hi), rule="any")
+__all__ = ["EDTFieldPlanner", "EDTFieldRepulsion", "signed_distance"]
 
 
 def signed_distance(occupied: np.ndarray, resolution: float) -> np.ndarray:
@@ -104,7 +85,7 @@ class EDTFieldRepulsion:
 
 
 class EDTFieldPlanner(IKLoopPlanner):
-    """``edt-field``: the shared IK loop (:mod:`planbench_plugins.matrix_field.loop`) with Khatib
+    """``edt-field``: the shared IK loop (:mod:`planbench_plugins.ik_loop`) with Khatib
     repulsion along the gradient of the occupancy grid's distance transform
     (:class:`EDTFieldRepulsion`). Settings:
     :class:`~planbench_plugins.potential_fields.config.EDTFieldConfig`."""
@@ -120,7 +101,8 @@ class EDTFieldPlanner(IKLoopPlanner):
             if cfg.repulsion_gain is not None
             else khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
         )
-        grid = scene_grid(problem, cfg.grid_resolution, cfg.influence_distance)
+        margin = cfg.influence_distance + cfg.grid_resolution
+        grid = scene_grid(problem.scene, cfg.grid_resolution, margin, robot=problem.robot)
         if grid is None or gain <= 0:
             return ZeroRepulsion()
         return EDTFieldRepulsion(grid, gain, cfg.influence_distance, cfg.distance_floor)

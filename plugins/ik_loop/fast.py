@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench_plugins.matrix_field import tasks as T
+from planbench_plugins.ik_loop import tasks as T
 
 __all__ = ["PARAMS", "pack_params", "step_numpy", "step_compiled", "control_point_positions", "have_numba"]
 
@@ -112,7 +112,7 @@ def step_numpy(
 
 
 def _compile() -> Any:
-    from planbench_plugins.matrix_field import _compiled
+    from planbench_plugins.ik_loop import _compiled
 
     return _compiled.step, _compiled.positions
 

@@ -1,6 +1,6 @@
 """Plots of a field planner's plan (matplotlib, headless; every function returns a Figure).
 
-Any planner built on the shared IK loop (:class:`~planbench_plugins.matrix_field.loop.IKLoopPlanner`:
+Any planner built on the shared IK loop (:class:`~planbench_plugins.ik_loop.loop.IKLoopPlanner`:
 ``matrix-field``, ``matrix-field-qp``, ``edt-field``, ``distance-field``) can be drawn.
 
 - :func:`plot_arm_field`: the arm at one configuration, the points where the repulsion acts and
@@ -20,9 +20,7 @@ from matplotlib.figure import Figure
 
 from planbench.planner import PlanResult
 from planbench.problem import Problem
-from planbench_plugins.matrix_field.config import MatrixFieldConfig
-from planbench_plugins.matrix_field.loop import IKLoopPlanner
-from planbench_plugins.matrix_field.planner import MatrixFieldPlanner
+from planbench_plugins.ik_loop.loop import IKLoopPlanner
 
 __all__ = ["plot_result", "plot_arm_field", "plot_ee_path", "plot_diagnostics"]
 
@@ -61,9 +59,7 @@ def _equal(ax: Any, pts: np.ndarray) -> None:
     )
 
 
-def _prepared(problem: Problem, config: MatrixFieldConfig | None, planner: IKLoopPlanner | None) -> IKLoopPlanner:
-    if planner is None:
-        planner = MatrixFieldPlanner(config or MatrixFieldConfig())
+def _prepared(problem: Problem, planner: IKLoopPlanner) -> IKLoopPlanner:
     if planner.control_points is None or planner._prepared["problem"] is not problem:  # type: ignore[index]
         planner.setup(problem)
     return planner
@@ -72,15 +68,14 @@ def _prepared(problem: Problem, config: MatrixFieldConfig | None, planner: IKLoo
 def plot_arm_field(
     problem: Problem,
     q: np.ndarray,
-    config: MatrixFieldConfig | None = None,
+    planner: IKLoopPlanner,
     ax: Any = None,
     out: str | Path | None = None,
-    planner: IKLoopPlanner | None = None,
 ) -> Figure:
     """The arm at ``q`` (joint chain), the points where the repulsion acts, the repulsive
     velocities ``f_i`` [m/s] there (drawn as 0.2 s of motion) and the obstacles' boxes.
-    ``planner``: any loop planner (default: a matrix-field planner with ``config``)."""
-    planner = _prepared(problem, config, planner)
+    ``planner``: the loop planner whose repulsion is drawn (set up for ``problem`` if needed)."""
+    planner = _prepared(problem, planner)
     fig = ax.figure if ax is not None else Figure(figsize=(6, 6), layout="constrained")
     ax = ax if ax is not None else fig.add_subplot(projection="3d")
     q = np.asarray(q, dtype=float)
@@ -139,9 +134,9 @@ def plot_result(
     problem: Problem,
     result: PlanResult,
     path_png: str | Path | None = None,
-    config: MatrixFieldConfig | None = None,
+    *,
+    planner: IKLoopPlanner,
     step: int | None = None,
-    planner: IKLoopPlanner | None = None,
 ) -> Figure:
     """Arm with control points and repulsion at ``step`` (default: the step of strongest
     repulsion), the end-effector path, and the diagnostics; written to ``path_png`` when given."""
@@ -153,7 +148,7 @@ def plot_result(
     if step is None:
         rep = np.asarray(result.info.get("repulsion", np.zeros(len(path))), dtype=float)
         step = int(np.nanargmax(rep)) if np.any(np.nan_to_num(rep) > 0) else 0
-    plot_arm_field(problem, path[min(step, len(path) - 1)], config, ax=ax1, planner=planner)
+    plot_arm_field(problem, path[min(step, len(path) - 1)], planner, ax=ax1)
     ax1.set_title(f"step {step}: " + ax1.get_title())
     plot_ee_path(problem, result, ax=ax2)
     plot_diagnostics(result, ax=ax3)

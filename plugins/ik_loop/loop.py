@@ -49,10 +49,10 @@ import numpy as np
 
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
-from planbench_plugins.matrix_field import fast
-from planbench_plugins.matrix_field.config import IKLoopConfig
-from planbench_plugins.matrix_field.control_points import ControlPoints, place_control_points
-from planbench_plugins.matrix_field.kinematics import ArmKinematics
+from planbench_plugins.ik_loop import fast
+from planbench_plugins.ik_loop.config import IKLoopConfig
+from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
+from planbench_plugins.ik_loop.kinematics import ArmKinematics
 
 __all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
 
@@ -185,6 +185,14 @@ class IKLoopPlanner(Planner):
             qd_out,
             diag,
         )
+
+    def plot_result(self, problem: Problem, result: PlanResult, path_png: Any) -> Any:
+        """The planner's figure of a result (``planbench plan ... --plot out.png``): the arm with
+        its repulsion, the end-effector path, the diagnostics (:mod:`.plots`; matplotlib is
+        imported on use, it costs start-up that planning does not need)."""
+        from planbench_plugins.ik_loop.plots import plot_result
+
+        return plot_result(problem, result, path_png, planner=self)
 
     # --- setup (untimed by the harness, reported as setup time) ------------------------------
     @property

@@ -4,7 +4,7 @@
 Jacobian ``S``, WORLD convention) and ``updateFramePlacement`` for the goal frame, then reads the
 joint placements through views that pinocchio updates in place (no per-joint Python call) and
 computes all control-point positions in one batched product. Control-point Jacobians are never
-formed on the hot path: :func:`~planbench_plugins.matrix_field.tasks.repulsion_joint_velocity`
+formed on the hot path: :func:`~planbench_plugins.ik_loop.tasks.repulsion_joint_velocity`
 applies their transposes from ``S`` directly.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench_plugins.matrix_field.control_points import ControlPoints
+from planbench_plugins.ik_loop.control_points import ControlPoints
 
 __all__ = ["ArmKinematics"]
 
@@ -35,7 +35,7 @@ class ArmKinematics:
 
         self._positions = None
         if compiled:
-            from planbench_plugins.matrix_field.fast import control_point_positions
+            from planbench_plugins.ik_loop.fast import control_point_positions
 
             self._positions = control_point_positions
 

@@ -1,0 +1,66 @@
+"""The IK loop that every field planner shares: the loop, its task terms, control points,
+kinematics and the compiled step (docs/method.md, "The IK loop").
+
+A field planner is one module: a config (subclass :class:`IKLoopConfig`, add the repulsion's
+settings) and a planner (subclass :class:`IKLoopPlanner`, give ``make_repulsion``)::
+
+    @dataclass(frozen=True)
+    class MyConfig(IKLoopConfig):
+        reach: float = 0.2
+
+    class MyPlanner(IKLoopPlanner):
+        name = "my-field"
+        Config = MyConfig
+
+        def make_repulsion(self, problem, points):
+            return MyRepulsion(problem.scene, self.config.reach)  # forces(kin) -> points, F, support, joint
+
+The two seams are :class:`Repulsion` (where the push comes from) and
+:meth:`IKLoopPlanner.solve_step` (how one step's joint velocity is solved; ``matrix-field-qp``
+replaces it with a quadratic program). Modules: ``config``, ``loop``, ``tasks`` (one function per
+task term), ``control_points``, ``kinematics``, ``fast`` and ``_compiled`` (the step in one
+compiled call), ``plots``.
+"""
+
+from typing import Any
+
+from planbench_plugins.ik_loop import tasks
+from planbench_plugins.ik_loop.config import DAMPING_MODES, IKLoopConfig, check_number
+from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
+from planbench_plugins.ik_loop.kinematics import ArmKinematics
+from planbench_plugins.ik_loop.loop import (
+    DIAGNOSTICS,
+    IKLoopPlanner,
+    Repulsion,
+    StepFailure,
+    StepInputs,
+    ZeroRepulsion,
+    stalled,
+)
+
+__all__ = [
+    "DAMPING_MODES",
+    "DIAGNOSTICS",
+    "ArmKinematics",
+    "ControlPoints",
+    "IKLoopConfig",
+    "IKLoopPlanner",
+    "Repulsion",
+    "StepFailure",
+    "StepInputs",
+    "ZeroRepulsion",
+    "check_number",
+    "place_control_points",
+    "plot_result",
+    "stalled",
+    "tasks",
+]
+
+
+def plot_result(problem: Any, result: Any, path_png: Any = None, **kwargs: Any) -> Any:
+    """Three panels: the arm with control points and repulsive vectors, the end-effector path
+    among the obstacles, errors and repulsion over time (:func:`.plots.plot_result`). Imported on
+    use: matplotlib costs a planner's start-up half a second it does not need to plan."""
+    from planbench_plugins.ik_loop.plots import plot_result as _plot
+
+    return _plot(problem, result, path_png, **kwargs)

@@ -1,0 +1,195 @@
+"""Settings of the IK loop shared by the field planners (:mod:`.loop`).
+
+:class:`IKLoopConfig` holds what every loop planner shares: time step, attraction, damping,
+secondary tasks, limits, endings, the stand-off. A planner built on the loop subclasses it and
+adds the settings of its repulsion (or step solver).
+
+Units: metres, radians, seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from planbench.errors import InvalidConfigError
+
+__all__ = ["IKLoopConfig", "DAMPING_MODES", "check_number"]
+
+DAMPING_MODES = ("fixed", "adaptive")
+
+
+@dataclass(frozen=True)
+class IKLoopConfig:
+    """Settings of the IK loop shared by the field planners (:mod:`.loop`).
+
+    Stand-off: every repulsion source derives its gain from ``standoff``, so that a point on the
+    arm ``standoff`` from a flat wall is pushed away at the attraction's cruising speed
+    ``speed_max``: closer than that, the push beats the pull. Set ``repulsion_gain`` to use a gain
+    directly (``standoff`` is then ignored). One stand-off, whatever the field, keeps the
+    comparison between fields fair.
+    """
+
+    # --- time and budget -----------------------------------------------------------------
+    dt: float = 0.01
+    """Integration time step [s]; the trajectory is time-stamped ``t = k * dt``."""
+    max_steps: int = 3000
+    """Step budget; ``STEP_LIMIT`` when spent."""
+
+    # --- attraction (primary task) -------------------------------------------------------
+    speed_max: float = 0.25
+    """Cruising speed of the end effector far from the goal, ``v_max`` [m/s]."""
+    sigmoid_gain: float = 20.0
+    """``k_sigm`` [1/m] of the arctan speed profile ``v_max atan(k_sigm d) / (pi/2)``."""
+    position_gain: float = 1.0
+    """``k_p`` [-]: weight of the translational attraction."""
+    orientation_gain: float = 4.0
+    """``k_w`` [1/s]: angular velocity per radian of orientation error."""
+    angular_speed_max: float = 1.5
+    """Cap on the commanded angular speed ``|k_w omega|`` [rad/s]."""
+    goal_tolerance_scale: float = 0.5
+    """Success when both pose errors are under this fraction of the problem's tolerances [-]."""
+
+    # --- damped least squares ------------------------------------------------------------
+    damping: str = "adaptive"
+    """``"fixed"``: ``lambda = damping_factor`` always; ``"adaptive"``: ``lambda = 0`` while the
+    manipulability is above ``manipulability_threshold``, rising to ``damping_factor`` at 0."""
+    damping_factor: float = 0.05
+    """``lambda`` [m] of the damped least squares (the largest value in adaptive mode)."""
+    manipulability_threshold: float = 0.02
+    """``m0`` [m^3]: adaptive damping switches on below it."""
+
+    # --- repulsion (gain, tool, control points) ----------------------------------------
+    standoff: float = 0.10
+    """Distance [m] from a flat wall at which a point on the arm is pushed at ``speed_max``."""
+    repulsion_gain: float | None = None
+    """The repulsion's gain in its own units (see the planner's settings); ``None`` = derived from
+    ``standoff``."""
+    tool_repulsion_gain: float = 0.0
+    """Weight [-] of the repulsion added to the primary task: the strongest ``f_i`` among the
+    control points carried by the goal frame's joint (hand, fingers) is added to the attraction's
+    linear velocity, so the end effector itself bends around obstacles. 0 = METHOD.md as written
+    (all repulsion in the null space, where it can never move the end effector)."""
+    tool_fade_distance: float = 0.1
+    """Within this distance [m] of the goal position the tool repulsion fades linearly to 0: the
+    goal pose is collision-free, and a hand that must end next to a shelf would otherwise stop
+    short of it."""
+    control_point_spacing: float = 0.12
+    """Largest distance between control points along a link [m] (automatic placement)."""
+    control_points: Any = None
+    """Override of the automatic placement: ``{link: [[x, y, z], ...]}`` in the link frame [m];
+    an empty list removes a link's points. Other links keep their automatic points."""
+
+    # --- secondary tasks -----------------------------------------------------------------
+    manipulability_gain: float = 0.5
+    """``k_m`` [rad/s per m^3/rad]: gradient ascent on the manipulability; 0 switches it off."""
+    mid_joint_gain: float = 2.0
+    """``k_c`` [rad^2/s]: ``qd_c = -k_c (q - q_mid) / (q_max - q_min)^2`` [rad/s]."""
+    slowdown_gain: float = 2.0
+    """``k_s`` [s/m]: primary-task factor ``s = 1 / (1 + k_s |f|_max)``, ``|f|_max`` the largest
+    repulsive speed at a control point [m/s]; 0 switches the slow-down off."""
+    slowdown_min: float = 0.2
+    """Smallest slow-down factor ``s`` [-]."""
+    velocity_scale: float = 1.0
+    """Fraction of the robot's joint velocity limits the planner may use [-]."""
+
+    backend: str = "auto"
+    """Step arithmetic: ``"numba"`` (one compiled call per step), ``"numpy"`` (the task functions
+    composed in Python), ``"auto"`` (numba when installed). Same numbers to rounding."""
+
+    # --- failure detection ---------------------------------------------------------------
+    stall_window: float = 1.0
+    """Local-minimum window [s] (see :func:`~planbench_plugins.ik_loop.loop.stalled`)."""
+    stall_ratio: float = 0.02
+    """Smallest relative decrease of the best goal error over one window [-]."""
+    rotation_weight: float = 0.1
+    """``rho`` [m/rad]: goal error ``e = |p_g - p| + rho * angle`` used for progress."""
+    collision_check_every: int = 25
+    """Check the robot against the true scene every this many steps while planning (coal; an
+    early exit); 0 = never."""
+    verify_path: bool = True
+    """Before claiming success, certify the whole trajectory against the true scene with the
+    harness's checker (:mod:`planbench.certified`), so that success is never claimed on a colliding path."""
+
+    def __post_init__(self) -> None:
+        if self.control_points is not None:
+            object.__setattr__(self, "control_points", _freeze_points(self.control_points))
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
+        positive = (
+            "dt",
+            "speed_max",
+            "sigmoid_gain",
+            "position_gain",
+            "orientation_gain",
+            "angular_speed_max",
+            "goal_tolerance_scale",
+            "standoff",
+            "control_point_spacing",
+            "tool_fade_distance",
+            "velocity_scale",
+            "stall_window",
+            "rotation_weight",
+            "slowdown_min",
+            "damping_factor",
+            "manipulability_threshold",
+        )
+        for name in positive:
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
+        for name in ("tool_repulsion_gain", "manipulability_gain", "mid_joint_gain", "slowdown_gain", "stall_ratio"):
+            check_number(self, name, lambda v: v >= 0, "finite and >= 0")
+        for name, hi in (("goal_tolerance_scale", 1.0), ("slowdown_min", 1.0), ("velocity_scale", 1.0)):
+            check_number(self, name, lambda v, hi=hi: v <= hi, f"<= {hi}")
+        if self.repulsion_gain is not None:
+            check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0 (or None)")
+        for name in ("max_steps", "collision_check_every"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "max_steps" else 0):
+                raise InvalidConfigError(
+                    f"{name} must be a whole number >= {1 if name == 'max_steps' else 0}, got {v!r}"
+                )
+        if not isinstance(self.verify_path, bool):
+            raise InvalidConfigError(f"verify_path must be true or false, got {self.verify_path!r}")
+        for name, choices in (("backend", ("auto", "numba", "numpy")), ("damping", DAMPING_MODES)):
+            if getattr(self, name) not in choices:
+                raise InvalidConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
+
+    @property
+    def stall_steps(self) -> int:
+        """The local-minimum window in steps."""
+        return max(1, int(round(self.stall_window / self.dt)))
+
+
+def check_number(cfg: Any, name: str, ok: Any, what: str) -> None:
+    """Raise :class:`InvalidConfigError` unless ``cfg.name`` is a finite number with ``ok(value)``."""
+    value = getattr(cfg, name)
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InvalidConfigError(f"{name} must be a number, got {value!r}") from None
+    if isinstance(value, bool) or not math.isfinite(v) or not ok(v):
+        raise InvalidConfigError(f"{name} must be {what}, got {value!r}")
+
+
+def _freeze_points(points: Any) -> tuple[tuple[str, tuple[tuple[float, float, float], ...]], ...]:
+    items = points.items() if isinstance(points, Mapping) else points
+    out = []
+    try:
+        for link, pts in items:
+            row = []
+            for p in pts if isinstance(pts, Sequence) or hasattr(pts, "__len__") else ():
+                xyz = tuple(float(x) for x in p)
+                if len(xyz) != 3 or not all(math.isfinite(x) for x in xyz):
+                    raise ValueError(f"{xyz}")
+                row.append(xyz)
+            out.append((str(link), tuple(row)))
+    except (TypeError, ValueError) as exc:
+        raise InvalidConfigError(
+            "control_points must map link names to lists of [x, y, z] points [m] in the link frame, "
+            f"got {points!r} ({exc})"
+        ) from None
+    return tuple(out)
