@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
-from planbench.errors import ProblemFileError
+from planbench.collision import CollisionChecker
+from planbench.errors import PlanbenchError, ProblemFileError
 from planbench.robot import Robot, load_robot
 from planbench.scene import Scene, _read_json
 
@@ -46,22 +48,17 @@ class Pose:
 
     @classmethod
     def from_xyzw(cls, position: Any, orientation_xyzw: Any, frame: str) -> Pose:
-        from scipy.spatial.transform import Rotation
-
         quat = np.asarray(orientation_xyzw, dtype=float)
         if quat.shape != (4,) or not np.all(np.isfinite(quat)) or abs(np.linalg.norm(quat) - 1) > 1e-6:
             raise ValueError(f"goal orientation_xyzw must be a finite unit quaternion, got {quat.tolist()}")
-        return cls(np.asarray(position, dtype=float), Rotation.from_quat(quat).as_matrix(), frame)
+        return cls(np.asarray(position, dtype=float), pin.Quaternion(quat).toRotationMatrix(), frame)
 
     @property
     def orientation_xyzw(self) -> np.ndarray:
-        from scipy.spatial.transform import Rotation
-
-        return Rotation.from_matrix(self.rotation).as_quat()
+        q = pin.Quaternion(self.rotation).coeffs()  # x, y, z, w
+        return q if q[3] >= 0 else -q  # one of the two quaternions of a rotation: w >= 0
 
     def se3(self) -> Any:
-        import pinocchio as pin
-
         return pin.SE3(self.rotation, self.position)
 
     def to_dict(self) -> dict[str, Any]:
@@ -74,11 +71,9 @@ class Pose:
 
 def pose_error(robot: Robot, q: np.ndarray, goal: Pose) -> tuple[float, float]:
     """Position error [m] and orientation error [rad] (angle of R_goal R^T) of ``goal.frame`` at q."""
-    from scipy.spatial.transform import Rotation
-
     M = robot.frame_pose(q, goal.frame)
     pos = float(np.linalg.norm(goal.position - M.translation))
-    rot = float(Rotation.from_matrix(goal.rotation @ M.rotation.T).magnitude())
+    rot = float(np.linalg.norm(pin.log3(goal.rotation @ M.rotation.T)))
     return pos, rot
 
 
@@ -186,8 +181,6 @@ class Problem:
     # --- validity of start and goal ---------------------------------------------------------
     def check(self) -> ProblemCheck:
         """Say what makes the start or goal unusable: NaN, outside joint limits, in collision."""
-        from planbench.collision import CollisionChecker
-
         checker = CollisionChecker.for_problem(self)
         start = _check_q(self.robot, checker, self.start, "start")
         goal_q = []
@@ -363,8 +356,6 @@ def _check_overrides(overrides: Mapping[str, Any], source: str) -> None:
 
 def _load_problem_robot(name: str, overrides: dict[str, Any], source: str) -> Robot:
     """The problem's robot; its errors name the problem file (the robot's own file is not at fault)."""
-    from planbench.errors import PlanbenchError
-
     try:
         return load_robot(name, **overrides)
     except PlanbenchError as exc:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from planbench.errors import ProblemFileError
 
@@ -82,14 +83,10 @@ class Obstacle:
     @property
     def rotation(self) -> np.ndarray:
         """3x3 rotation matrix of the obstacle's local axes in the scene frame."""
-        from scipy.spatial.transform import Rotation
-
-        return Rotation.from_quat(self.orientation_xyzw).as_matrix()
+        return pin.Quaternion(np.asarray(self.orientation_xyzw, dtype=float)).normalized().toRotationMatrix()
 
     def placement(self) -> Any:
         """The pose as a ``pinocchio.SE3``."""
-        import pinocchio as pin
-
         return pin.SE3(self.rotation, np.array(self.position, dtype=float))
 
     def collision_geometry(self) -> Any:
