@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 from matplotlib.figure import Figure
 
 from planbench.planner import PlanResult
@@ -36,7 +37,6 @@ def _obstacles(ax: Any, problem: Problem) -> None:
 
 
 def _joint_chain(problem: Problem, q: np.ndarray) -> np.ndarray:
-    import pinocchio as pin
 
     model = problem.robot.model
     data = model.createData()

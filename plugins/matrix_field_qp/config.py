@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import qpsolvers
+
 from planbench.errors import InvalidConfigError
 from planbench.field.scene_field import FieldSettings
 from planbench_plugins.ik_loop import IKLoopConfig, check_number
@@ -22,7 +24,6 @@ __all__ = ["MatrixFieldQPConfig", "installed_solvers"]
 
 def installed_solvers() -> list[str]:
     """The qpsolvers backends importable here (``qpsolvers.available_solvers``)."""
-    import qpsolvers
 
     return list(qpsolvers.available_solvers)
 

@@ -13,6 +13,8 @@ import time
 from typing import Any
 
 import numpy as np
+import qpsolvers
+from scipy.sparse import csc_matrix
 
 from planbench.planner import PlanStatus
 from planbench_plugins.ik_loop import StepFailure
@@ -48,7 +50,6 @@ class QPSolver:
     """One qpsolvers backend with its options; :meth:`solve` returns ``(qd, residual, seconds)``."""
 
     def __init__(self, name: str, options: dict[str, Any] | None = None, residual_tolerance: float = 1e-5) -> None:
-        import qpsolvers
 
         self._qpsolvers = qpsolvers
         self.name = name
@@ -56,8 +57,6 @@ class QPSolver:
         self.residual_tolerance = residual_tolerance
         self._sparse = name in qpsolvers.sparse_solvers and name not in qpsolvers.dense_solvers
         if self._sparse:
-            from scipy.sparse import csc_matrix
-
             self._csc = csc_matrix
 
     def solve(self, qp: StepQP, joint_names: Any = None) -> tuple[np.ndarray, float, float]:

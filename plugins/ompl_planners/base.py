@@ -79,6 +79,9 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
 
 from planbench.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
@@ -86,6 +89,8 @@ from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench.validate import verdict_checker
 
+from .grid import grid_checker, grid_for_scene
+from .ik import sample_goal_configurations
 from .motion import CertifiedSegments, SegmentChecker, make_motion_validator
 
 __all__ = ["OMPLConfig", "OMPLAnyConfig", "OMPLPlanner", "geometric_planners", "planner_parameters"]
@@ -176,8 +181,6 @@ class OMPLAnyConfig(OMPLConfig):
 
 def geometric_planners() -> list[str]:
     """Names of the OMPL geometric planners this ``ompl`` build offers."""
-    from ompl import base as ob
-    from ompl import geometric as og
 
     return sorted(n for n in dir(og) if isinstance(getattr(og, n), type) and issubclass(getattr(og, n), ob.Planner))
 
@@ -192,8 +195,6 @@ def _setter(param: str) -> str:
 
 def planner_parameters(planner: str) -> list[str]:
     """Parameter names (OMPL's, snake_case) that ``params`` accepts for an OMPL planner class."""
-    from ompl import base as ob
-    from ompl import geometric as og
 
     base = set(dir(ob.Planner))
     cls = getattr(og, planner)
@@ -266,8 +267,6 @@ class OMPLPlanner(Planner):
             if c.collision == "primitives":
                 self._checker = CollisionChecker.for_problem(problem)
             else:
-                from .grid import grid_checker, grid_for_scene
-
                 grid = grid_for_scene(problem.scene, c.grid_resolution, padding=c.grid_resolution)
                 self._checker = grid_checker(problem.robot, grid, c.grid_geometry)
             self._segments = {}
@@ -320,8 +319,6 @@ class OMPLPlanner(Planner):
         if target == "configuration":
             goals = [goal_q]
         else:
-            from .ik import sample_goal_configurations
-
             t_ik = time.perf_counter()
             goals = sample_goal_configurations(
                 problem, checker.in_collision, rng, c.ik_goals, c.ik_time_fraction * time_limit, seeds=seeds
@@ -384,9 +381,6 @@ def _solve(
     """One OMPL query; every OMPL object is created and freed here. Returns the first path of
     simplified, reduced, raw that ``accept`` takes (``info["path_source"]``; ``"none"`` and the raw
     path when it takes none)."""
-    from ompl import base as ob
-    from ompl import geometric as og
-    from ompl import util as ou
 
     ou.setLogLevel(getattr(ou, _LOG_LEVEL_NAMES[c.log_level]))
     ou.RNG.setSeed(seed)  # before any random OMPL object of this query exists (module docstring)

@@ -24,7 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import coal
 import numpy as np
+import pinocchio as pin
 
 from planbench.collision import CollisionChecker
 from planbench.occupancy import OccupancyGrid, scene_grid
@@ -45,7 +47,6 @@ class _GeometryObstacle:
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def placement(self) -> Any:
-        import pinocchio as pin
 
         return pin.SE3(np.eye(3), np.array(self.position))
 
@@ -113,7 +114,6 @@ def grid_checker(
     robot: Robot, grid: OccupancyGrid, geometry: str = "octree", threshold: float = 0.5
 ) -> CollisionChecker:
     """A CollisionChecker of ``robot`` against the occupied cells of ``grid`` (see module docstring)."""
-    import coal
 
     if geometry not in GRID_GEOMETRIES:
         raise ValueError(f"unknown grid geometry {geometry!r}; use one of {GRID_GEOMETRIES}")

@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import pinocchio as pin
 
 from planbench.problem import Problem, pose_error
 
@@ -51,7 +52,6 @@ def sample_goal_configurations(
     first, one attempt each (within the limits); ``max_step`` [rad]: largest joint step per iteration
     (keeps an attempt near its initial guess).
     """
-    import pinocchio as pin
 
     robot = problem.robot
     model = robot.model

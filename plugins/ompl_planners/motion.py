@@ -27,10 +27,13 @@ valid part of a blocked motion (KPIECE1, LBKPIECE1) then drop it, as with any Py
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
+from ompl import base as ob
 
 from planbench.certified import CertifiedChecker, PathVerdict
 from planbench.collision import CollisionChecker
@@ -61,7 +64,6 @@ class SegmentChecker:
     """
 
     def __init__(self, checker: CollisionChecker, resolution: float) -> None:
-        import pinocchio as pin
 
         self.checker = checker
         self.resolution = float(resolution)
@@ -136,7 +138,6 @@ class CertifiedSegments:
 
     def check(self, path: np.ndarray) -> PathVerdict:
         """The certified verdict of ``path`` (counted); its segments are remembered when it is free."""
-        import time
 
         t0 = time.perf_counter()
         verdict = self.certified.check_path(path)
@@ -159,7 +160,6 @@ def make_motion_validator(
 ) -> Any:
     """An OMPL ``MotionValidator`` (Python subclass) that checks motions with ``segments``, and
     certifies those that pass while its ``certify`` attribute is true (``certified`` given)."""
-    from ompl import base as ob
 
     index = range(nq)
 

@@ -25,7 +25,9 @@ from __future__ import annotations
 
 from typing import Any
 
+import coal
 import numpy as np
+import pinocchio as pin
 
 from planbench.problem import Problem
 from planbench.robot import _link_of
@@ -49,7 +51,6 @@ def _support_row(model: Any, joint: int) -> np.ndarray:
 def _hull(geometry: Any) -> Any:
     """The convex hull of a mesh (a copy; the robot's own geometry is left untouched), else the
     primitive itself."""
-    import coal
 
     if isinstance(geometry, coal.BVHModelBase):
         mesh = geometry.clone()
@@ -67,7 +68,6 @@ class DistanceFieldRepulsion:
     """
 
     def __init__(self, robot: Any, scene: Any, gain: float, influence_distance: float, floor: float) -> None:
-        import pinocchio as pin
 
         self._pin = pin
         self.gain, self.d0, self.floor = float(gain), float(influence_distance), float(floor)

@@ -25,7 +25,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
+from planbench.field.full import MatrixField
 from planbench.occupancy import scene_grid
 from planbench.problem import Problem
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
@@ -37,7 +39,6 @@ __all__ = ["EDTFieldPlanner", "EDTFieldRepulsion", "signed_distance"]
 
 def signed_distance(occupied: np.ndarray, resolution: float) -> np.ndarray:
     """Signed distance [m] at cell centres to the faces of the occupied cells (module docstring, 2)."""
-    from scipy.ndimage import distance_transform_edt
 
     r = float(resolution)
     if not occupied.any():
@@ -57,7 +58,6 @@ class EDTFieldRepulsion:
     """
 
     def __init__(self, grid: Any, gain: float, influence_distance: float, floor: float) -> None:
-        from planbench.field.full import MatrixField
 
         self.gain, self.d0, self.floor = float(gain), float(influence_distance), float(floor)
         r = grid.resolution
