@@ -438,6 +438,7 @@ settings = { delay = 0.7 }
 """
 
 
+@pytest.mark.slow
 def test_two_bench_processes_on_one_file(tmp_path):
     suite = tmp_path / "slow.toml"
     suite.write_text(NOISY_SUITE)

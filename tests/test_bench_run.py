@@ -58,6 +58,7 @@ planner = "bench_planners:ExitPlanner"
 )
 
 
+@pytest.mark.slow
 def test_raise_timeout_and_crash_are_recorded_and_the_rest_completes(tmp_path):
     db_path = tmp_path / "r.db"
     outcome = run_benchmark(parse_suite(MISBEHAVING, "misbehaving.toml"), db_path, jobs=2)
@@ -100,6 +101,7 @@ settings = { scale = 0.02 }
 )
 
 
+@pytest.mark.slow
 def test_same_paths_and_statuses_whatever_the_number_of_jobs(tmp_path):
     s = parse_suite(NOISY, "noisy.toml")
     run_benchmark(s, tmp_path / "j1.db", jobs=1)
@@ -136,6 +138,7 @@ settings = { delay = 0.15 }
 )
 
 
+@pytest.mark.slow
 def test_kill_minus_nine_then_resume_runs_only_what_is_missing(tmp_path):
     suite_file = tmp_path / "slow.toml"
     suite_file.write_text(SLOW)
@@ -185,6 +188,7 @@ def _main(argv):
     return cli.main(argv)
 
 
+@pytest.mark.slow
 def test_cli_bench_report_and_library_table(tmp_path, capsys, monkeypatch):
     suite_file = tmp_path / "s.toml"
     suite_file.write_text(NOISY)

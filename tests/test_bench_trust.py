@@ -91,6 +91,7 @@ MALFORMED = {  # kind -> text the row's message must hold (the field it names)
 }
 
 
+@pytest.mark.slow
 def test_malformed_results_are_error_rows_naming_the_field_and_the_rest_goes_on(tmp_path):
     marker = tmp_path / "unpickled.txt"
     planners = "".join(
@@ -170,6 +171,7 @@ planner = "straight-line"
     assert rows["straight-line"]["success"]
 
 
+@pytest.mark.slow
 def test_memory_limit_turns_a_hog_into_an_error_row_and_the_benchmark_goes_on(tmp_path):
     planners = f'[[planners]]\nlabel = "hog"\nplanner = "{A}:MemoryHogPlanner"\n'
     planners += '[[planners]]\nplanner = "straight-line"\n'

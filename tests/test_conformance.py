@@ -92,6 +92,7 @@ def test_path_not_starting_at_start_is_flagged():
     assert any("path[0] must equal problem.start" in f for f in found), found
 
 
+@pytest.mark.slow
 def test_overrunning_the_time_limit_is_flagged():
     found = check_planner(Slow, time_limit=0.05)
     assert any("with a time limit of 0.05 s" in f for f in found), found

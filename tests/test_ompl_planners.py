@@ -180,6 +180,7 @@ def test_start_in_collision_is_refused_before_the_ik_sampler_runs(blocked):
     assert "ik_time" not in result.info
 
 
+@pytest.mark.slow
 def test_a_reused_planner_checks_each_new_problem_against_its_own_scene(blocked):
     # CPython often gives a new problem the address (id) of one just freed: a checker cached by id
     # would plan the goal-blocked problem against the free scene of the one before it

@@ -36,6 +36,7 @@ def test_mbm_selectors():
         planbench.load_problems("mbm:box/0200")
 
 
+@pytest.mark.slow
 def test_every_mbm_start_and_goal_is_collision_free_with_fingers_at_0065(all_mbm):
     assert len(all_mbm) == 700
     in_collision = []
@@ -48,6 +49,7 @@ def test_every_mbm_start_and_goal_is_collision_free_with_fingers_at_0065(all_mbm
     assert in_collision == []
 
 
+@pytest.mark.slow
 def test_exactly_four_mbm_goals_lie_outside_the_datasheet_joint4_limit(all_mbm):
     outside = {p.id for p in all_mbm if p.check().goal_configuration}
     assert outside == GOALS_OUTSIDE_LIMITS
