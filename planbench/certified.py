@@ -47,8 +47,11 @@ import weakref
 from dataclasses import dataclass
 from typing import Any
 
+import coal
 import numpy as np
+import pinocchio as pin
 
+from planbench.collision import CollisionChecker
 from planbench.robot import _link_of
 
 __all__ = ["CertifiedChecker", "CertificationSettings", "PathVerdict"]
@@ -156,10 +159,6 @@ class CertifiedChecker:
     """
 
     def __init__(self, robot: Any, scene: Any, settings: CertificationSettings | None = None) -> None:
-        import pinocchio as pin
-
-        from planbench.collision import CollisionChecker
-
         self.settings = settings or CertificationSettings()
         self.robot = robot
         base = CollisionChecker(robot, scene)
@@ -514,14 +513,10 @@ def _cum_at(cum: Any, u: float) -> float:
 def _fresh_request(req: Any) -> None:
     """GJK from its default initial guess, never from the previous query's (verdicts must not
     depend on the order of queries)."""
-    import coal
-
     req.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
 
 
 def _distance(gm: Any, gd: Any, k: int) -> float:
-    import pinocchio as pin
-
     gd.distanceResults[k].clear()
     pin.computeDistance(gm, gd, k)
     return float(gd.distanceResults[k].min_distance)
@@ -530,9 +525,6 @@ def _distance(gm: Any, gd: Any, k: int) -> float:
 def _hull_model(gm: Any) -> tuple[Any, list[bool]]:
     """A copy of ``gm`` with every mesh replaced by its convex hull (which contains it), and which
     geometries were replaced."""
-    import coal
-    import pinocchio as pin
-
     hulls = pin.GeometryModel(gm)
     replaced = []
     for i, obj in enumerate(gm.geometryObjects):
@@ -554,8 +546,6 @@ def _hull_model(gm: Any) -> tuple[Any, list[bool]]:
 def _body_points(obj: Any) -> np.ndarray:
     """Points whose convex hull contains a geometry, in its parent joint's frame: a mesh's
     vertices, else the corners of the geometry's local bounding box."""
-    import coal
-
     geom = obj.geometry
     R, t = np.asarray(obj.placement.rotation), np.asarray(obj.placement.translation)
     if isinstance(geom, coal.BVHModelBase) and geom.num_vertices > 0:

@@ -19,6 +19,7 @@ import weakref
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 from planbench.robot import Robot, _link_of
 from planbench.scene import Scene
@@ -32,8 +33,6 @@ class CollisionChecker:
     """Collision and clearance queries for one robot in one scene. Not thread-safe (own buffers)."""
 
     def __init__(self, robot: Robot, scene: Scene) -> None:
-        import pinocchio as pin
-
         self.robot = robot
         self.scene = scene
         geom = pin.GeometryModel(robot.collision_model)  # copy: the robot stays untouched
@@ -73,8 +72,6 @@ class CollisionChecker:
 
     def in_collision(self, q: np.ndarray) -> bool:
         """True when the robot at ``q`` touches an obstacle or itself (the ignore list aside)."""
-        import pinocchio as pin
-
         self.n_checks += 1
         return bool(
             pin.computeCollisions(self._model, self._bp_data, self._broadphase, np.asarray(q, dtype=float), True)
@@ -83,8 +80,6 @@ class CollisionChecker:
     def in_collision_all_pairs(self, q: np.ndarray) -> bool:
         """``in_collision`` without the broadphase: every pair goes to coal's narrowphase (the
         reference that the broadphase is checked against; slower)."""
-        import pinocchio as pin
-
         self.n_checks += 1
         return bool(
             pin.computeCollisions(
@@ -94,8 +89,6 @@ class CollisionChecker:
 
     def collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Every colliding pair at ``q`` as (robot link, link or ``obstacle:<name>``)."""
-        import pinocchio as pin
-
         pin.computeCollisions(
             self._model, self._data, self.geometry_model, self._geom_data, np.asarray(q, dtype=float), False
         )
@@ -110,8 +103,6 @@ class CollisionChecker:
     def clearance(self, q: np.ndarray) -> float:
         """Smallest robot-obstacle distance [m] at ``q`` (negative or zero when penetrating;
         ``inf`` in an empty scene). Self-distances are not included."""
-        import pinocchio as pin
-
         if not self._obstacle_pairs:
             return float("inf")
         pin.computeDistances(self._model, self._data, self.geometry_model, self._dist_data, np.asarray(q, dtype=float))

@@ -36,7 +36,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
+import planbench_robots
 from planbench.errors import RobotFileError, UnknownNameError
 
 if sys.version_info >= (3, 11):
@@ -65,8 +67,6 @@ def example_robot_data_dir() -> Path:
 
 
 def _settings_dir() -> Path:
-    import planbench_robots
-
     return planbench_robots.ROBOTS_DIR
 
 
@@ -161,8 +161,6 @@ class Robot:
     """
 
     def __init__(self, settings: RobotSettings) -> None:
-        import pinocchio as pin
-
         self.settings = settings
         src = settings.source
         if not settings.urdf.is_file():
@@ -264,8 +262,6 @@ class Robot:
 
     @staticmethod
     def _remove_pairs(geom: Any, pairs: Sequence[tuple[str, str]], src: str) -> None:
-        import pinocchio as pin
-
         links: dict[str, list[int]] = {}
         for i, g in enumerate(geom.geometryObjects):
             links.setdefault(_link_of(g.name), []).append(i)
@@ -286,8 +282,6 @@ class Robot:
 
     def frame_pose(self, q: np.ndarray, frame: str | None = None) -> Any:
         """World pose (``pinocchio.SE3``) of ``frame`` (default: the end effector) at ``q``."""
-        import pinocchio as pin
-
         fid = self.ee_frame_id if frame is None else self.frame_id(frame)
         pin.framesForwardKinematics(self.model, self._data, np.asarray(q, dtype=float))
         return pin.SE3(self._data.oMf[fid])
