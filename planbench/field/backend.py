@@ -36,6 +36,6 @@ def resolve(backend: str) -> str:
 
 def compiled() -> ModuleType:
     """The compiled kernels module (imports numba)."""
-    from planbench.field import _compiled
+    from planbench.field import _compiled  # on use: numba is optional and takes ~0.15 s to import
 
     return _compiled

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
 import platform
 import time
 from collections.abc import Callable, Mapping
@@ -114,6 +115,8 @@ def bench_grid(n: int, dtype: str, seed: int) -> OccupancyGrid:
 
 def run(settings: BenchSettings, progress: Callable[[str], None] | None = None) -> list[Row]:
     """Time everything in ``settings``; returns one row per (size, length, dtype)."""
+    # scipy.ndimage and scipy.fft (through reference) on use: 0.1-0.15 s each to import, and this
+    # module loads with the CLI (planbench --help)
     from scipy.ndimage import correlate, distance_transform_edt
 
     from planbench.field.reference import fft_field
@@ -232,13 +235,11 @@ def format_table(rows: list[Row], points: int) -> str:
 
 def environment() -> str:
     """One line: machine and versions, so a table can be reproduced."""
-    import os
-
-    import scipy
+    import scipy  # on use, for its version: this module loads with the CLI (planbench --help)
 
     numba = "not installed"
     if have_numba():
-        import numba as nb
+        import numba as nb  # optional dependency
 
         numba = nb.__version__
     return (

@@ -10,6 +10,12 @@ import argparse
 import logging
 from typing import Any
 
+import planbench
+from planbench.field import full_field, surface_grid
+from planbench.field.bench import add_arguments, run_from_args
+from planbench.field.kernels import PROFILES, TAPERS, KernelSpec
+from planbench.occupancy import OccupancyGrid
+
 log = logging.getLogger(__name__)
 
 __all__ = ["add_commands"]
@@ -54,15 +60,11 @@ def add_commands(subparsers: Any) -> None:
         "FFT and a Euclidean distance transform + gradient, and the lazy and "
         "precomputed point queries; print medians and ratios measured in one run.",
     )
-    from planbench.field.bench import add_arguments
-
     add_arguments(p)
     p.set_defaults(func=cmd_bench)
 
 
 def _kernel_arguments(p: argparse.ArgumentParser, reach: float, allow_all: bool = False) -> None:
-    from planbench.field.kernels import PROFILES, TAPERS
-
     profiles = (*PROFILES, "all") if allow_all else PROFILES
     p.add_argument("--profile", choices=profiles, default="linear", help="profile along the axis")
     p.add_argument("--taper", choices=TAPERS, default="linear", help="taper across the axis")
@@ -75,9 +77,7 @@ def _kernel_arguments(p: argparse.ArgumentParser, reach: float, allow_all: bool 
     p.add_argument("--power", type=float, default=2.0, help="inverse-power exponent")
 
 
-def _spec(args: argparse.Namespace) -> Any:
-    from planbench.field.kernels import KernelSpec
-
+def _spec(args: argparse.Namespace) -> KernelSpec:
     return KernelSpec(
         reach=args.reach,
         width=args.width,
@@ -90,10 +90,8 @@ def _spec(args: argparse.Namespace) -> Any:
 
 
 def cmd_field(args: argparse.Namespace) -> int:
-    import planbench
-    from planbench.field import full_field, surface_grid
+    # plots on use: matplotlib takes ~0.3 s to import, and this module loads with the CLI (planbench --help)
     from planbench.field.plots import parse_slice, plot_field_slice
-    from planbench.occupancy import OccupancyGrid
 
     axis, value = parse_slice(args.slice)
     problem = planbench.load_problems(args.problem)[0]
@@ -114,7 +112,7 @@ def cmd_field(args: argparse.Namespace) -> int:
 
 
 def cmd_kernel(args: argparse.Namespace) -> int:
-    from planbench.field.plots import plot_kernel, plot_profiles
+    from planbench.field.plots import plot_kernel, plot_profiles  # matplotlib on use, as in cmd_field
 
     if args.profile == "all":
         plot_profiles(reach=args.reach, resolution=args.resolution, out=args.out)
@@ -131,6 +129,4 @@ def cmd_kernel(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from planbench.field.bench import run_from_args
-
     return run_from_args(args)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import DTypeLike
+from scipy import fft
+from scipy.ndimage import correlate
 
 from planbench.field.kernels import Kernels
 from planbench.occupancy import OccupancyGrid
@@ -60,16 +62,12 @@ def brute_force_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray)
 
 def dense_field(grid: OccupancyGrid, kernels: Kernels, components: tuple[int, ...] = (0, 1, 2)) -> np.ndarray:
     """Field (len(components), nx, ny, nz) on the grid's cells by dense 3D correlation."""
-    from scipy.ndimage import correlate
-
     return np.stack([correlate(grid.data, kernels.dense(a), mode="constant", cval=grid.outside) for a in components])
 
 
 def fft_field(grid: OccupancyGrid, kernels: Kernels, dtype: DTypeLike = np.float64, workers: int = -1) -> np.ndarray:
     """Field (3, nx, ny, nz) on the grid's cells by FFT: one forward transform of ``G - outside``
     (zero-padded so nothing wraps around), one per kernel, and three inverse transforms."""
-    from scipy import fft
-
     g = (grid.data - grid.outside).astype(dtype)
     m = kernels.support
     shape = [fft.next_fast_len(n + 2 * m, real=True) for n in g.shape]

@@ -106,7 +106,7 @@ def serial_lazy(n_points: int, support: int) -> bool:
     run serially: when it is small (:data:`SERIAL_MAX_CELLS`) or numba has one thread anyway."""
     if lazy_cells(n_points, support) <= SERIAL_MAX_CELLS:
         return True
-    import numba
+    import numba  # on use, here and below: numba is optional, and limit_threads must run before its import
 
     return bool(numba.get_num_threads() <= 1)
 
@@ -176,7 +176,7 @@ def _loaded_libraries(*needles: str) -> list[str]:
 
 def _limit_loaded_pools(threads: int) -> None:
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_limits  # optional dependency
     except ImportError:
         threadpool_limits = None
     if threadpool_limits is not None:
