@@ -7,7 +7,9 @@ workers inherit the test process's ``sys.path``, which holds this folder.
 
 from __future__ import annotations
 
+import gc
 import json
+import multiprocessing.connection
 import os
 import subprocess
 import sys
@@ -16,6 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import planbench
+import planbench.bench.worker
+import planbench.certified
+import planbench.collision
+import planbench.validate
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 
@@ -33,11 +40,6 @@ class PatchingPlanner(Planner):
     name = "bench-patching"
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        import planbench
-        import planbench.certified
-        import planbench.collision
-        import planbench.validate
-
         def free(self, *args, **kwargs):
             return False
 
@@ -118,15 +120,10 @@ class MalformedPlanner(Planner):
             return {"status": "success"}  # type: ignore[return-value]
         if kind == "bypass_worker_check":
             # the worker's own check patched away: the parent must catch the huge integer itself
-            import planbench.bench.worker as worker
-
-            worker.clean_result = lambda fields: {**fields, "status": "success"}
+            planbench.bench.worker.clean_result = lambda fields: {**fields, "status": "success"}
             return PlanResult(**ok, info={"collision_checks": 2**64})
         if kind == "pickle_to_parent":
             # send the parent a pickle over the worker's own connection: unpickling it would run code
-            import gc
-            import multiprocessing.connection
-
             for obj in gc.get_objects():
                 if isinstance(obj, multiprocessing.connection.Connection) and not obj.closed:
                     obj.send(_Bomb(self.config.marker))
