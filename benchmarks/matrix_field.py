@@ -80,7 +80,7 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     goal = problem.goal.pose
     lower, upper, vmax = np.asarray(robot.lower), np.asarray(robot.upper), np.asarray(robot.velocity_limit)
     tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)
-    prm = fast.pack_params(cfg)
+    prm = fast.step_params(cfg)
     qd, dg = np.zeros(robot.nq), np.zeros(6)
     step = fast.step_compiled if compiled else fast.step_numpy
     args = (

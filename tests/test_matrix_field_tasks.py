@@ -298,7 +298,7 @@ def test_compiled_step_matches_numpy_reference(robot, damping):
     from planbench_plugins.ik_loop import fast
 
     cfg = MatrixFieldConfig(damping=damping, tool_repulsion_gain=1.0)
-    prm = fast.pack_params(cfg)
+    prm = fast.step_params(cfg)
     kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=True)
     ref_kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=False)
     rng = np.random.default_rng(7)

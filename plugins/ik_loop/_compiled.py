@@ -96,9 +96,16 @@ def step(
     qd_out,
     diag,
 ):
-    v_max, k_sig, k_p, k_w, w_max = prm[0], prm[1], prm[2], prm[3], prm[4]
-    k_m, k_c, k_s, s_min, adaptive = prm[5], prm[6], prm[7], prm[8], prm[9]
-    lam_max, m0, dt, k_tool, fade_d = prm[10], prm[11], prm[12], prm[13], prm[14]
+    v_max, k_sig, k_p, k_w, w_max = (
+        prm.speed_max,
+        prm.sigmoid_gain,
+        prm.position_gain,
+        prm.orientation_gain,
+        prm.angular_speed_max,
+    )
+    k_m, k_c, k_s, s_min = prm.manipulability_gain, prm.mid_joint_gain, prm.slowdown_gain, prm.slowdown_min
+    lam_max, m0, dt = prm.damping_factor, prm.manipulability_threshold, prm.dt
+    k_tool, fade_d = prm.tool_repulsion_gain, prm.tool_fade_distance
     n = q.shape[0]
     N = points.shape[0]
     # attraction
@@ -183,7 +190,7 @@ def step(
                 for a in range(3):
                     v[a] += k_tool * fade * F[tool_i, a]
     # damped least squares and null space, one factorisation
-    if adaptive != 0.0:
+    if prm.adaptive != 0.0:
         lam = 0.0 if m >= m0 else lam_max * math.sqrt(1.0 - (m / m0) ** 2)
     else:
         lam = lam_max

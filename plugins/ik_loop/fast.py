@@ -8,45 +8,49 @@ rounding. ``backend="auto"`` uses numba when it is installed.
 
 Inputs: ``S`` (6, n) spatial Jacobian, ``J`` (6, n) goal-frame Jacobian, ``p``, ``R`` its pose,
 ``q``, ``F`` (N, 3) repulsive velocities ``k_rep F(p_i)`` [m/s] at ``points`` (N, 3), ``tool``
-(indices of the tool's points), ``prm`` (see :data:`PARAMS`). Outputs: ``qd`` (n,) after limits
+(indices of the tool's points), ``prm`` (:class:`StepParams`). Outputs: ``qd`` (n,) after limits
 and ``diag`` = [position error, orientation error, repulsion, manipulability, slow-down, damping].
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from planbench_plugins.ik_loop import tasks as T
 
-__all__ = ["PARAMS", "pack_params", "step_numpy", "step_compiled", "control_point_positions", "have_numba"]
-
-PARAMS = (
-    "speed_max",
-    "sigmoid_gain",
-    "position_gain",
-    "orientation_gain",
-    "angular_speed_max",
-    "manipulability_gain",
-    "mid_joint_gain",
-    "slowdown_gain",
-    "slowdown_min",
-    "adaptive",
-    "damping_factor",
-    "manipulability_threshold",
-    "dt",
-    "tool_repulsion_gain",
-    "tool_fade_distance",
-)
+__all__ = ["StepParams", "step_params", "step_numpy", "step_compiled", "control_point_positions", "have_numba"]
 
 
-def pack_params(cfg: Any) -> np.ndarray:
-    """The settings a step needs, as a float array in :data:`PARAMS` order."""
-    return np.array(
-        [float(cfg.damping == "adaptive") if name == "adaptive" else float(getattr(cfg, name)) for name in PARAMS]
-    )
+class StepParams(NamedTuple):
+    """The settings one step reads, by name, in both backends (``prm.speed_max``). Built from a
+    config by :func:`step_params`; the fields are the config's settings of the same name, except
+    ``adaptive``. numba types a NamedTuple of floats, so the compiled step reads the same names."""
+
+    speed_max: float
+    sigmoid_gain: float
+    position_gain: float
+    orientation_gain: float
+    angular_speed_max: float
+    manipulability_gain: float
+    mid_joint_gain: float
+    slowdown_gain: float
+    slowdown_min: float
+    adaptive: float
+    """1.0 for ``damping="adaptive"``, 0.0 for ``"fixed"``."""
+    damping_factor: float
+    manipulability_threshold: float
+    dt: float
+    tool_repulsion_gain: float
+    tool_fade_distance: float
+
+
+def step_params(cfg: Any) -> StepParams:
+    """The :class:`StepParams` of a config (:class:`~planbench_plugins.ik_loop.config.IKLoopConfig`)."""
+    settings = {name: float(getattr(cfg, name)) for name in StepParams._fields if name != "adaptive"}
+    return StepParams(adaptive=float(cfg.damping == "adaptive"), **settings)
 
 
 def have_numba() -> bool:
@@ -79,7 +83,6 @@ def step_numpy(
     diag,
 ) -> None:
     """The reference step, composed of the :mod:`.tasks` functions."""
-    (v_max, k_sig, k_p, k_w, w_max, k_m, k_c, k_s, s_min, adaptive, lam_max, m0, dt, k_tool, fade_d) = prm.tolist()
     e = p_goal - p
     err_p = math.sqrt(float(e @ e))
     err_r = float(np.linalg.norm(T.orientation_error(R, R_goal)))
@@ -88,26 +91,28 @@ def step_numpy(
         R,
         p_goal,
         R_goal,
-        speed_max=v_max,
-        sigmoid_gain=k_sig,
-        position_gain=k_p,
-        orientation_gain=k_w,
-        angular_speed_max=w_max,
+        speed_max=prm.speed_max,
+        sigmoid_gain=prm.sigmoid_gain,
+        position_gain=prm.position_gain,
+        orientation_gain=prm.orientation_gain,
+        angular_speed_max=prm.angular_speed_max,
     )
-    x = T.mid_joint_velocity(q, lower, upper, k_c)
+    x = T.mid_joint_velocity(q, lower, upper, prm.mid_joint_gain)
     m, grad = T.manipulability_gradient(S, descendants)
-    if k_m > 0:
-        x = x + k_m * grad
+    if prm.manipulability_gain > 0:
+        x = x + prm.manipulability_gain * grad
     rep = float(np.sqrt(np.max(np.einsum("ij,ij->i", F, F)))) if len(F) else 0.0
     if rep > 0:
         x = x + T.repulsion_joint_velocity(S, points, F, support)
-        if k_tool > 0:
-            v[:3] += (k_tool * min(1.0, err_p / fade_d)) * T.strongest(F, tool)
-    lam = T.adaptive_damping(m, lam_max, m0) if adaptive else lam_max
+        if prm.tool_repulsion_gain > 0:
+            fade = min(1.0, err_p / prm.tool_fade_distance)
+            v[:3] += (prm.tool_repulsion_gain * fade) * T.strongest(F, tool)
+    lam_max = prm.damping_factor
+    lam = T.adaptive_damping(m, lam_max, prm.manipulability_threshold) if prm.adaptive else lam_max
     qd1, nx = T.dls_with_nullspace(J, v, x, lam)
-    s = T.slowdown_factor(rep, k_s, s_min) if k_s > 0 else 1.0
+    s = T.slowdown_factor(rep, prm.slowdown_gain, prm.slowdown_min) if prm.slowdown_gain > 0 else 1.0
     qd, _ = T.scale_to_velocity_limits(T.merge(qd1, s, nx), qd_max)
-    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, dt)
+    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
     diag[:] = (err_p, err_r, rep, m, s, lam)
 
 

@@ -123,7 +123,7 @@ class StepInputs:
         upper: np.ndarray,
         qd_max: np.ndarray,
         tool_joint: int,
-        params: np.ndarray,
+        params: fast.StepParams,
     ) -> None:
         self.p_goal, self.R_goal = p_goal, R_goal
         self.lower, self.upper, self.qd_max = lower, upper, qd_max
@@ -247,7 +247,7 @@ class IKLoopPlanner(Planner):
             np.asarray(robot.upper, dtype=float),
             self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
             int(robot.model.frames[frame_id].parentJoint),
-            fast.pack_params(self.config),
+            fast.step_params(self.config),
         )
 
     def control_point_overrides(self, problem: Problem) -> list[tuple[str, Any]]:
