@@ -9,7 +9,7 @@ from planbench.conformance import check_planner
 from planbench_plugins.straight_line import StraightLinePlanner
 
 # OMPL's PRM* grows its roadmap while a second thread searches it: same seed, possibly another path
-# (documented in its README section). Nothing else may be wrong with it.
+# (documented in docs/planners.md). Nothing else may be wrong with it.
 NOT_REPRODUCIBLE = {"ompl-prmstar"}
 
 

@@ -1,6 +1,6 @@
 """The matrix field: a repulsive vector field from an occupancy grid and three directional kernels.
 
-METHOD.md sections 1-3. Typical use::
+docs/method.md, sections 1-3. Typical use::
 
     from planbench.field import KernelSpec, full_field, lazy_field
 

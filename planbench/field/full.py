@@ -1,4 +1,4 @@
-"""The full matrix field over a whole grid by separable 1D passes (METHOD.md section 3).
+"""The full matrix field over a whole grid by separable 1D passes (docs/method.md, section 3).
 
 ``F_a = G (correlate) K_a`` for a in x, y, z, with ``G`` padded by the grid's ``outside``
 occupancy. The kernels sum to zero (the profile is antisymmetric), so the field of a uniform

@@ -1,4 +1,4 @@
-"""Directional repulsive kernels (METHOD.md section 2).
+"""Directional repulsive kernels (docs/method.md, section 2).
 
 One kernel per axis ``a`` in {x, y, z}, each separable into 1D factors::
 

@@ -70,7 +70,7 @@ class IKLoopConfig:
     tool_repulsion_gain: float = 0.0
     """Weight [-] of the repulsion added to the primary task: the strongest ``f_i`` among the
     control points carried by the goal frame's joint (hand, fingers) is added to the attraction's
-    linear velocity, so the end effector itself bends around obstacles. 0 = METHOD.md as written
+    linear velocity, so the end effector itself bends around obstacles. 0 = the method as specified
     (all repulsion in the null space, where it can never move the end effector)."""
     tool_fade_distance: float = 0.1
     """Within this distance [m] of the goal position the tool repulsion fades linearly to 0: the

@@ -1,4 +1,4 @@
-"""Control points on the arm, where the repulsive field is sampled (METHOD.md section 4, step 5).
+"""Control points on the arm, where the repulsive field is sampled (docs/method.md, section 4, step 5).
 
 Automatic placement, from the robot's collision geometry: the geometries of each link (pinocchio
 names them ``<link>_<k>``) are bounded by one box in the frame of the joint that carries them. The

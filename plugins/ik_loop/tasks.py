@@ -1,4 +1,4 @@
-"""The task terms of one matrix-field step (METHOD.md section 4), each a small pure function.
+"""The task terms of one matrix-field step (docs/method.md, section 4), each a small pure function.
 
 Conventions: ``q`` joint positions [rad], ``qd`` joint velocities [rad/s], world-aligned velocities
 ``[v; omega]`` ([m/s; rad/s]). ``S`` is pinocchio's spatial Jacobian in the WORLD convention
@@ -40,7 +40,7 @@ _HALF_PI = 0.5 * math.pi
 
 
 def attraction_velocity(p: np.ndarray, p_goal: np.ndarray, speed_max: float, sigmoid_gain: float) -> np.ndarray:
-    """Translational attraction [m/s] (draft eqs. 4-6, sign as in METHOD.md: towards the goal).
+    """Translational attraction [m/s] (draft eqs. 4-6, sign as in docs/method.md: towards the goal).
 
     ``v = (e / d) v_max atan(k_sigm d) / (pi / 2)`` with ``e = p_goal - p``, ``d = |e|``: speed
     ``v_max`` far away, ``v_max k_sigm d (2 / pi)`` near the goal. Its magnitude is below

@@ -1,5 +1,5 @@
 """``matrix-field-qp``: the matrix-field planner with each step solved as one quadratic program
-(METHOD.md section 5), joint position and velocity limits as hard constraints.
+(docs/method.md, section 5), joint position and velocity limits as hard constraints.
 
 Modules: ``config`` (settings), ``formulation`` (the QP of a step from the matrix-field task
 terms), ``solve`` (qpsolvers backends, timing, named failures), ``planner`` (the step in the

@@ -1,4 +1,4 @@
-"""One planner step as a quadratic program in the joint velocity ``qd`` (METHOD.md section 5).
+"""One planner step as a quadratic program in the joint velocity ``qd`` (docs/method.md, section 5).
 
 The QP of a step, in qpsolvers' form ``min 1/2 x^T P x + c^T x  s.t.  G x <= h,  lb <= x <= ub``::
 
