@@ -14,9 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from planbench.errors import InvalidConfigError
+from planbench.harness import plan
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem
-from planbench.registry import NAME_PATTERN
+from planbench.registry import NAME_PATTERN, REGISTRY
 from planbench.robot import load_robot
 from planbench.scene import Obstacle, Scene
 from planbench.validate import evaluate
@@ -47,14 +49,13 @@ def check_planner(
 ) -> list[str]:
     """Problems found with ``planner`` (a class, or a registered name); empty when conformant.
 
-    ``problems`` default: a trivial free-space problem (must be solved) and a problem with a small
-    obstacle on the straight line's way (any status is fine, but a success must validate).
+    ``config`` is a ``Config`` instance to check it with (default: its defaults, built as every
+    planner is, by :meth:`~planbench.registry.Registry.configure`). ``problems`` default: a trivial
+    free-space problem (must be solved) and a problem with a small obstacle on the straight line's
+    way (any status is fine, but a success must validate).
     """
-    from planbench.harness import plan, resolve_planner
-    from planbench.registry import REGISTRY
-
     found: list[str] = []
-    cls = REGISTRY.get(planner) if isinstance(planner, str) else planner
+    _, cls, implied = REGISTRY.resolve(planner)
     name = getattr(cls, "name", "")
     if not isinstance(name, str) or not NAME_PATTERN.match(name):
         found.append(f"'name' must be a kebab-case string like 'my-planner', got {name!r}")
@@ -63,9 +64,10 @@ def check_planner(
         found.append("'Config' must be a dataclass of the planner's settings (units in its docstrings)")
     elif config is None:
         try:
-            config = Config()  # type: ignore[operator]
-        except TypeError as exc:
-            found.append(f"Config() must work with defaults only: {exc}")
+            config = REGISTRY.configure(planner).config
+        except InvalidConfigError as exc:
+            what = "Config() must work with defaults only" if not implied else f"{planner}'s settings {implied}"
+            found.append(f"{what}: {exc}")
             return found
     for method in ("setup", "plan"):
         if not callable(getattr(cls, method, None)):
@@ -74,7 +76,7 @@ def check_planner(
         return found
 
     def make() -> Any:
-        return resolve_planner(cls) if config is None else cls(config)
+        return cls(config) if config is not None else REGISTRY.make(planner)
 
     trivial = trivial_problem()
     cases = problems or [trivial, blocked_problem()]

@@ -6,7 +6,9 @@ errors are for input that cannot be used at all: a malformed file, an unknown na
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import difflib
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 
 class PlanbenchError(Exception):
@@ -35,8 +37,6 @@ class UnknownNameError(PlanbenchError, KeyError):
     """A name (planner, robot, problem set, problem) that does not exist; lists close matches."""
 
     def __init__(self, kind: str, name: str, choices: Sequence[str]) -> None:
-        import difflib
-
         self.kind = kind
         self.name = name
         self.choices = sorted(choices)
@@ -62,6 +62,50 @@ class PlannerUnavailableError(PlanbenchError):
 
 class InvalidConfigError(PlanbenchError, ValueError):
     """A setting outside its domain; says which setting and what is allowed."""
+
+
+class InvalidSettingError(InvalidConfigError):
+    """A planner setting that cannot be used, however it was given (Python keywords, ``--set``, a
+    suite file): names the planner, the setting, the value given and what is accepted.
+
+    ``setting`` is None when the planner refused its settings as a whole and the message names none
+    of them; ``value`` is then the settings given. ``where`` (a suite file, say) prefixes the
+    message. :meth:`to_data` and :meth:`from_data` carry it between processes as plain data.
+    """
+
+    def __init__(
+        self, planner: str, setting: str | None, value: Any, expected: str, *, where: str = "", shown: str = ""
+    ) -> None:
+        self.planner = planner
+        self.setting = setting
+        self.value = value
+        self.expected = expected
+        self.where = where
+        self.shown = shown or show_value(value)
+        what = f"setting {setting} = {self.shown} is" if setting else f"settings {self.shown} are"
+        text = f"planner {planner!r}: {what} not accepted: {expected}"
+        super().__init__(f"{where}: {text}" if where else text)
+
+    def to_data(self) -> dict[str, Any]:
+        """The error as JSON data (the value as its shown text)."""
+        return {"planner": self.planner, "setting": self.setting, "shown": self.shown, "expected": self.expected}
+
+    @classmethod
+    def from_data(cls, data: Mapping[str, Any], where: str = "") -> InvalidSettingError:
+        """The error :meth:`to_data` described (checked: the data may come from a process that ran a
+        plugin); a ``TypeError`` when it is not such data."""
+        texts = [data.get(k) for k in ("planner", "shown", "expected")]
+        setting = data.get("setting")
+        if not all(isinstance(t, str) for t in texts) or not (setting is None or isinstance(setting, str)):
+            raise TypeError("not the data of an InvalidSettingError")
+        planner, shown, expected = (str(t)[:2000] for t in texts)
+        return cls(planner, setting, shown, expected, where=where, shown=shown)
+
+
+def show_value(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 class ResultsFileError(PlanbenchError):

@@ -12,22 +12,28 @@ from typing import Any
 
 import numpy as np
 
+from planbench.errors import InvalidConfigError
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench.registry import REGISTRY, Registry
 
-__all__ = ["plan", "resolve_planner"]
+__all__ = ["DEFAULT_TIME_LIMIT", "plan", "resolve_planner"]
+
+DEFAULT_TIME_LIMIT = 10.0
+"""[s] planning time of one ``planbench.plan`` call (and of ``planbench plan``) unless one is given.
+A benchmark suite has its own default, :data:`planbench.bench.suite.DEFAULT_TIME_LIMIT`."""
 
 
-def resolve_planner(planner: Any, registry: Registry | None = None, **config: Any) -> Any:
-    """A planner instance from a registered name, a planner class, or an instance."""
-    if isinstance(planner, str):
-        return (registry or REGISTRY).make(planner, **config)
-    if isinstance(planner, type):
-        Config = getattr(planner, "Config", None)
-        return planner(Config(**config)) if Config is not None else planner(**config)
-    if config:
-        raise TypeError("settings can only be given with a planner name or class, not an instance")
+def resolve_planner(planner: Any, registry: Registry | None = None, **settings: Any) -> Any:
+    """A planner instance from a registered name, a planner class (both built by
+    :meth:`~planbench.registry.Registry.make`), or an instance."""
+    if isinstance(planner, (str, type)):
+        return (registry or REGISTRY).make(planner, **settings)
+    if settings:
+        raise InvalidConfigError(
+            f"settings {sorted(settings)} can only be given with a planner name or class, not an instance "
+            f"of {type(planner).__name__}"
+        )
     return planner
 
 
@@ -36,11 +42,12 @@ def plan(
     planner: Any = "straight-line",
     *,
     seed: int = 0,
-    time_limit: float = 10.0,
+    time_limit: float = DEFAULT_TIME_LIMIT,
     registry: Registry | None = None,
-    **config: Any,
+    **settings: Any,
 ) -> PlanResult:
-    """Plan ``problem`` with ``planner`` (a registered name, a class or an instance).
+    """Plan ``problem`` with ``planner`` (a registered name, a class or an instance) and its
+    ``settings`` (keywords; see :meth:`~planbench.registry.Registry.configure`).
 
     The problem is checked first: a start that is NaN, outside the limits or in collision gives
     ``INVALID_START``, an unusable goal pose ``INVALID_GOAL``, without calling the planner. Setup
@@ -49,8 +56,8 @@ def plan(
     ``numpy.random.Generator``.
     """
     if not (np.isfinite(time_limit) and time_limit > 0):
-        raise ValueError(f"time_limit must be > 0 [s], got {time_limit}")
-    instance = resolve_planner(planner, registry, **config)
+        raise InvalidConfigError(f"time_limit must be a finite number > 0 [s], got {time_limit}")
+    instance = resolve_planner(planner, registry, **settings)
     check = problem.check()
     if check.start:
         return PlanResult(PlanStatus.INVALID_START, message="; ".join(check.start), planning_time=0.0, setup_time=0.0)
