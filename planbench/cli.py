@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import math
@@ -10,7 +11,17 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+import planbench
+from planbench.bench.suite import check_seconds, check_seed
+from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
+from planbench.harness import DEFAULT_TIME_LIMIT
+from planbench.registry import REGISTRY
+from planbench.robot import load_robot, robot_names
 
 log = logging.getLogger("planbench")
 
@@ -18,25 +29,27 @@ log = logging.getLogger("planbench")
 COMMAND_MODULES = ("planbench.bench.commands", "planbench.field.commands")
 
 
-def parse_setting(text: str) -> tuple[str, Any]:
-    """``key=value`` with a JSON value (``gain=2.5``, ``timed=false``) or a plain string."""
+def parse_setting(text: str) -> tuple[str, str]:
+    """``key=value`` as the key and the value's text: the planner's ``Config`` says what the text
+    means (``gain=2.5`` a float, ``timed=false`` a bool, ``params={"range": 0.3}`` JSON), see
+    :meth:`planbench.registry.Registry.configure`."""
     key, sep, value = text.partition("=")
-    if not sep or not key:
+    if not sep or not key.strip():
         raise argparse.ArgumentTypeError(f"settings are key=value, got {text!r}")
-    try:
-        return key.strip(), json.loads(value)
-    except json.JSONDecodeError:
-        return key.strip(), value
+    return key.strip(), value
+
+
+def settings_text(pairs: Sequence[tuple[str, str]] | None) -> dict[str, str]:
+    """``--set`` pairs as a dict; a key given twice is an error (which one was meant?)."""
+    out: dict[str, str] = {}
+    for key, value in pairs or ():
+        if key in out and out[key] != value:
+            raise PlanbenchError(f"--set {key} is given twice ({out[key]!r} and {value!r}); give it once")
+        out[key] = value
+    return out
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    from planbench.datasets import problem_sets
-    from planbench.registry import REGISTRY
-    from planbench.robot import load_robot, robot_names
-
     console = Console()
     table = Table(title="Planners", title_justify="left")
     for col in ("name", "origin", "distribution", "available"):
@@ -101,18 +114,11 @@ def _fmt(value: Any, unit: str) -> str:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
-
-    import planbench
-    from planbench.bench.suite import check_seconds, check_seed
-
     check_seconds(args.time_limit, "--time-limit")
     check_seed(args.seed)
-    settings = dict(args.set or [])
+    setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
     problems = planbench.load_problems(args.problem)
-    planner = planbench.make_planner(args.planner, **settings)
+    planner = setup.build()
     if args.plot and (len(problems) != 1 or not hasattr(planner, "plot_result")):
         why = "one problem" if len(problems) != 1 else f"a planner with a figure; {args.planner!r} has none"
         raise PlanbenchError(f"--plot needs {why}")
@@ -176,22 +182,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--problem", required=True, help="mbm:box/0001, mbm:box/0001-0010, mbm:*, or a problem .json")
     p.add_argument("--planner", default="straight-line", help="a registered planner name (see `planbench list`)")
     p.add_argument("--seed", type=int, default=0, help="0 <= seed < 2**63")
-    p.add_argument("--time-limit", type=float, default=10.0, help="[s] per problem, a finite number > 0")
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        default=DEFAULT_TIME_LIMIT,
+        help=f"[s] per problem, a finite number > 0 (default {DEFAULT_TIME_LIMIT:g})",
+    )
     p.add_argument(
         "--set",
         action="append",
         type=parse_setting,
         metavar="KEY=VALUE",
-        help="a planner setting (repeatable), e.g. --set timed=false",
+        help="a planner setting (repeatable), e.g. --set timed=false; read as the type of the planner's setting",
     )
     p.add_argument("--json", metavar="FILE", help="also write the metrics as JSON")
     p.add_argument("--plot", metavar="PNG", help="write the planner's figure of the result (one problem only)")
     p.set_defaults(func=cmd_plan)
 
-    import importlib
-
     for module in COMMAND_MODULES:
-        try:
+        try:  # imported here: a command module whose optional dependency is missing is left out
             importlib.import_module(module).add_commands(sub)
         except ModuleNotFoundError as exc:
             if exc.name is None or not module.startswith(exc.name):
