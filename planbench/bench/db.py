@@ -43,6 +43,7 @@ import contextlib
 import dataclasses
 import datetime
 import functools
+import importlib.metadata
 import io
 import json
 import logging
@@ -60,6 +61,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from planbench.errors import PlanbenchError, ResultsFileError, ResultsLockedError, UnstorableValueError
+from planbench.validate import Evaluation
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +100,6 @@ KEY_DEPENDENCIES = ("numpy", "scipy", "pin", "coal", "ompl", "qpsolvers", "numba
 
 def _evaluation_columns() -> list[tuple[str, str]]:
     """Columns for every field of :class:`planbench.Evaluation` (added as the dataclass grows)."""
-    from planbench.validate import Evaluation
-
     cols = []
     for f in dataclasses.fields(Evaluation):
         t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
@@ -111,8 +111,6 @@ def _evaluation_columns() -> list[tuple[str, str]]:
 
 def package_versions() -> dict[str, str]:
     """Versions of Python, planbench and the key dependencies ("" when not installed)."""
-    import importlib.metadata
-
     out = {"python": platform.python_version(), "platform": platform.platform()}
     for dist in ("planbench", *KEY_DEPENDENCIES):
         try:
@@ -491,7 +489,7 @@ def _all_columns() -> list[tuple[str, str]]:
 def _acquire_lock(db_path: Path, lock_path: Path) -> int:
     """An open fd holding ``flock(LOCK_EX)`` on ``lock_path``, with this process described in it."""
     try:
-        import fcntl
+        import fcntl  # POSIX only: imported where it is used, so the module loads anywhere
     except ImportError:  # pragma: no cover (not POSIX): no lock, as before
         return -1
     for _ in range(5):

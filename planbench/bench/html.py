@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from planbench.bench.plots import write_plots
 from planbench.bench.report import FAILURE_STATUSES, METRICS, _cells, _headers, summarize
 
 __all__ = ["write_html", "render_html"]
@@ -39,8 +40,6 @@ def render_html(
     rows: Sequence[dict[str, Any]], title: str = "planbench report", plots_dir: str | Path | None = None
 ) -> str:
     """The report as an HTML string; plots are made in ``plots_dir`` (a temporary folder if None)."""
-    from planbench.bench.plots import write_plots
-
     parts = [
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
         f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>",

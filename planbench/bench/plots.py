@@ -22,6 +22,8 @@ __all__ = ["write_plots", "time_to_success"]
 
 
 def _pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend, imported on first use: it costs about half a second, which every
+    ``planbench`` command (this module is loaded with the CLI) would otherwise pay."""
     import matplotlib
 
     matplotlib.use("Agg")

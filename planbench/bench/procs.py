@@ -32,6 +32,7 @@ import threading
 import time
 
 from planbench.field.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
+from planbench.field.threads import limit_threads as limit_compute_threads
 
 __all__ = [
     "THREAD_VARIABLES",
@@ -59,8 +60,6 @@ def limit_threads(threads: int) -> None:
     oversubscribe the cores, idle OpenMP threads sleep instead of spinning, and a run's arithmetic
     does not depend on ``--jobs`` (:func:`planbench.field.threads.limit_threads`: environment for
     what loads later, the pools of what is loaded already, numpy's OpenBLAS included)."""
-    from planbench.field.threads import limit_threads as limit_compute_threads
-
     limit_compute_threads(threads)
 
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from rich.markup import escape
+from rich.table import Table
 
 __all__ = ["METRICS", "Metric", "wilson_interval", "summarize", "to_markdown", "to_csv", "to_rich"]
 
@@ -150,9 +152,6 @@ def to_rich(
     """A rich Table for the terminal (short headers, no setup time). In a terminal narrower than
     140 columns the metric cells show medians only, so that the rows stay short."""
     quartiles = width is None or width >= 140
-    from rich.markup import escape
-    from rich.table import Table
-
     table = Table(
         title=escape(title) if title else None,
         title_justify="left",
