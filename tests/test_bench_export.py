@@ -11,6 +11,7 @@ import pytest
 from planbench.bench.db import ResultsDB
 from planbench.bench.export import RUN_PROPERTIES, write_ompl_logs, write_planner_arena, write_runs_csv
 from planbench.bench.runner import failure_record
+from planbench.bench.task import RunTask
 from planbench.bench.worker import run_one
 
 PROBLEMS = {"mbm:table_pick/0001": "table_pick", "mbm:box/0001": "box"}
@@ -23,8 +24,14 @@ def rows(tmp_path_factory):
         for problem, family in PROBLEMS.items():
             for label, planner in (("straight-line", "straight-line"), ("noisy", "bench_planners:NoisyPlanner")):
                 for seed in (0, 1):
-                    task = dict(
-                        problem_ref=problem, planner=planner, settings={}, seed=seed, time_limit=1.0, validation={}
+                    task = RunTask(
+                        suite="s",
+                        problem_id=problem,
+                        problem_ref=problem,
+                        label=label,
+                        planner=planner,
+                        seed=seed,
+                        time_limit=1.0,
                     )
                     fields = dict(
                         suite="s",

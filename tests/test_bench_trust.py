@@ -256,13 +256,13 @@ def test_clean_result_keeps_json_data_and_names_everything_else():
 
 
 def test_planners_are_checked_in_a_probe_process_with_named_errors(tmp_path):
-    from planbench.errors import PlanbenchError
+    from planbench.errors import InvalidSettingError, PlanbenchError
 
     bad = '[[planners]]\nlabel = "missing"\nplanner = "no_such_module_here:Planner"\n'
     with pytest.raises(PlanbenchError, match="planner 'missing': cannot load planner entry point"):
         run_benchmark(parse_suite(suite(bad), "bad.toml"), tmp_path / "a.db", jobs=1)
     settings = f'[[planners]]\nlabel = "hog"\nplanner = "{A}:MemoryHogPlanner"\nsettings = {{ nope = 1 }}\n'
-    with pytest.raises(PlanbenchError, match="planner 'hog'.*nope"):
+    with pytest.raises(InvalidSettingError, match="planner label 'hog'.*setting nope = 1 is not accepted.*gib"):
         run_benchmark(parse_suite(suite(settings), "bad.toml"), tmp_path / "b.db", jobs=1)
     optional = bad.replace('label = "missing"', 'label = "missing"\noptional = true')
     optional += '[[planners]]\nplanner = "straight-line"\n'

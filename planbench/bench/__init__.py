@@ -14,7 +14,7 @@ Command line: ``planbench bench --suite smoke``, ``planbench report results.db``
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,16 +49,18 @@ def benchmark(
     problems: Sequence[str] | None = None,
     seeds: Any = None,
     time_limit: float | None = None,
+    settings: Mapping[str, Any] | None = None,
     by: Sequence[str] = ("planner",),
 ) -> list[dict[str, Any]]:
     """Run ``suite`` (a :class:`Suite`, a built-in name or a TOML file) and return its summary table.
 
     Same options as ``planbench bench``: results go to the SQLite file ``out``; ``jobs`` worker
     processes (default: all cores); ``resume`` runs only what ``out`` lacks; ``planners``,
-    ``problems``, ``seeds`` and ``time_limit`` [s] narrow or change the suite. The table has one
+    ``problems``, ``seeds`` and ``time_limit`` [s] narrow or change the suite; ``settings`` are planner
+    settings given to every planner of it (parsed to their types before any run). The table has one
     dict per group of ``by`` (see :func:`planbench.bench.report.summarize`).
     """
-    s = select(suite, planners, problems, seeds, time_limit)
+    s = select(suite, planners, problems, seeds, time_limit, settings=settings)
     run_benchmark(s, out, jobs=jobs, resume=resume, overwrite=overwrite)
     with ResultsDB(out, create=False) as db:
         return summarize(db.rows(s.name), by)

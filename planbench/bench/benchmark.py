@@ -6,15 +6,18 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from planbench.bench.db import ResultsDB, RunKey
-from planbench.bench.runner import Runner, failure_record
+from planbench.bench.db import ResultsDB
+from planbench.bench.probe import probe_planners
+from planbench.bench.runner import Record, Runner, failure_record
 from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_suite, parse_seeds
-from planbench.errors import PlanbenchError, UnstorableValueError
+from planbench.bench.task import RunTask
+from planbench.errors import InvalidSettingError, PlanbenchError, UnstorableValueError
+from planbench.registry import REGISTRY
 
 log = logging.getLogger(__name__)
 
@@ -41,20 +44,36 @@ def select(
     problems: Sequence[str] | None = None,
     seeds: Any = None,
     time_limit: float | None = None,
+    settings: Mapping[str, Any] | None = None,
+    text_settings: Mapping[str, str] | None = None,
 ) -> Suite:
     """The suite narrowed or changed by command-line style options.
 
     ``planners``: labels of the suite, or registered names / ``"module:Attr"`` not in it (added
     with default settings); ``problems``: selectors replacing the suite's; ``seeds``: a count, a
-    list or text (``"0,1,2"``, ``"5"``, ``"0-9"``); ``time_limit`` [s].
+    list or text (``"0,1,2"``, ``"5"``, ``"0-9"``); ``time_limit`` [s]; ``settings`` (values) and
+    ``text_settings`` (as written on a command line, ``planbench bench --set``): planner settings
+    given to every planner of the suite, over its own (each planner must have them; they are parsed
+    to its ``Config``'s types when the benchmark checks its planners, before any run).
     """
     s = suite if isinstance(suite, Suite) else load_suite(suite)
     changes: dict[str, Any] = {}
+    entries = list(s.planners)
     if planners:
         entries = []
         for name in planners:
             match = [p for p in s.planners if p.label == name]
             entries.append(match[0] if match else PlannerEntry(name.rpartition(":")[2], name))
+    if settings or text_settings:
+        entries = [
+            replace(
+                e,
+                settings={**e.settings, **(settings or {})},
+                text_settings={**e.text_settings, **(text_settings or {})},
+            )
+            for e in entries
+        ]
+    if entries != list(s.planners):
         changes["planners"] = tuple(entries)
     if problems:
         changes["problems"] = tuple(problems)
@@ -66,37 +85,53 @@ def select(
 
 
 def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[str, str]]:
-    """Planners that can run (settings checked here, before any worker starts), labels of optional
-    planners skipped with the reason, and each label's planner version.
+    """Planners that can run, with their settings parsed to their types (checked here, before any
+    worker starts), labels of optional planners skipped with the reason, and each label's planner
+    version.
 
     The planners are loaded and built in a throw-away process (:mod:`planbench.bench.probe`): this
-    process checks results and writes the database, so no planner code runs in it.
+    process checks results and writes the database, so no planner code runs in it. A planner that
+    cannot be used raises (an :class:`InvalidSettingError` for a bad setting), unless it is optional:
+    then it is skipped, with the reason.
     """
-    from planbench.bench.probe import probe_planners
-    from planbench.registry import REGISTRY
-
-    answers = probe_planners([(entry.planner, dict(entry.settings)) for entry in suite.planners])
+    answers = probe_planners([(e.planner, dict(e.settings), dict(e.text_settings)) for e in suite.planners])
     usable, skipped, versions = [], [], {}
     for entry, answer in zip(suite.planners, answers, strict=True):
+        where = suite.source + (f", planner label {entry.label!r}" if entry.label != entry.planner else "")
         if not answer.get("ok"):
             if entry.optional:
                 skipped.append(f"{entry.label}: {answer.get('error')}")
                 continue
-            raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: {answer.get('error')}")
-        if ":" not in entry.planner:
-            spec = REGISTRY.spec(entry.planner)
-            versions[entry.label] = f"{spec.distribution} {spec.version}".strip()
-        else:
-            versions[entry.label] = str(answer.get("module", ""))
+            bad = _setting_error(answer, where)
+            raise bad or PlanbenchError(f"{suite.source}: planner {entry.label!r}: {answer.get('error')}")
+        versions[entry.label] = _version(entry.planner, answer)
         fresh = entry.fresh_process or answer.get("fresh_process") is True
-        usable.append(entry if fresh == entry.fresh_process else _with_fresh(entry))
+        settings = answer.get("settings")
+        given = {**entry.settings, **entry.text_settings}
+        if not (isinstance(settings, dict) and set(settings) == set(given)):
+            raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: its settings came back malformed")
+        usable.append(replace(entry, settings=settings, text_settings={}, fresh_process=fresh))
     return usable, skipped, versions
 
 
-def _with_fresh(entry: PlannerEntry) -> PlannerEntry:
-    from dataclasses import replace
+def _setting_error(answer: dict[str, Any], where: str) -> InvalidSettingError | None:
+    """The probe's bad setting as the error it was there (None when the answer holds none)."""
+    data = answer.get("setting_error")
+    try:
+        return InvalidSettingError.from_data(data, where=where) if isinstance(data, dict) else None
+    except TypeError:  # not an error's data: the answer's text is reported instead
+        return None
 
-    return replace(entry, fresh_process=True)
+
+def _version(planner: str, answer: dict[str, Any]) -> str:
+    """The distribution and version a registered planner comes from (entry-point metadata, read
+    without importing it), else the module the probe found it in."""
+    family = planner.partition(":")[0]
+    if family in REGISTRY.names():
+        spec = REGISTRY.spec(family)
+        return f"{spec.distribution} {spec.version}".strip()
+    module = answer.get("module")
+    return module if isinstance(module, str) else ""
 
 
 def _complete(suite: Suite, db: ResultsDB, planners: list[PlannerEntry], refs: list[Any], stored: Any) -> bool:
@@ -115,11 +150,13 @@ def _complete(suite: Suite, db: ResultsDB, planners: list[PlannerEntry], refs: l
 
 def prepare(
     suite: Suite, db: ResultsDB, resume: bool = False, overwrite: bool = False
-) -> tuple[list[dict[str, Any]], int, list[str]]:
+) -> tuple[list[RunTask], int, list[str]]:
     """Tasks still to run, how many are already done, and the skipped optional planners."""
     planners, skipped, versions = _check_planners(suite)
     if not planners:
         raise PlanbenchError(f"{suite.source}: no planner of the suite can be loaded: " + "; ".join(skipped))
+    checked = {p.label: p for p in planners}  # settings parsed: what is stored and compared
+    suite = suite.with_changes(planners=tuple(checked.get(p.label, p) for p in suite.planners))
     refs = expand_problems(suite.problems)
     stored = db.suite_settings(suite.name)
     n_before = db.count(suite.name)
@@ -154,36 +191,34 @@ def prepare(
         )
     db.put_suite(suite.name, definition, suite.settings_json())
     done = db.done_keys(suite.name)
-    tasks = []
     run_settings = json.loads(suite.settings_json())
-    for entry in planners:
-        for ref in refs:
-            for seed in suite.seeds:
-                key: RunKey = (suite.name, ref.id, entry.label, int(seed))
-                if key in done:
-                    continue
-                tasks.append(
-                    {
-                        "key": key,
-                        "problem_ref": ref.ref,
-                        "family": ref.family,
-                        "planner": entry.planner,
-                        "label": entry.label,
-                        "settings": entry.settings,
-                        "planner_version": versions.get(entry.label, ""),
-                        "seed": int(seed),
-                        "time_limit": suite.time_limit,
-                        "grace": suite.grace,
-                        "setup_timeout": suite.setup_timeout,
-                        "validation_timeout": suite.validation_timeout,
-                        "memory_limit": suite.memory_limit,
-                        "validation": suite.validation,
-                        "fresh_process": entry.fresh_process,
-                        "run_settings": run_settings,
-                    }
-                )
+    tasks = [
+        RunTask(
+            suite=suite.name,
+            problem_id=ref.id,
+            problem_ref=ref.ref,
+            label=entry.label,
+            planner=entry.planner,
+            seed=int(seed),
+            settings=entry.settings,
+            family=ref.family,
+            planner_version=versions.get(entry.label, ""),
+            time_limit=float(suite.time_limit),
+            grace=float(suite.grace),
+            setup_timeout=float(suite.setup_timeout),
+            validation_timeout=float(suite.validation_timeout),
+            memory_limit=float(suite.memory_limit),
+            validation=suite.validation,
+            fresh_process=entry.fresh_process,
+            run_settings=run_settings,
+        )
+        for entry in planners
+        for ref in refs
+        for seed in suite.seeds
+        if (suite.name, ref.id, entry.label, int(seed)) not in done
+    ]
     # Interleave planners and problems so partial results (and the progress counts) are balanced.
-    tasks.sort(key=lambda t: (t["seed"], t["key"][1], t["label"]))
+    tasks.sort(key=lambda t: (t.seed, t.problem_id, t.label))
     n_done = len(refs) * len(suite.seeds) * len(planners) - len(tasks)
     return tasks, n_done, skipped
 
@@ -194,7 +229,7 @@ def run_benchmark(
     jobs: int | None = None,
     resume: bool = False,
     overwrite: bool = False,
-    on_record: Callable[[dict[str, Any], dict[str, Any]], None] | None = None,
+    on_record: Callable[[RunTask, Record], None] | None = None,
     on_start: Callable[[int, int, list[str]], None] | None = None,
 ) -> BenchmarkOutcome:
     """Run ``suite`` into the results database ``out`` (see :func:`prepare` for resume rules).
@@ -213,19 +248,18 @@ def run_benchmark(
         if on_start is not None:
             on_start(len(tasks), n_done, skipped)
 
-        def write(task: dict[str, Any], record: dict[str, Any]) -> None:
-            suite_name, problem, label, seed = task["key"]
+        def write(task: RunTask, record: Record) -> None:
             fields = {
-                "suite": suite_name,
-                "problem": problem,
-                "family": task["family"],
-                "planner": label,
-                "seed": seed,
-                "planner_name": task["planner"],
-                "planner_settings": task["settings"],
-                "planner_version": task["planner_version"],
-                "time_limit": task["time_limit"],
-                "settings": task["run_settings"],
+                "suite": task.suite,
+                "problem": task.problem_id,
+                "family": task.family,
+                "planner": task.label,
+                "seed": task.seed,
+                "planner_name": task.planner,
+                "planner_settings": task.settings,
+                "planner_version": task.planner_version,
+                "time_limit": task.time_limit,
+                "settings": task.run_settings,
             }
             try:
                 db.add_run(fields, record)

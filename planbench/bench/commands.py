@@ -13,7 +13,21 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from planbench.errors import InvalidConfigError, PlanbenchError
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from planbench.bench import export
+from planbench.bench.benchmark import run_benchmark, select
+from planbench.bench.db import ResultsDB
+from planbench.bench.html import write_html
+from planbench.bench.plots import write_plots
+from planbench.bench.report import failures, summarize, to_csv, to_markdown, to_rich
+from planbench.bench.runner import default_jobs
+from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
+from planbench.bench.task import RunTask
+from planbench.cli import parse_setting, settings_text
+from planbench.errors import InvalidConfigError, PlanbenchError, ResultsFileError
 
 log = logging.getLogger(__name__)
 
@@ -26,8 +40,6 @@ def _csv_list(text: str) -> list[str]:
 
 def add_commands(subparsers: Any) -> None:
     """Add ``bench``, ``report`` and ``export`` to an argparse subparsers object."""
-    from planbench.bench.suite import DEFAULT_MEMORY_LIMIT
-
     p = subparsers.add_parser(
         "bench",
         help="run a benchmark suite (planners x problems x seeds) into a results database",
@@ -41,6 +53,14 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--seeds", help="a count (3), a list (0,1,5) or a range (0-9); 0 <= seed < 2**63")
     p.add_argument("--jobs", "-j", type=int, default=0, help="worker processes (default, or 0: all cores)")
     p.add_argument("--time-limit", type=float, help="[s] planning time per run, a finite number > 0")
+    p.add_argument(
+        "--set",
+        action="append",
+        type=parse_setting,
+        metavar="KEY=VALUE",
+        help="a planner setting for every planner of the suite (repeatable), over the suite's own; read as "
+        "the type of the planner's setting and checked before any run",
+    )
     p.add_argument(
         "--memory-limit",
         metavar="MIB",
@@ -96,9 +116,6 @@ def _by(choice: str) -> tuple[str, ...]:
 
 def _bench_suite(args: argparse.Namespace) -> Any:
     """The suite the ``bench`` options ask for; every option is checked before any file is touched."""
-    from planbench.bench.benchmark import select
-    from planbench.bench.suite import check_seconds, parse_memory_limit
-
     if args.jobs < 0:
         raise InvalidConfigError(f"--jobs must be >= 1 (or 0: all cores), got {args.jobs}")
     if args.time_limit is not None:
@@ -107,7 +124,8 @@ def _bench_suite(args: argparse.Namespace) -> Any:
         raise InvalidConfigError("--planners names no planner: give comma-separated labels or planner names")
     if args.resume and args.overwrite:
         raise InvalidConfigError("--resume keeps the stored runs and --overwrite deletes them: give one of them")
-    suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit)
+    text = settings_text(args.set)
+    suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit, text_settings=text)
     if args.memory_limit is not None:
         suite = suite.with_changes(memory_limit=parse_memory_limit(args.memory_limit))
     return suite
@@ -115,8 +133,6 @@ def _bench_suite(args: argparse.Namespace) -> Any:
 
 def _stored_count(path: str, suite: str) -> int:
     """Runs of ``suite`` in the results file (0 when there is none yet), read without writing."""
-    from planbench.bench.db import ResultsDB
-
     if not Path(path).is_file():
         return 0
     with ResultsDB(path, read_only=True) as db:
@@ -124,14 +140,6 @@ def _stored_count(path: str, suite: str) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.markup import escape
-
-    from planbench.bench.benchmark import run_benchmark
-    from planbench.bench.db import ResultsDB
-    from planbench.bench.report import failures, summarize, to_rich
-    from planbench.bench.runner import default_jobs
-
     console = Console(stderr=False)
     suite = _bench_suite(args)
     jobs = args.jobs or default_jobs()
@@ -192,8 +200,6 @@ class _Progress:
     def start(self, total: int) -> None:
         if not self.enabled or total == 0:
             return
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
         self.bar = Progress(
             TextColumn("[progress.description]{task.description}"),
             BarColumn(),
@@ -207,7 +213,7 @@ class _Progress:
         self.bar.start()
         self.task = self.bar.add_task("benchmark", total=total, solved=0, failed=0, bad="")
 
-    def update(self, task: dict[str, Any], record: dict[str, Any]) -> None:
+    def update(self, task: RunTask, record: dict[str, Any]) -> None:
         ev = record["evaluation"]
         self.counts["solved" if ev["success"] else "failed"] += 1
         if ev["status"] in ("error", "timeout", "crash"):
@@ -241,9 +247,6 @@ def _output(path: str | Path, db: str | Path) -> Path:
 
 
 def _is_results_file(path: Path) -> bool:
-    from planbench.bench.db import ResultsDB
-    from planbench.errors import ResultsFileError
-
     try:
         with ResultsDB(path, read_only=True):
             return True
@@ -262,12 +265,6 @@ def _writing(path: str | Path) -> Iterator[None]:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.markup import escape
-
-    from planbench.bench.db import ResultsDB
-    from planbench.bench.report import failures, summarize, to_csv, to_markdown, to_rich
-
     console = Console()
     outputs = [x for x in (args.markdown, args.csv, args.plots, args.html) if x]
     for out in outputs:
@@ -275,8 +272,6 @@ def cmd_report(args: argparse.Namespace) -> int:
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
     if args.problems:
-        from planbench.bench.suite import expand_problems
-
         wanted = {ref.id for ref in expand_problems(args.problems)}
         rows = [row for row in rows if row["problem"] in wanted]
     if not rows:
@@ -300,14 +295,10 @@ def cmd_report(args: argparse.Namespace) -> int:
             Path(args.csv).write_text(to_csv(summary))
         console.print(f"CSV table written to {escape(args.csv)}")
     if args.plots:
-        from planbench.bench.plots import write_plots
-
         with _writing(args.plots):
             files = write_plots(rows, args.plots)
         console.print(f"{len(files)} plots written to {escape(args.plots)}")
     if args.html:
-        from planbench.bench.html import write_html
-
         with _writing(args.html):
             write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}")
         console.print(f"HTML report written to {escape(args.html)}")
@@ -315,9 +306,6 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from planbench.bench import export
-    from planbench.bench.db import ResultsDB
-
     db_path = Path(args.db)
     default = {
         "ompl-log": db_path.with_suffix("").as_posix() + "-ompl-logs",

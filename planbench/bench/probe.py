@@ -3,13 +3,16 @@ or constructs planner code.
 
 Why: importing a plugin runs its module code, and building an instance runs its ``__init__``; a
 plugin that patches numpy, json or planbench there would otherwise do so in the process that
-checks results and writes the database. The probe is spawned, loads each planner and builds it
-with its settings, and answers with data only (:mod:`planbench.bench.wire`): whether it loaded
-(else the error's text and kind), its module and whether it asks for a fresh process per run.
+checks results and writes the database. The probe is spawned, loads each planner, parses its
+settings to the types of its ``Config`` (which needs the plugin's classes, hence here) and builds
+it (its ``__init__`` may check settings too), and answers with data only
+(:mod:`planbench.bench.wire`): whether it loaded (else the error's text and kind, and a bad
+setting's data), the parsed settings, its module and whether it asks for a fresh process per run.
 """
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 import time
@@ -17,39 +20,57 @@ from typing import Any
 
 from planbench.bench.procs import detach, kill_group, limit_threads
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadMessage, decode, encode
-from planbench.errors import PlanbenchError
+from planbench.errors import InvalidSettingError, PlanbenchError
+from planbench.registry import REGISTRY
 
-__all__ = ["probe_planners"]
+__all__ = ["ProbeEntry", "probe_planners"]
+
+PROBE_TIMEOUT = 300.0
+"""[s] the probe may take to import and check every planner of a suite."""
+
+ProbeEntry = tuple[str, dict[str, Any], dict[str, str]]
+"""(planner, settings, command-line text settings) of one planner to check."""
 
 
-def _probe_one(planner: str, settings: dict[str, Any]) -> dict[str, Any]:
-    from planbench.bench.suite import load_planner_class, make_planner_instance
-    from planbench.errors import PlannerUnavailableError, UnknownNameError
-
+def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str]) -> dict[str, Any]:
     try:
-        cls = load_planner_class(planner)
-        make_planner_instance(planner, settings)
-    except (PlannerUnavailableError, UnknownNameError, PlanbenchError) as exc:
+        setup = REGISTRY.configure(planner, settings, text=text)
+        for key, value in setup.settings.items():
+            try:
+                json.dumps(value, allow_nan=True)
+            except (TypeError, ValueError) as exc:
+                expected = f"a benchmark stores settings as JSON data, and this value is not ({exc})"
+                raise InvalidSettingError(setup.name, key, value, expected) from None
+        setup.build()  # its __init__ may check settings too (OMPL: the planner's name, its params)
+    except InvalidSettingError as exc:
+        return {"ok": False, "error": str(exc), "planbench_error": True, "setting_error": exc.to_data()}
+    except PlanbenchError as exc:
         return {"ok": False, "error": str(exc), "planbench_error": True}
     except Exception as exc:  # a plugin's own failure: named, not a traceback
         return {"ok": False, "error": f"{type(exc).__name__}: {exc}", "planbench_error": False}
-    module = getattr(cls, "__module__", "")
+    module = getattr(setup.cls, "__module__", "")
     return {
         "ok": True,
         "module": module if isinstance(module, str) else "",
-        "fresh_process": bool(getattr(cls, "fresh_process", False)),
+        "fresh_process": bool(getattr(setup.cls, "fresh_process", False)),
+        "settings": setup.settings,
     }
 
 
-def _probe_main(conn: Any, entries: list[tuple[str, dict[str, Any]]], parent_pid: int) -> None:
+def _probe_main(conn: Any, entries: list[ProbeEntry], parent_pid: int) -> None:
     detach(parent_pid)
     limit_threads(1)
-    answers = [_probe_one(planner, settings) for planner, settings in entries]
+    answers = [_probe_one(planner, settings, text) for planner, settings, text in entries]
     conn.send_bytes(encode({"type": "probe", "answers": answers}))
 
 
-def probe_planners(entries: list[tuple[str, dict[str, Any]]], timeout: float = 300.0) -> list[dict[str, Any]]:
-    """For each ``(planner, settings)``, what :func:`_probe_one` found, in a spawned process.
+def probe_planners(entries: list[ProbeEntry], timeout: float = PROBE_TIMEOUT) -> list[dict[str, Any]]:
+    """For each ``(planner, settings, text settings)``, what :func:`_probe_one` found, in a spawned
+    process: ``ok`` and, when true, the ``settings`` parsed to their fields' types (see
+    :meth:`~planbench.registry.Registry.configure`), the planner's ``module`` and ``fresh_process``;
+    else the ``error``'s text (and ``setting_error``, an :class:`InvalidSettingError`'s data).
+
+    The answers are the word of a process that ran plugin code: the caller checks what it uses.
 
     Raises :class:`PlanbenchError` when the probe dies, answers garbage, or takes over ``timeout`` s
     (a plugin whose import hangs).

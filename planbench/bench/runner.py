@@ -54,6 +54,7 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import tempfile
 import time
 from collections import deque
@@ -62,15 +63,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from planbench.bench.procs import OUTPUT_HEADER, OutputFile, kill_group
+from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
+from planbench.validate import Evaluation
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Runner", "default_jobs", "failure_record", "record_from"]
 
 Record = dict[str, Any]
-Task = dict[str, Any]
 RECV_TIMEOUT = 5.0
 """[s] a child that stops in the middle of a message for this long is treated as broken."""
 MAX_MESSAGES_PER_WAIT = 64
@@ -87,8 +89,6 @@ def default_jobs() -> int:
 
 def failure_record(status: str, message: str, traceback: str = "", planning_time: float = math.nan) -> Record:
     """A record for a run that produced none itself (killed, crashed, or a result not kept)."""
-    from planbench.validate import Evaluation
-
     evaluation = Evaluation(False, f"{status}: {message}", status, planning_time, math.nan).as_dict()
     return {
         "evaluation": evaluation,
@@ -136,8 +136,6 @@ def record_from(fields: dict[str, Any], evaluation: dict[str, Any] | None, valid
     """The record of a run from its checked raw result and the validator's verdict (None when there
     is nothing to validate: the run could not be prepared)."""
     if evaluation is None:
-        from planbench.validate import Evaluation
-
         status, message = fields["status"], fields["message"]
         failure = f"{status}: {message}" if message else status
         evaluation = Evaluation(False, failure, status, fields["planning_time"], fields["setup_time"]).as_dict()
@@ -168,6 +166,8 @@ class _Child:
     ready: bool = False
     runs: int = 0
     closed: bool = False
+    spent: bool = False
+    """A worker that ends after its run (it met MemoryError): it takes no other run."""
 
     @property
     def usable(self) -> bool:
@@ -180,7 +180,7 @@ class _Slot:
 
     worker: _Child
     validator: _Child
-    task: Task | None = None
+    task: RunTask | None = None
     run: int = 0
     phase: str = ""
     phase_start: float = 0.0
@@ -195,7 +195,8 @@ class _ChildFailed(Exception):
 
 
 class Runner:
-    """Runs tasks (dicts built by :mod:`planbench.bench.benchmark`) on ``jobs`` worker slots."""
+    """Runs tasks (:class:`~planbench.bench.task.RunTask`, built by :mod:`planbench.bench.benchmark`)
+    on ``jobs`` worker slots."""
 
     def __init__(self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1) -> None:
         self.jobs = default_jobs() if not jobs else int(jobs)
@@ -209,7 +210,7 @@ class Runner:
         self._start_failures = 0
         self._host = socket.gethostname()
 
-    def run(self, tasks: Sequence[Task], on_record: Callable[[Task, Record], None]) -> None:
+    def run(self, tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None]) -> None:
         """Run every task; call ``on_record(task, record)`` in this process as each one ends.
 
         On KeyboardInterrupt (or any exception) the workers are killed and the exception goes on;
@@ -217,7 +218,7 @@ class Runner:
         """
         if not tasks:
             return
-        pending: deque[Task] = deque(tasks)
+        pending: deque[RunTask] = deque(tasks)
         self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
         slots: list[_Slot] = []
         try:
@@ -237,7 +238,7 @@ class Runner:
 
     # -- the loop ----------------------------------------------------------------------------------
 
-    def _maybe_dispatch(self, slot: _Slot, pending: deque[Task]) -> None:
+    def _maybe_dispatch(self, slot: _Slot, pending: deque[RunTask]) -> None:
         if slot.task is not None or not pending:
             return
         if not slot.worker.usable:
@@ -246,13 +247,18 @@ class Runner:
             return
         if not slot.worker.ready:
             return
-        if pending[0].get("fresh_process") and slot.worker.runs > 0:
+        if (pending[0].fresh_process or slot.worker.spent) and slot.worker.runs > 0:
             self._stop(slot.worker, idle=True)
             slot.worker = self._start("worker")
             return
-        self._dispatch(slot, pending.popleft())
+        if not self._dispatch(slot, pending[0]):  # it died just now: the run goes to its successor
+            self._kill(slot.worker)
+            self._close(slot.worker)
+            slot.worker = self._start("worker")
+            return
+        pending.popleft()
 
-    def _service(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+    def _service(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         """Everything one slot needs after a wait: messages, deadlines, dead processes."""
         slot.worker.output.bound()
         finished = self._drain_worker(slot) or self._drain_validator(slot)
@@ -264,7 +270,7 @@ class Runner:
         self._check_worker(slot, on_record, more)
         self._check_validator(slot, on_record, more)
 
-    def _check_worker(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+    def _check_worker(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         w = slot.worker
         if w.closed or w.proc.is_alive():
             return
@@ -276,7 +282,7 @@ class Runner:
         if more:
             slot.worker = self._start("worker")
 
-    def _check_validator(self, slot: _Slot, on_record: Callable[[Task, Record], None], more: bool) -> None:
+    def _check_validator(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         v = slot.validator
         if v.closed or v.proc.is_alive():
             return
@@ -297,7 +303,7 @@ class Runner:
                 "spawned and import the main module); last output:\n" + child.output.tail()
             )
 
-    def _finish(self, slot: _Slot, record: Record, on_record: Callable[[Task, Record], None]) -> None:
+    def _finish(self, slot: _Slot, record: Record, on_record: Callable[[RunTask, Record], None]) -> None:
         task = slot.task
         assert task is not None
         record["elapsed"] = time.monotonic() - slot.dispatched
@@ -309,6 +315,8 @@ class Runner:
     # -- processes -------------------------------------------------------------------------------
 
     def _start(self, kind: str) -> _Child:
+        # Imported here: the worker module imports this one (record_from), so importing it at the top
+        # would be an import cycle.
         from planbench.bench.validator import validator_main
         from planbench.bench.worker import worker_main
 
@@ -341,10 +349,7 @@ class Runner:
             return
         if child.proc.is_alive() and idle and child.ready:
             with contextlib.suppress(OSError):
-                if child.kind == "worker":
-                    child.conn.send(None)
-                else:
-                    child.conn.send_bytes(encode({"type": "stop"}))
+                child.conn.send_bytes(encode({"type": "stop"}))
             child.proc.join(2)
         self._kill(child)
         self._close(child)
@@ -371,7 +376,13 @@ class Runner:
 
     # -- a run's life ------------------------------------------------------------------------------
 
-    def _dispatch(self, slot: _Slot, task: Task) -> None:
+    def _dispatch(self, slot: _Slot, task: RunTask) -> bool:
+        """Hand ``task`` to the slot's worker; False (the slot left free) when its connection is gone."""
+        message = encode({"type": "run", "run": self._runs + 1, "task": task.to_wire()})
+        try:
+            slot.worker.conn.send_bytes(message)
+        except OSError:
+            return False
         now = time.monotonic()
         self._runs += 1
         slot.task, slot.run, slot.fields = task, self._runs, None
@@ -381,14 +392,15 @@ class Runner:
         slot.phase = ""
         slot.worker.output.reset()
         self._enter(slot, "setup", now)
-        slot.worker.conn.send({**task, "run": slot.run})
+        return True
 
     def _enter(self, slot: _Slot, phase: str, now: float) -> None:
-        task = slot.task or {}
+        task = slot.task
+        assert task is not None
         limits = {
-            "setup": float(task.get("setup_timeout", 120.0)),
-            "plan": float(task.get("time_limit", 5.0)) + float(task.get("grace", 5.0)),
-            "validate": float(task.get("validation_timeout", 300.0)),
+            "setup": task.setup_timeout,
+            "plan": task.time_limit + task.grace,
+            "validate": task.validation_timeout,
         }
         if slot.phase:
             slot.timings[slot.phase] = now - slot.phase_start
@@ -451,6 +463,7 @@ class Runner:
             record.update(pid=slot.worker.proc.pid, host=self._host)
             return record
         fields["pid"], fields["host"] = slot.worker.proc.pid, self._host  # what this process knows itself
+        slot.worker.spent = ran_out_of_memory(fields["message"], fields["traceback"])  # the worker ends itself
         fields["traceback"] = _with_output(fields["traceback"], tail)
         if not fields["prepared"]:
             return record_from(fields, None, math.nan)
@@ -462,8 +475,8 @@ class Runner:
         request = {
             "type": "validate",
             "run": slot.run,
-            "problem_ref": slot.task["problem_ref"],
-            "validation": slot.task["validation"],
+            "problem_ref": slot.task.problem_ref,
+            "validation": slot.task.validation,
             "result": {k: v for k, v in fields.items() if k not in ("path", "times")},
         }
         try:
@@ -502,25 +515,24 @@ class Runner:
         return record_from(fields, evaluation, validation_time)
 
     def _timeout(self, slot: _Slot, now: float) -> Record:
-        task = slot.task or {}
+        task = slot.task
+        assert task is not None
         elapsed = now - slot.phase_start
         if slot.phase == "validate":
             self._kill(slot.validator)
             self._close(slot.validator)
-            msg = f"validation ran past {task.get('validation_timeout')} s; validator process killed"
+            msg = f"validation ran past {task.validation_timeout} s; validator process killed"
             fields = slot.fields or {}
             return failure_record("timeout", msg, "", fields.get("planning_time", math.nan))
         self._kill(slot.worker, dump_stack=True)
         if slot.phase == "plan":
             msg = (
-                f"planning ran {elapsed:.1f} s, past the time limit of {task.get('time_limit')} s "
-                f"+ {task.get('grace')} s grace; worker process killed"
+                f"planning ran {elapsed:.1f} s, past the time limit of {task.time_limit} s "
+                f"+ {task.grace} s grace; worker process killed"
             )
             planning_time = elapsed
         else:
-            msg = (
-                f"setup (problem loading, planner setup) ran past {task.get('setup_timeout')} s; worker process killed"
-            )
+            msg = f"setup (problem loading, planner setup) ran past {task.setup_timeout} s; worker process killed"
             planning_time = math.nan
         return failure_record("timeout", msg, _with_output("", slot.worker.output.tail()), planning_time)
 
@@ -535,7 +547,7 @@ class Runner:
             how = f"exit code {code}"
         phase = "validation" if slot.phase == "validate" else slot.phase
         msg = f"{child.kind} process died with {how} during {phase}"
-        limit = float((slot.task or {}).get("memory_limit", 0) or 0)
+        limit = slot.task.memory_limit if slot.task is not None else 0.0
         if limit > 0 and child.kind == "worker" and code is not None and code < 0:
             msg += f" (its memory limit was {limit:g} MiB: a failed allocation in C code can end a process this way)"
         return failure_record("crash", msg, _with_output("", child.output.tail()))
@@ -559,9 +571,9 @@ def _with_output(traceback: str, tail: str) -> str:
     return f"{traceback}{sep}{OUTPUT_HEADER}\n{tail}"
 
 
-def _note_memory_limit(record: Record, task: Task) -> None:
+def _note_memory_limit(record: Record, task: RunTask) -> None:
     """Name the memory limit in an ``error`` that ran out of memory (the limit is the likely cause)."""
-    limit = float(task.get("memory_limit", 0) or 0)
+    limit = task.memory_limit
     evaluation = record["evaluation"]
     if limit <= 0 or evaluation.get("status") != "error":
         return
@@ -587,8 +599,6 @@ def ran_out_of_memory(message: str, traceback: str) -> bool:
 def _set_recv_timeout(conn: Any, seconds: float) -> None:
     """Make reads of ``conn`` give up after ``seconds`` when a sender stalls mid-message (a socket
     option, so ``poll`` then ``recv_bytes`` can never block this loop for long)."""
-    import struct
-
     try:
         sock = socket.socket(fileno=os.dup(conn.fileno()))
     except OSError:  # pragma: no cover (not a socket: a pipe on another platform)

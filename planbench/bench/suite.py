@@ -6,12 +6,12 @@ A suite is a small TOML file (``planbench-suite/1``)::
     name = "my-suite"                 # the key under which results are stored
     description = "free text"
     problems = ["mbm:box/0001-0010", "mbm:cage", "my_problems/"]   # selectors, see load_problems
-    seeds = [0, 1, 2]                 # a list, or a count n meaning 0 .. n-1
-    time_limit = 5.0                  # [s] planning time per run (setup is timed apart)
-    memory_limit = 4096               # [MiB] address space per worker process; 0 or "none": no limit
-    setup_timeout = 120.0             # [s] hard limit on loading the problem and planner setup
-    grace = 5.0                       # [s] slack past time_limit before a planning run is killed
-    validation_timeout = 300.0        # [s] hard limit on validating one path
+    seeds = [0, 1, 2]                 # a list, or a count n meaning 0 .. n-1 (default [0])
+    time_limit = 2.0                  # [s] planning time per run (setup is timed apart)
+    memory_limit = 8192               # [MiB] address space per worker process; 0 or "none": no limit
+    setup_timeout = 60.0              # [s] hard limit on loading the problem and planner setup
+    grace = 2.0                       # [s] slack past time_limit before a planning run is killed
+    validation_timeout = 100.0        # [s] hard limit on validating one path
 
     [validation]                      # optional: planbench.ValidationSettings fields
     required_clearance = 0.0          # [m] smallest distance allowed along a path
@@ -19,12 +19,17 @@ A suite is a small TOML file (``planbench-suite/1``)::
     [[planners]]
     label = "mf-default"              # unique in the suite; defaults to the planner name
     planner = "matrix-field"          # a registered name or a "module:Attr" entry point
-    settings = { }                    # the planner's Config fields
+    settings = { }                    # the planner's Config fields, read as their types
     optional = false                  # true: skip (with a warning) when it cannot be loaded
     fresh_process = false             # true: every run in a new process (process-wide RNGs, e.g. OMPL)
 
-The same planner may appear several times under different labels with different settings. The
-built-in suites (``smoke``, ``mbm``) ship in ``planbench/bench/suites``.
+The limits shown are examples; a suite that leaves one out gets :data:`DEFAULT_TIME_LIMIT`,
+:data:`DEFAULT_MEMORY_LIMIT`, :data:`DEFAULT_SETUP_TIMEOUT`, :data:`DEFAULT_GRACE` or
+:data:`DEFAULT_VALIDATION_TIMEOUT`. The same planner may appear several times under different labels
+with different settings; each setting is parsed to the type of its ``Config`` field before any run
+(``speed_max = "0.3"`` is 0.3, ``verify_path = "no"`` is False, ``repulsion_gain = "none"`` is None;
+see :meth:`planbench.registry.Registry.configure`). The built-in suites (``smoke``, ``mbm``) ship in
+``planbench/bench/suites``.
 
 Seeds are integers with ``0 <= seed < 2**63`` (what numpy's ``default_rng`` and a SQLite INTEGER
 both take), at most 1,000,000 of them.
@@ -42,7 +47,6 @@ largest resident memory): see :data:`DEFAULT_MEMORY_LIMIT` for the numbers and t
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import math
 import sys
@@ -51,7 +55,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from planbench.datasets import load_problems
 from planbench.errors import DuplicateProblemError, InvalidConfigError, PlanbenchError, UnknownNameError
+from planbench.problem import Problem
+from planbench.validate import VALIDATOR, ValidationSettings
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -59,6 +66,10 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 __all__ = [
+    "DEFAULT_GRACE",
+    "DEFAULT_SETUP_TIMEOUT",
+    "DEFAULT_TIME_LIMIT",
+    "DEFAULT_VALIDATION_TIMEOUT",
     "PlannerEntry",
     "ProblemRef",
     "Suite",
@@ -70,10 +81,19 @@ __all__ = [
     "expand_problems",
     "parse_memory_limit",
     "load_suite",
-    "load_planner_class",
 ]
 
 SUITE_FORMAT = "planbench-suite/1"
+
+DEFAULT_TIME_LIMIT = 5.0
+"""[s] planning time per run of a suite that sets no ``time_limit`` (``planbench.plan`` has its own,
+:data:`planbench.harness.DEFAULT_TIME_LIMIT`)."""
+DEFAULT_SETUP_TIMEOUT = 120.0
+"""[s] hard limit on a run's setup (loading the problem, building the planner, its ``setup()``)."""
+DEFAULT_GRACE = 5.0
+"""[s] slack past ``time_limit`` before a planning run is killed."""
+DEFAULT_VALIDATION_TIMEOUT = 300.0
+"""[s] hard limit on validating one path."""
 
 DEFAULT_MEMORY_LIMIT = 4096.0
 """[MiB] of address space per worker by default.
@@ -102,14 +122,20 @@ class SuiteFileError(PlanbenchError):
 
 @dataclass(frozen=True)
 class PlannerEntry:
-    """One planner of a suite: ``planner`` (a registered name or ``"module:Attr"``) with
-    ``settings``, stored under ``label``."""
+    """One planner of a suite: ``planner`` (a registered name, ``family:variant`` or
+    ``"module:Attr"``) with ``settings``, stored under ``label``.
+
+    ``text_settings`` are settings as written on a command line (``planbench bench --set``), still
+    to be read as their fields' types; the benchmark parses both (in its probe process, where the
+    planner's ``Config`` may be imported) and stores the parsed ``settings`` only.
+    """
 
     label: str
     planner: str
     settings: dict[str, Any] = field(default_factory=dict)
     optional: bool = False
     fresh_process: bool = False
+    text_settings: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -129,11 +155,11 @@ class Suite:
     problems: tuple[str, ...]
     planners: tuple[PlannerEntry, ...]
     seeds: tuple[int, ...] = (0,)
-    time_limit: float = 5.0
+    time_limit: float = DEFAULT_TIME_LIMIT
     memory_limit: float = DEFAULT_MEMORY_LIMIT
-    setup_timeout: float = 120.0
-    grace: float = 5.0
-    validation_timeout: float = 300.0
+    setup_timeout: float = DEFAULT_SETUP_TIMEOUT
+    grace: float = DEFAULT_GRACE
+    validation_timeout: float = DEFAULT_VALIDATION_TIMEOUT
     validation: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     source: str = "<python>"
@@ -163,8 +189,6 @@ class Suite:
         dupes = sorted({x for x in labels if labels.count(x) > 1})
         if dupes:
             raise bad(f"planner label(s) {dupes} appear more than once; give each entry its own label")
-        from planbench.validate import ValidationSettings
-
         try:
             ValidationSettings(**self.validation)
         except (TypeError, ValueError) as exc:
@@ -176,14 +200,15 @@ class Suite:
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        for p in d["planners"]:
+            if not p["text_settings"]:  # parsed into settings once the planners are checked
+                del p["text_settings"]
         d["format"] = SUITE_FORMAT
         return d
 
     def settings_json(self) -> str:
         """The settings that change results (limits, validation and the validator's version), as
         canonical JSON."""
-        from planbench.validate import VALIDATOR
-
         keys = ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout", "validation")
         return json.dumps({"validator": VALIDATOR, **{k: getattr(self, k) for k in keys}}, sort_keys=True)
 
@@ -371,36 +396,6 @@ def parse_seeds(value: Any, source: str = "--seeds") -> tuple[int, ...]:
     raise SuiteFileError(source, f"seeds must be a count or a non-empty list of integers, got {value!r}")
 
 
-def load_planner_class(planner: str) -> type:
-    """The class named by a registered planner name or a ``"module:Attr"`` entry point."""
-    if ":" in planner:
-        module_name, _, attr = planner.partition(":")
-        try:
-            obj: Any = importlib.import_module(module_name)
-            for part in attr.split("."):
-                obj = getattr(obj, part)
-        except (ImportError, AttributeError) as exc:
-            raise PlanbenchError(f"cannot load planner entry point {planner!r}: {type(exc).__name__}: {exc}") from exc
-        return obj  # type: ignore[no-any-return]
-    from planbench.registry import REGISTRY
-
-    return REGISTRY.get(planner)
-
-
-def make_planner_instance(planner: str, settings: dict[str, Any]) -> Any:
-    """An instance of ``planner`` with ``settings`` (a registered name or ``"module:Attr"``)."""
-    if ":" in planner:
-        from planbench.harness import resolve_planner
-
-        try:
-            return resolve_planner(load_planner_class(planner), **settings)
-        except (TypeError, ValueError) as exc:
-            raise PlanbenchError(f"planner {planner!r}: bad settings {settings}: {exc}") from exc
-    from planbench.registry import REGISTRY
-
-    return REGISTRY.make(planner, **settings)
-
-
 def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
     """The problems named by ``selectors``, in order, without repeats.
 
@@ -408,9 +403,6 @@ def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
     with one id raise :class:`DuplicateProblemError` naming both, since runs are keyed by the id
     and would otherwise be silently merged into one.
     """
-    from planbench.datasets import load_problems
-    from planbench.problem import Problem
-
     out: dict[str, ProblemRef] = {}
     for sel in selectors:
         path = Path(sel)

@@ -25,22 +25,19 @@ from typing import Any
 
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
 from planbench.bench.wire import clean_result, decode, encode
+from planbench.datasets import load_problem
+from planbench.planner import PlanResult, PlanStatus
+from planbench.validate import ValidationSettings, evaluate
 
 __all__ = ["validate_fields", "validator_main"]
 
 
 def _problem(ref: str) -> Any:
-    from planbench.datasets import load_problem
-
     return load_problem(ref)
 
 
 def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, Any]) -> dict[str, Any]:
     """``planbench.evaluate`` of a checked raw result (see :func:`planbench.bench.wire.clean_result`)."""
-    import planbench
-    from planbench.planner import PlanResult, PlanStatus
-    from planbench.validate import ValidationSettings
-
     result = PlanResult(
         PlanStatus(fields["status"]),
         path=fields["path"],
@@ -51,7 +48,7 @@ def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, 
         planning_time=fields["planning_time"],
         setup_time=fields["setup_time"],
     )
-    return planbench.evaluate(problem, result, ValidationSettings(**validation)).as_dict()
+    return evaluate(problem, result, ValidationSettings(**validation)).as_dict()
 
 
 def _answer(msg: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:
@@ -72,9 +69,6 @@ def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 
     limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     OutputFile(output_path).open_for_child()
-    import planbench  # noqa: F401  (before "ready": start-up is not validation time)
-    import planbench.validate  # noqa: F401
-
     conn.send_bytes(encode({"type": "ready", "pid": os.getpid()}))
     while True:
         try:

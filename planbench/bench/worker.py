@@ -25,8 +25,9 @@ runs, so nothing it says is trusted:
 
 Messages to the parent: ``{"type": "ready"}`` once imports are done; ``{"type": "phase", "run":
 id, "phase": "plan"}`` when setup has finished and the timed query starts; ``{"type": "done",
-"run": id, "result": {...}}`` with the ``path`` and ``times`` arrays. The parent's messages (the
-tasks it built) arrive with ``Connection.recv``: the worker trusts its parent, not the reverse.
+"run": id, "result": {...}}`` with the ``path`` and ``times`` arrays. The parent's messages are
+data too: ``{"type": "run", "run": id, "task": {...}}`` (a :class:`~planbench.bench.task.RunTask`
+as :meth:`~planbench.bench.task.RunTask.to_wire` gives it) and ``{"type": "stop"}``.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from __future__ import annotations
 import faulthandler
 import math
 import os
+import resource
 import signal
 import socket
 import sys
@@ -50,7 +52,14 @@ from planbench.bench.procs import (
     start_reaper,
     watch_parent,
 )
-from planbench.bench.wire import BadField, clean_result, encode
+from planbench.bench.runner import ran_out_of_memory, record_from
+from planbench.bench.task import RunTask
+from planbench.bench.validator import validate_fields
+from planbench.bench.wire import BadField, BadMessage, clean_result, decode, encode
+from planbench.datasets import load_problem
+from planbench.harness import plan
+from planbench.planner import PlanResult, PlanStatus
+from planbench.registry import REGISTRY
 
 __all__ = ["THREAD_VARIABLES", "error_fields", "plan_one", "run_one", "worker_main"]
 
@@ -74,14 +83,10 @@ class _PhaseReporter:
 
 
 def _problem(ref: str) -> Any:
-    from planbench.datasets import load_problem
-
     return load_problem(ref)
 
 
 def _set_memory_limit(mib: float) -> None:
-    import resource
-
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     want = int(mib * 2**20) if mib > 0 else hard
     if hard != resource.RLIM_INFINITY:
@@ -112,8 +117,6 @@ def error_fields(message: str, tb: str = "", **known: Any) -> dict[str, Any]:
 
 def _result_fields(result: Any) -> dict[str, Any]:
     """The fields of a planner's result, as they are (checked afterwards by :func:`clean_result`)."""
-    from planbench.planner import PlanResult, PlanStatus
-
     if not isinstance(result, PlanResult):
         raise BadField("result", f"plan() gave a {type(result).__name__}, not a PlanResult")
     status = result.status
@@ -135,28 +138,23 @@ def _result_fields(result: Any) -> dict[str, Any]:
     }
 
 
-def plan_one(task: dict[str, Any], notify: Callable[[str], None] = lambda phase: None) -> dict[str, Any]:
+def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) -> dict[str, Any]:
     """Plan one run in this process and return its checked raw-result fields; never raises for a
     planner's fault (a bad result is an ``error`` run naming the bad field).
 
-    ``task`` holds ``problem_ref``, ``planner`` (name or ``"module:Attr"``), ``settings``, ``seed``
-    and ``time_limit`` [s].
+    The planner is built from ``task.planner`` and ``task.settings`` by
+    :meth:`~planbench.registry.Registry.make`, as everywhere else.
     """
-    import planbench
-    from planbench.bench.suite import make_planner_instance
-
     t0 = time.perf_counter()
     base = {"pid": os.getpid(), "host": socket.gethostname()}
     try:
-        problem = _problem(task["problem_ref"])
-        instance = make_planner_instance(task["planner"], dict(task["settings"]))
+        problem = _problem(task.problem_ref)
+        instance = REGISTRY.make(task.planner, **task.settings)
     except Exception as exc:  # a problem or planner that cannot be built is an ERROR of this run
         message = f"could not prepare the run: {type(exc).__name__}: {exc}"
         return error_fields(message, traceback.format_exc(), prepared=False, wall_time=time.perf_counter() - t0)
     try:
-        result = planbench.plan(
-            problem, _PhaseReporter(instance, notify), seed=int(task["seed"]), time_limit=float(task["time_limit"])
-        )
+        result = plan(problem, _PhaseReporter(instance, notify), seed=task.seed, time_limit=task.time_limit)
     except Exception as exc:  # the harness could not take what the planner gave (e.g. a path patched in)
         message = f"the planner's result is unusable: {type(exc).__name__}: {exc}"
         return error_fields(message, traceback.format_exc(), wall_time=time.perf_counter() - t0)
@@ -178,22 +176,17 @@ def _timing(timing: dict[str, Any]) -> dict[str, float]:
     return {k: float(v) for k, v in timing.items() if type(v) in (float, int)}
 
 
-def run_one(task: dict[str, Any]) -> dict[str, Any]:
+def run_one(task: RunTask) -> dict[str, Any]:
     """Plan and validate one run in *this* process and return its record (as the runner builds it).
 
     For tools and tests that need a record without worker processes; the benchmark itself never
-    validates where a planner ran (see the module docstring). ``task`` also holds ``validation``
-    (ValidationSettings fields).
+    validates where a planner ran (see the module docstring).
     """
-    from planbench.bench.runner import record_from
-
     fields = plan_one(task)
     evaluation, validation_time = None, math.nan
     if fields["prepared"]:
-        from planbench.bench.validator import validate_fields
-
         t0 = time.perf_counter()
-        evaluation = validate_fields(_problem(task["problem_ref"]), fields, task["validation"])
+        evaluation = validate_fields(_problem(task.problem_ref), fields, task.validation)
         validation_time = time.perf_counter() - t0
     return record_from(fields, evaluation, validation_time)
 
@@ -214,8 +207,6 @@ def _send_result(conn: Any, run: Any, fields: dict[str, Any]) -> None:
 
 
 def _out_of_memory(fields: dict[str, Any]) -> bool:
-    from planbench.bench.runner import ran_out_of_memory
-
     message, tb = fields.get("message"), fields.get("traceback")
     return ran_out_of_memory(message if isinstance(message, str) else "", tb if isinstance(tb, str) else "")
 
@@ -230,18 +221,21 @@ def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) 
     OutputFile(output_path).open_for_child()
     faulthandler.enable()
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the parent asks where a run hangs
-    import planbench  # noqa: F401  (import before saying ready, so startup is not run time)
-
     _send(conn, {"type": "ready", "pid": os.getpid()})
     while True:
         try:
-            task = conn.recv()
-        except (EOFError, OSError):
+            header, _ = decode(conn.recv_bytes())
+        except (EOFError, OSError, BadMessage):  # the parent is gone (or broken): nothing more to do
             return
-        if task is None:
+        if header.get("type") != "run":
             return
-        _set_memory_limit(float(task.get("memory_limit", 0.0) or 0.0))
-        run = task["run"]
+        run = header.get("run")
+        try:
+            task = RunTask.from_wire(header.get("task"))
+        except BadMessage as exc:  # planbench's own fault: still a row
+            _send_result(conn, run, error_fields(f"the worker received a malformed task: {exc}", prepared=False))
+            continue
+        _set_memory_limit(task.memory_limit)
 
         def notify(phase: str, run: Any = run) -> None:
             _send(conn, {"type": "phase", "run": run, "phase": phase})
