@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["correlate_axis", "lazy_points", "lazy_points_serial", "sample_points"]
+__all__ = ["correlate_axis", "lazy_points", "lazy_points_serial", "sample_points", "sample_points_scaled"]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -274,36 +274,41 @@ def lazy_points_serial(grid, outside, origin, resolution, along, across, points,
 def sample_points(comp, origin, resolution, margin, points, out):  # type: ignore[no-untyped-def]
     """Trilinear interpolation of ``comp`` (3, mx, my, mz) at points (see ``interpolate.py``);
     stored cells beyond the array count as zero."""
+    sample_points_scaled(comp, origin, resolution, margin, 1.0, points, out)
+
+
+@njit(cache=True)
+def sample_points_scaled(comp, origin, resolution, margin, scale, points, out):  # type: ignore[no-untyped-def]
+    """:func:`sample_points` times ``scale`` (a gain applied in the same pass)."""
     mx, my, mz = comp.shape[1], comp.shape[2], comp.shape[3]
-    idx = np.empty(3, np.int64)
-    w = np.empty(3)
     for p in range(points.shape[0]):
-        for a in range(3):
-            u = (points[p, a] - origin[a]) / resolution - 0.5 + margin
-            f = math.floor(u)
-            idx[a] = np.int64(f)
-            w[a] = u - f
+        u0 = (points[p, 0] - origin[0]) / resolution - 0.5 + margin
+        u1 = (points[p, 1] - origin[1]) / resolution - 0.5 + margin
+        u2 = (points[p, 2] - origin[2]) / resolution - 0.5 + margin
+        b0, b1, b2 = math.floor(u0), math.floor(u1), math.floor(u2)
+        i0, i1, i2 = np.int64(b0), np.int64(b1), np.int64(b2)
+        w0, w1, w2 = u0 - b0, u1 - b1, u2 - b2
         f0 = 0.0
         f1 = 0.0
         f2 = 0.0
         for dx in range(2):
-            ix = idx[0] + dx
+            ix = i0 + dx
             if ix < 0 or ix >= mx:
                 continue
-            wx = w[0] if dx else 1.0 - w[0]
+            wx = w0 if dx else 1.0 - w0
             for dy in range(2):
-                iy = idx[1] + dy
+                iy = i1 + dy
                 if iy < 0 or iy >= my:
                     continue
-                wxy = wx * (w[1] if dy else 1.0 - w[1])
+                wxy = wx * (w1 if dy else 1.0 - w1)
                 for dz in range(2):
-                    iz = idx[2] + dz
+                    iz = i2 + dz
                     if iz < 0 or iz >= mz:
                         continue
-                    c = wxy * (w[2] if dz else 1.0 - w[2])
+                    c = wxy * (w2 if dz else 1.0 - w2)
                     f0 += c * comp[0, ix, iy, iz]
                     f1 += c * comp[1, ix, iy, iz]
                     f2 += c * comp[2, ix, iy, iz]
-        out[p, 0] = f0
-        out[p, 1] = f1
-        out[p, 2] = f2
+        out[p, 0] = f0 * scale
+        out[p, 1] = f1 * scale
+        out[p, 2] = f2 * scale

@@ -9,6 +9,8 @@ every point in space; with ``margin=0`` it fades to zero over the last half cell
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,7 +20,7 @@ from planbench.field import backend as _backend
 if TYPE_CHECKING:
     from planbench.field.full import MatrixField
 
-__all__ = ["sample_field", "as_points"]
+__all__ = ["sample_field", "field_sampler", "as_points"]
 
 _CORNERS = np.array(list(np.ndindex(2, 2, 2)))  # (8, 3) offsets of the cell centres around a point
 
@@ -38,10 +40,44 @@ def as_points(points: np.ndarray) -> np.ndarray:
 def sample_field(field: MatrixField, points: np.ndarray, backend: str = "auto") -> np.ndarray:
     """Field (N, 3) float64 at points (N, 3) [m] by trilinear interpolation."""
     pts = as_points(points)
+    out = np.empty((len(pts), 3))
     if _backend.resolve(backend) == "numba":
-        out = np.empty((len(pts), 3))
-        _backend.compiled().sample_points(field.components, field.origin, field.resolution, field.margin, pts, out)
-        return out
+        sample = _backend.compiled().sample_points_scaled
+        sample(field.components, field.origin, float(field.resolution), int(field.margin), 1.0, pts, out)
+    else:
+        out[:] = _sample_numpy(field, pts)
+    return out
+
+
+def field_sampler(
+    field: MatrixField, points: np.ndarray, out: np.ndarray, scale: float = 1.0, backend: str = "auto"
+) -> Callable[[], None]:
+    """A function of no arguments that writes ``scale`` times the field at ``points`` (N, 3) [m]
+    into ``out`` (N, 3) each time it is called: for a loop that moves the same points in place
+    and samples them again (a planner's control points, every step).
+
+    The compiled sampler is bound to these two arrays, so a call skips numba's per-call type
+    checks as well as :func:`sample_field`'s checks and allocation: ``points`` must be a
+    C-contiguous float64 (N, 3) array, ``out`` a writable float64 (N, 3) array (checked here,
+    once), and the points finite when sampled."""
+    if points.dtype != np.float64 or points.ndim != 2 or points.shape[1] != 3 or not points.flags.c_contiguous:
+        raise ValueError(f"points must be a C-contiguous float64 (N, 3) array, got {points.dtype} {points.shape}")
+    if out.dtype != np.float64 or out.shape != points.shape or not out.flags.writeable:
+        raise ValueError(f"out must be a writable float64 array of shape {points.shape}, got {out.dtype} {out.shape}")
+    if _backend.resolve(backend) == "numba":
+        import numba  # imported by _backend.compiled() already; planbench.field imports numba on first use only
+
+        args = (field.components, field.origin, float(field.resolution), int(field.margin), float(scale), points, out)
+        sample = _backend.compiled().sample_points_scaled
+        return functools.partial(sample.compile(tuple(numba.typeof(a) for a in args)), *args)
+
+    def sample_numpy() -> None:
+        np.multiply(_sample_numpy(field, points), scale, out=out)
+
+    return sample_numpy
+
+
+def _sample_numpy(field: MatrixField, pts: np.ndarray) -> np.ndarray:
     comp = field.components
     shape = np.array(comp.shape[1:])
     u = (pts - field.origin) / field.resolution - 0.5 + field.margin
@@ -52,4 +88,4 @@ def sample_field(field: MatrixField, points: np.ndarray, backend: str = "auto") 
     weight = np.prod(np.where(_CORNERS, w, 1.0 - w), axis=2) * ok  # (N, 8)
     idx = np.clip(idx, 0, shape - 1)
     values = comp[:, idx[..., 0], idx[..., 1], idx[..., 2]]  # (3, N, 8)
-    return np.einsum("anc,nc->na", values, weight)
+    return np.einsum("anc,nc->na", values, weight)  # type: ignore[no-any-return]

@@ -11,6 +11,7 @@ here, next to the field, so that those planners share them without importing eac
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from planbench.errors import InvalidConfigError
 from planbench.field.full import MatrixField, full_field
+from planbench.field.interpolate import field_sampler
 from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.field.lazy import lazy_field
 from planbench.field.surface import surface_grid
@@ -132,17 +134,38 @@ class FieldRepulsion:
 
     def __init__(self, grid: OccupancyGrid, kernels: Kernels, field: MatrixField | None, gain: float) -> None:
         self.grid, self.kernels, self.field, self.gain = grid, kernels, field, gain
+        self._points: np.ndarray | None = None  # the control points the buffers below are for
+        self._F = np.empty((0, 3))
+        self._fill: Callable[[], None] = lambda: None
 
     def field_at(self, points: np.ndarray) -> np.ndarray:
         """The field (N, 3) at world points [m], in field units (before the gain)."""
         if self.field is not None:
-            return self.field.sample(points)  # type: ignore[no-any-return]
+            return self.field.sample(points)
         return lazy_field(self.grid, self.kernels, points)  # type: ignore[no-any-return]
 
     def forces(self, kin: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        F = self.field_at(kin.points)
-        F *= self.gain
-        return kin.points, F, kin.support, kin.cp_joint
+        """``(points, F, support, joint)`` at the control points ``kin.points``. ``F`` is a buffer,
+        rewritten by the next call; the first call for a ``kin`` prepares it (full mode: the
+        compiled sampler bound to ``kin.points`` and ``F``, sampling and gain in one pass)."""
+        points = kin.points
+        if points is not self._points:
+            self._prepare(points)
+        self._fill()
+        return points, self._F, kin.support, kin.cp_joint
+
+    def _prepare(self, points: np.ndarray) -> None:
+        F = np.empty((len(points), 3))
+        if self.field is not None:
+            self._fill = field_sampler(self.field, points, F, self.gain)
+        else:
+            grid, kernels, gain = self.grid, self.kernels, self.gain
+
+            def fill() -> None:
+                np.multiply(lazy_field(grid, kernels, points), gain, out=F)
+
+            self._fill = fill
+        self._points, self._F = points, F
 
 
 def scene_repulsion(problem: Any, config: Any) -> FieldRepulsion | None:
