@@ -4,13 +4,16 @@
     python benchmarks/matrix_field.py mbm "mbm:*/0021-0100"  # planning on MotionBenchMaker
     python benchmarks/matrix_field.py sweep                 # parameter sweep on 0001-0020
 
-``step``: the median time of one planner step with the Panda's automatic control points (20), from
-the planner's own loop (``max_steps`` steps, no stopping, no collision checks), and the median of
-each part timed alone: pinocchio (``computeJointJacobians``, ``updateFramePlacement``,
-``getFrameJacobian``), field sampling (trilinear, at the control points), linear algebra (the
-compiled step: all task terms, manipulability gradient, repulsion mapping, DLS with null space,
-limits). Glue is the rest (Python loop, bookkeeping, reading joint placements, control-point
-positions). The numpy reference step (the task functions composed in Python) is timed alone too.
+``step``: the time of one planner step with the Panda's automatic control points (20), from the
+planner's own loop (``max_steps`` steps, no stopping, no collision checks: kinematics, repulsion,
+solve, integration and the loop's bookkeeping), next to the bare pinocchio calls the step makes
+(``computeJointJacobians`` and ``updateFramePlacement``) and their ratio, each the median of 5
+rounds. The breakdown times each part alone, on the query's own objects: the rest of the
+kinematics (control points and the goal frame's Jacobian, one compiled call), field sampling
+(``FieldRepulsion.forces``), the compiled step (all task terms, manipulability gradient,
+repulsion mapping, DLS with null space, limits), the integration; glue is the rest (the Python
+loop and its bookkeeping). The numpy reference step (the task functions composed in Python) is
+timed alone too.
 
 ``mbm``: success (validated by ``planbench.evaluate``), median planning and setup time, median
 joint and end-effector path length and minimum clearance of the solved problems, and the failure
@@ -30,21 +33,22 @@ from typing import Any
 import numpy as np
 
 import planbench
-from planbench_plugins.ik_loop import ArmKinematics, fast
+from planbench_plugins.ik_loop import fast
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
 
 
-def _median_us(fn: Any, reps: int = 2000, batches: int = 7) -> float:
-    out = []
-    for _ in range(batches):
-        t0 = time.perf_counter()
-        for _ in range(reps):
-            fn()
-        out.append((time.perf_counter() - t0) / reps * 1e6)
-    return statistics.median(out)
+def _per_call_us(fn: Any, reps: int = 2000) -> float:
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        fn()
+    return (time.perf_counter() - t0) / reps * 1e6
 
 
-def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str, float]:
+def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000, repeats: int = 5) -> dict[str, float]:
+    """Per-step time of the planner's loop and of its parts, each the median of ``repeats``
+    rounds; in each round every part is timed once, right after the loop, so that the ratio to
+    the bare pinocchio calls (``ratio``, the median of the rounds' ratios) is taken under the
+    same load."""
     import pinocchio as pin
 
     problem = planbench.load_problems(problem_id)[0]
@@ -53,65 +57,72 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000) -> dict[str,
     )
     planner = MatrixFieldPlanner(cfg)
     planner.setup(problem)
-    totals = []
-    for _ in range(5):
-        r = planner.plan(problem, time_limit=60.0, rng=np.random.default_rng(0))
-        t0 = time.perf_counter()
-        r = planner.plan(problem, time_limit=60.0, rng=np.random.default_rng(0))
-        totals.append((time.perf_counter() - t0) / max(1, r.info["steps"]) * 1e6)
-    step_us = statistics.median(totals)
+    rng = np.random.default_rng(0)
+    planner.plan(problem, time_limit=60.0, rng=rng)
 
-    robot = problem.robot
+    # the query's own objects, as the loop uses them (prepared by setup), at a configuration near the start
     prep = planner._prepared
-    compiled = fast.have_numba()
-    kin = ArmKinematics(robot, robot.ee_frame_id, prep["points"], compiled=compiled)
+    kin, inputs, repulsion = prep["kin"], prep["inputs"], prep["repulsion"]
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)
+    points, F, support, joint = repulsion.forces(kin)
     model, data, fid = kin.model, kin.data, kin.frame_id
+    qd, dg, tool = prep["qd"], prep["dg"], prep["tool"]
+    step = prep["step"]
+    advance = prep["advance"]
+    lower, upper = inputs.lower, inputs.upper
 
-    def pin_calls() -> None:
+    def pin_calls() -> None:  # what ArmKinematics.update asks of pinocchio
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacement(model, data, fid)
+
+    def pin_calls_frame_jacobian() -> None:  # what the step asked of pinocchio before it computed J itself
+        pin_calls()
         pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
 
-    field = prep["repulsion"].field
-    pts = kin.points.copy()
-    F = field.sample(pts) * prep["repulsion"].gain
-    goal = problem.goal.pose
-    lower, upper, vmax = np.asarray(robot.lower), np.asarray(robot.upper), np.asarray(robot.velocity_limit)
-    tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)
-    prm = fast.step_params(cfg)
-    qd, dg = np.zeros(robot.nq), np.zeros(6)
-    step = fast.step_compiled if compiled else fast.step_numpy
-    args = (
-        kin.S,
-        kin.J,
-        kin.p,
-        kin.R,
-        goal.position,
-        goal.rotation,
-        q,
-        lower,
-        upper,
-        vmax,
-        kin.points,
-        F,
-        kin.support,
-        kin.descendants,
-        tool,
-        prm,
-        qd,
-        dg,
-    )
+    def numpy_step() -> None:
+        fast.step_numpy(
+            kin.S,
+            kin.J,
+            kin.p,
+            kin.R,
+            inputs.p_goal,
+            inputs.R_goal,
+            q,
+            lower,
+            upper,
+            inputs.qd_max,
+            points,
+            F,
+            support,
+            kin.descendants,
+            tool,
+            inputs.params,
+            qd,
+            dg,
+        )
 
-    parts = {
-        "pinocchio": _median_us(pin_calls),
-        "field sampling": _median_us(lambda: field.sample(pts)),
-        "linear algebra": _median_us(lambda: step(*args)),
-    }
-    parts["glue (rest)"] = step_us - sum(parts.values())
-    parts["(numpy step, reference)"] = _median_us(lambda: fast.step_numpy(*args), reps=500)
-    return {"step": step_us, **parts, "control_points": float(len(prep["points"]))}
+    rounds: dict[str, list[float]] = {}
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        r = planner.plan(problem, time_limit=60.0, rng=rng)
+        row = {"step": (time.perf_counter() - t0) / max(1, r.info["steps"] + 1) * 1e6}
+        row["pinocchio"] = _per_call_us(pin_calls)
+        row["ratio"] = row["step"] / row["pinocchio"]
+        pin3 = _per_call_us(pin_calls_frame_jacobian)
+        row["kinematics (rest)"] = _per_call_us(lambda: kin.update(q)) - row["pinocchio"]
+        row["field sampling"] = _per_call_us(lambda: repulsion.forces(kin))
+        row["solve (compiled step)"] = _per_call_us(lambda: step(points, F, support, tool))
+        row["integrate"] = _per_call_us(lambda: advance(1))
+        row["glue (rest)"] = row["step"] - sum(v for k, v in row.items() if k not in ("step", "ratio"))
+        row["(numpy step, reference)"] = _per_call_us(numpy_step, reps=200)
+        row["pinocchio + getFrameJacobian"] = pin3
+        row["ratio to it"] = row["step"] / pin3
+        for k, v in row.items():
+            rounds.setdefault(k, []).append(v)
+    out = {k: statistics.median(v) for k, v in rounds.items()}
+    out["control_points"] = float(len(prep["points"]))
+    return out
 
 
 def run_mbm(
@@ -222,9 +233,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.cmd == "step":
         res = bench_step(args.problem)
-        print(f"per-step median with {int(res.pop('control_points'))} control points:")
+        print(f"{args.problem}, {int(res.pop('control_points'))} control points, median of 5 rounds [us per step]:")
+        print(f"  full loop step     {res.pop('step'):7.2f}  (kinematics + repulsion + solve + integrate + loop)")
+        print(f"  bare pinocchio     {res.pop('pinocchio'):7.2f}  (computeJointJacobians + updateFramePlacement)")
+        print(f"  ratio              {res.pop('ratio'):7.2f}")
+        pin3, ratio3 = res.pop("pinocchio + getFrameJacobian"), res.pop("ratio to it")
+        print(f"  (with getFrameJacobian, which the step no longer calls: {pin3:.2f} us, ratio {ratio3:.2f})")
+        print("  breakdown (pinocchio above):")
         for k, v in res.items():
-            print(f"  {k:16s} {v:7.1f} us")
+            print(f"    {k:24s} {v:7.2f}")
     elif args.cmd == "mbm":
         out = run_mbm(args.selector, json.loads(args.config), verbose=args.v)
         print_summary(out["summary"])

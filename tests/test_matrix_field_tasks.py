@@ -312,6 +312,7 @@ def test_compiled_step_matches_numpy_reference(robot, damping):
         kin.update(q)
         ref_kin.update(q)
         assert np.allclose(kin.points, ref_kin.points, atol=1e-14)
+        assert np.allclose(kin.J, ref_kin.J, atol=1e-14)  # compiled from S, as pinocchio.getFrameJacobian
         F = rng.normal(size=kin.points.shape) * (trial % 3)  # some steps without repulsion
         p_goal = rng.uniform(-0.5, 0.5, 3)
         R_goal = Rotation.random(random_state=rng).as_matrix()

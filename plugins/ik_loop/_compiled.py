@@ -14,9 +14,9 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def chol(A, n):  # type: ignore[no-untyped-def]
-    L = np.zeros((n, n))
-    for i in range(n):
+def chol(A, L):  # type: ignore[no-untyped-def]
+    """Lower Cholesky factor of the 6x6 ``A`` into ``L`` (its upper triangle is not written)."""
+    for i in range(6):
         for j in range(i + 1):
             s = A[i, j]
             for k in range(j):
@@ -25,28 +25,46 @@ def chol(A, n):  # type: ignore[no-untyped-def]
                 L[i, i] = math.sqrt(s) if s > 0.0 else 1e-150
             else:
                 L[i, j] = s / L[j, j]
-    return L
 
 
 @nb.njit(cache=True)
-def chol_solve(L, b, n):  # type: ignore[no-untyped-def]
-    y = np.empty(n)
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * y[k]
-        y[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for k in range(i + 1, n):
-            s -= L[k, i] * y[k]
-        y[i] = s / L[i, i]
-    return y
+def chol_solve(L, Y):  # type: ignore[no-untyped-def]
+    """``Y <- (L L^T)^-1 Y`` for ``Y`` (6, m), in place: forward then back substitution, the
+    columns side by side (independent chains of divisions, which the CPU overlaps)."""
+    m = Y.shape[1]
+    for i in range(6):
+        for c in range(m):
+            s = Y[i, c]
+            for k in range(i):
+                s -= L[i, k] * Y[k, c]
+            Y[i, c] = s / L[i, i]
+    for i in range(5, -1, -1):
+        for c in range(m):
+            s = Y[i, c]
+            for k in range(i + 1, 6):
+                s -= L[k, i] * Y[k, c]
+            Y[i, c] = s / L[i, i]
+
+
+@nb.njit(cache=True)
+def gram(M, out):  # type: ignore[no-untyped-def]
+    """``out = M M^T`` (6x6) for ``M`` (6, n)."""
+    for i in range(6):
+        for j in range(i + 1):
+            s = 0.0
+            for k in range(M.shape[1]):
+                s += M[i, k] * M[j, k]
+            out[i, j] = s
+            out[j, i] = s
 
 
 @nb.njit(cache=True)
 def orient(R, Rg):  # type: ignore[no-untyped-def]
-    d = Rg @ R.T
+    """The rotation vector ``log(Rg R^T)`` through a unit quaternion (see ``tasks.orientation_error``)."""
+    d = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            d[r, c] = Rg[r, 0] * R[c, 0] + Rg[r, 1] * R[c, 1] + Rg[r, 2] * R[c, 2]
     a, b, c = d[0, 0], d[0, 1], d[0, 2]
     d_, e, f = d[1, 0], d[1, 1], d[1, 2]
     g, h, i = d[2, 0], d[2, 1], d[2, 2]
@@ -65,14 +83,11 @@ def orient(R, Rg):  # type: ignore[no-untyped-def]
         w, x, y, z = (d_ - b) / s, (c + g) / s, (f + h) / s, 0.25 * s
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
-    out = np.empty(3)
     vn = math.sqrt(x * x + y * y + z * z)
     if vn < 1e-12:
-        out[0], out[1], out[2] = 2.0 * x, 2.0 * y, 2.0 * z
-    else:
-        k = 2.0 * math.atan2(vn, w) / vn
-        out[0], out[1], out[2] = x * k, y * k, z * k
-    return out
+        return 2.0 * x, 2.0 * y, 2.0 * z
+    k = 2.0 * math.atan2(vn, w) / vn
+    return x * k, y * k, z * k
 
 
 @nb.njit(cache=True)
@@ -96,74 +111,65 @@ def step(
     qd_out,
     diag,
 ):
-    v_max, k_sig, k_p, k_w, w_max = (
-        prm.speed_max,
-        prm.sigmoid_gain,
-        prm.position_gain,
-        prm.orientation_gain,
-        prm.angular_speed_max,
-    )
-    k_m, k_c, k_s, s_min = prm.manipulability_gain, prm.mid_joint_gain, prm.slowdown_gain, prm.slowdown_min
-    lam_max, m0, dt = prm.damping_factor, prm.manipulability_threshold, prm.dt
-    k_tool, fade_d = prm.tool_repulsion_gain, prm.tool_fade_distance
     n = q.shape[0]
     N = points.shape[0]
+    A = np.empty((6, 6))  # S S^T, then J J^T + damping
+    L = np.empty((6, 6))  # its Cholesky factor
     # attraction
     v = np.zeros(6)
-    e = p_goal - p
-    err_p = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    e0, e1, e2 = p_goal[0] - p[0], p_goal[1] - p[1], p_goal[2] - p[2]
+    err_p = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     if err_p > 1e-15:
-        sc = k_p * v_max * math.atan(k_sig * err_p) / (0.5 * math.pi * err_p)
-        for a in range(3):
-            v[a] = e[a] * sc
-    om = orient(R, R_goal)
-    err_r = math.sqrt(om[0] * om[0] + om[1] * om[1] + om[2] * om[2])
+        sc = prm.position_gain * prm.speed_max * math.atan(prm.sigmoid_gain * err_p) / (0.5 * math.pi * err_p)
+        v[0], v[1], v[2] = e0 * sc, e1 * sc, e2 * sc
+    o0, o1, o2 = orient(R, R_goal)
+    err_r = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    k_w = prm.orientation_gain
     wn = k_w * err_r
-    sc = k_w * (w_max / wn if wn > w_max else 1.0)
-    for a in range(3):
-        v[3 + a] = om[a] * sc
+    sc = k_w * (prm.angular_speed_max / wn if wn > prm.angular_speed_max else 1.0)
+    v[3], v[4], v[5] = o0 * sc, o1 * sc, o2 * sc
     # mid-joint
     x = np.empty(n)
     for k in range(n):
         span = upper[k] - lower[k]
-        x[k] = -k_c * (q[k] - 0.5 * (lower[k] + upper[k])) / (span * span)
+        x[k] = -prm.mid_joint_gain * (q[k] - 0.5 * (lower[k] + upper[k])) / (span * span)
     # manipulability and its gradient, from S
-    A = S @ S.T
-    L = chol(A, 6)
+    gram(S, A)
+    chol(A, L)
     m = 1.0
     for i in range(6):
         m *= L[i, i]
     m = abs(m)
-    if k_m > 0.0:
+    if prm.manipulability_gain > 0.0:
         for i in range(6):
             A[i, i] += 1e-12
-        L2 = chol(A, 6)
-        X = np.empty((6, n))
-        for i in range(n):
-            X[:, i] = chol_solve(L2, np.ascontiguousarray(S[:, i]), 6)
-        a_ = np.zeros((3, n))
-        b_ = np.zeros((3, n))
+        chol(A, L)
+        X = np.empty((6, n))  # (S S^T)^-1 S
+        for r in range(6):
+            for i in range(n):
+                X[r, i] = S[r, i]
+        chol_solve(L, X)
+        ab = np.empty((6, n))  # a_i = v_i x Xv_i + w_i x Xw_i, b_i = w_i x Xv_i
         for i in range(n):
             v0, v1, v2 = S[0, i], S[1, i], S[2, i]
             w0, w1, w2 = S[3, i], S[4, i], S[5, i]
             xv0, xv1, xv2 = X[0, i], X[1, i], X[2, i]
             xw0, xw1, xw2 = X[3, i], X[4, i], X[5, i]
-            a_[0, i] = v1 * xv2 - v2 * xv1 + w1 * xw2 - w2 * xw1
-            a_[1, i] = v2 * xv0 - v0 * xv2 + w2 * xw0 - w0 * xw2
-            a_[2, i] = v0 * xv1 - v1 * xv0 + w0 * xw1 - w1 * xw0
-            b_[0, i] = w1 * xv2 - w2 * xv1
-            b_[1, i] = w2 * xv0 - w0 * xv2
-            b_[2, i] = w0 * xv1 - w1 * xv0
+            ab[0, i] = v1 * xv2 - v2 * xv1 + w1 * xw2 - w2 * xw1
+            ab[1, i] = v2 * xv0 - v0 * xv2 + w2 * xw0 - w0 * xw2
+            ab[2, i] = v0 * xv1 - v1 * xv0 + w0 * xw1 - w1 * xw0
+            ab[3, i] = w1 * xv2 - w2 * xv1
+            ab[4, i] = w2 * xv0 - w0 * xv2
+            ab[5, i] = w0 * xv1 - w1 * xv0
         for k in range(n):
             g = 0.0
             for i in range(n):
                 if descendants[k, i] != 0.0:
                     for c in range(3):
-                        g += S[3 + c, k] * a_[c, i] + S[c, k] * b_[c, i]
-            x[k] += k_m * m * g
+                        g += S[3 + c, k] * ab[c, i] + S[c, k] * ab[3 + c, i]
+            x[k] += prm.manipulability_gain * m * g
     # repulsion
     rep2 = 0.0
-    best, tool_i = -1.0, -1
     for i in range(N):
         f2 = F[i, 0] * F[i, 0] + F[i, 1] * F[i, 1] + F[i, 2] * F[i, 2]
         if f2 > rep2:
@@ -179,40 +185,48 @@ def step(
             for k in range(n):
                 if support[i, k] != 0.0:
                     x[k] += S[0, k] * f0 + S[1, k] * f1 + S[2, k] * f2_ + S[3, k] * t0 + S[4, k] * t1 + S[5, k] * t2
-        if k_tool > 0.0:
+        if prm.tool_repulsion_gain > 0.0:
+            best, tool_i = -1.0, -1
             for t in range(tool.shape[0]):
                 i = tool[t]
                 f2 = F[i, 0] * F[i, 0] + F[i, 1] * F[i, 1] + F[i, 2] * F[i, 2]
                 if f2 > best:
                     best, tool_i = f2, i
             if tool_i >= 0:
-                fade = min(1.0, err_p / fade_d)
+                fade = min(1.0, err_p / prm.tool_fade_distance)
                 for a in range(3):
-                    v[a] += k_tool * fade * F[tool_i, a]
+                    v[a] += prm.tool_repulsion_gain * fade * F[tool_i, a]
     # damped least squares and null space, one factorisation
+    lam = prm.damping_factor
     if prm.adaptive != 0.0:
-        lam = 0.0 if m >= m0 else lam_max * math.sqrt(1.0 - (m / m0) ** 2)
-    else:
-        lam = lam_max
-    B = J @ J.T
+        m0 = prm.manipulability_threshold
+        lam = 0.0 if m >= m0 else lam * math.sqrt(1.0 - (m / m0) ** 2)
+    gram(J, A)
     for i in range(6):
-        B[i, i] += lam * lam + 1e-18
-    LB = chol(B, 6)
-    y1 = chol_solve(LB, v, 6)
-    y2 = chol_solve(LB, J @ x, 6)
-    s = max(s_min, 1.0 / (1.0 + k_s * rep)) if k_s > 0.0 else 1.0
+        A[i, i] += lam * lam + 1e-18
+    chol(A, L)
+    Y = np.empty((6, 2))  # (J J^T + lam^2)^-1 [v, J x]
+    for r in range(6):
+        t = 0.0
+        for k in range(n):
+            t += J[r, k] * x[k]
+        Y[r, 0] = v[r]
+        Y[r, 1] = t
+    chol_solve(L, Y)
+    s = max(prm.slowdown_min, 1.0 / (1.0 + prm.slowdown_gain * rep)) if prm.slowdown_gain > 0.0 else 1.0
     ratio = 0.0
     for k in range(n):
         a1 = 0.0
         a2 = 0.0
         for r in range(6):
-            a1 += J[r, k] * y1[r]
-            a2 += J[r, k] * y2[r]
+            a1 += J[r, k] * Y[r, 0]
+            a2 += J[r, k] * Y[r, 1]
         qd_out[k] = s * a1 + x[k] - a2
         rr = abs(qd_out[k]) / qd_max[k]
         if rr > ratio:
             ratio = rr
     c = 1.0 / ratio if ratio > 1.0 else 1.0
+    dt = prm.dt
     for k in range(n):
         val = qd_out[k] * c
         lo = (lower[k] - q[k]) / dt
@@ -222,8 +236,37 @@ def step(
 
 
 @nb.njit(cache=True)
-def positions(Rs, ts, joint, local, out):  # type: ignore[no-untyped-def]
+def kinematics(Rs, ts, joint, local, S, p, frame_cols, points, J):  # type: ignore[no-untyped-def]
+    """Control-point positions ``points[i] = Rs[joint[i]] @ local[i] + ts[joint[i]]`` and the goal
+    frame's Jacobian ``J`` (LOCAL_WORLD_ALIGNED, at ``p``) from the spatial one: column ``k`` is
+    ``[S_v,k + S_w,k x p; S_w,k]`` where ``frame_cols[k]`` is non-zero, else 0 (what
+    ``pinocchio.getFrameJacobian`` computes)."""
     for i in range(joint.shape[0]):
         j = joint[i]
         for a in range(3):
-            out[i, a] = Rs[j, a, 0] * local[i, 0] + Rs[j, a, 1] * local[i, 1] + Rs[j, a, 2] * local[i, 2] + ts[j, a]
+            points[i, a] = Rs[j, a, 0] * local[i, 0] + Rs[j, a, 1] * local[i, 1] + Rs[j, a, 2] * local[i, 2] + ts[j, a]
+    p0, p1, p2 = p[0], p[1], p[2]
+    for k in range(S.shape[1]):
+        if frame_cols[k] != 0.0:
+            w0, w1, w2 = S[3, k], S[4, k], S[5, k]
+            J[0, k] = S[0, k] + (w1 * p2 - w2 * p1)
+            J[1, k] = S[1, k] + (w2 * p0 - w0 * p2)
+            J[2, k] = S[2, k] + (w0 * p1 - w1 * p0)
+            J[3, k], J[4, k], J[5, k] = w0, w1, w2
+        else:
+            for r in range(6):
+                J[r, k] = 0.0
+
+
+@nb.njit(cache=True)
+def advance(q, qd, dt, lower, upper, path, k):  # type: ignore[no-untyped-def]
+    """``q <- clip(q + qd dt, lower, upper)`` in place (NaN stays NaN, as with ``np.clip``), and
+    ``path[k] = q``."""
+    for j in range(q.shape[0]):
+        val = q[j] + qd[j] * dt
+        if val < lower[j]:
+            val = lower[j]
+        elif val > upper[j]:
+            val = upper[j]
+        q[j] = val
+        path[k, j] = val

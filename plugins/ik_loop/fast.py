@@ -15,13 +15,24 @@ and ``diag`` = [position error, orientation error, repulsion, manipulability, sl
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from planbench_plugins.ik_loop import tasks as T
 
-__all__ = ["StepParams", "step_params", "step_numpy", "step_compiled", "control_point_positions", "have_numba"]
+__all__ = [
+    "StepParams",
+    "step_params",
+    "step_numpy",
+    "step_compiled",
+    "advance_numpy",
+    "bind",
+    "compiled",
+    "have_numba",
+]
 
 
 class StepParams(NamedTuple):
@@ -116,29 +127,38 @@ def step_numpy(
     diag[:] = (err_p, err_r, rep, m, s, lam)
 
 
-def _compile() -> Any:
+def advance_numpy(
+    q: np.ndarray, qd: np.ndarray, dt: float, lower: np.ndarray, upper: np.ndarray, path: np.ndarray, k: int
+) -> None:
+    """The loop's integration, ``q <- clip(q + qd dt, lower, upper)`` in place, recorded as ``path[k]``."""
+    np.clip(q + qd * dt, lower, upper, out=q)
+    path[k] = q
+
+
+def compiled() -> ModuleType:
+    """The compiled functions (:mod:`._compiled`: ``step``, ``kinematics``, ``advance``). Imported
+    on first use: numba is optional, and importing it costs start-up that the numpy path does not
+    need. Each function compiles, or loads numba's on-disk cache, on its first call."""
     from planbench_plugins.ik_loop import _compiled
 
-    return _compiled.step, _compiled.positions
+    return _compiled
 
 
-_COMPILED: Any = None
+def bind(dispatcher: Any, *args: Any) -> Callable[..., Any]:
+    """The compiled code of the numba function ``dispatcher`` for exactly the types of ``args``,
+    as a plain function that skips numba's per-call type dispatch.
 
+    numba works out the type of every argument on every call (about 50 ns per array, about 1 us
+    for a NamedTuple such as :class:`StepParams`): with the step's 18 arguments that costs more
+    than the step's arithmetic. The returned function must be called with arguments of the same
+    types as ``args`` (dtype, dimensions, layout; the same arrays, typically): it does not check.
+    Compiles, or loads numba's cache, now."""
+    import numba  # numba is optional: only the compiled path binds, and it has imported numba already
 
-def _compiled() -> Any:
-    global _COMPILED
-    if _COMPILED is None:
-        _COMPILED = _compile()
-    return _COMPILED
+    return dispatcher.compile(tuple(numba.typeof(a) for a in args))  # type: ignore[no-any-return]
 
 
 def step_compiled(*args: Any) -> None:
-    """Same signature and results as :func:`step_numpy`, in one numba call."""
-    _compiled()[0](*args)
-
-
-def control_point_positions(
-    Rs: np.ndarray, ts: np.ndarray, joint: np.ndarray, local: np.ndarray, out: np.ndarray
-) -> None:
-    """``out[i] = Rs[joint[i]] @ local[i] + ts[joint[i]]`` (numba)."""
-    _compiled()[1](Rs, ts, joint, local, out)
+    """Same signature and results as :func:`step_numpy`, in one numba call (the loop calls
+    ``compiled().step`` directly, without this wrapper)."""
+    compiled().step(*args)

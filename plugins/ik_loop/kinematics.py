@@ -1,19 +1,25 @@
-"""Per-step kinematics with preallocated buffers: one pinocchio pass, everything else vectorized.
+"""Per-step kinematics with preallocated buffers: one pinocchio pass, everything else batched.
 
 ``update(q)`` runs ``pinocchio.computeJointJacobians`` (forward kinematics and the spatial
 Jacobian ``S``, WORLD convention) and ``updateFramePlacement`` for the goal frame, then reads the
-joint placements through views that pinocchio updates in place (no per-joint Python call) and
-computes all control-point positions in one batched product. Control-point Jacobians are never
-formed on the hot path: :func:`~planbench_plugins.ik_loop.tasks.repulsion_joint_velocity`
-applies their transposes from ``S`` directly.
+joint placements through views that pinocchio updates in place (no per-joint Python call). With
+``compiled=True`` one numba call then computes all control-point positions and the goal frame's
+Jacobian (from ``S``, as ``getFrameJacobian`` does); otherwise ``getFrameJacobian`` and one
+batched product. Control-point Jacobians are never formed on the hot path:
+:func:`~planbench_plugins.ik_loop.tasks.repulsion_joint_velocity` applies their transposes from
+``S`` directly.
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
+from planbench_plugins.ik_loop import fast
 from planbench_plugins.ik_loop.control_points import ControlPoints
 
 __all__ = ["ArmKinematics"]
@@ -31,15 +37,6 @@ class ArmKinematics:
     """
 
     def __init__(self, robot: Any, frame_id: int, points: ControlPoints, compiled: bool = False) -> None:
-        import pinocchio as pin
-
-        self._positions = None
-        if compiled:
-            from planbench_plugins.ik_loop.fast import control_point_positions
-
-            self._positions = control_point_positions
-
-        self._pin = pin
         self.model = model = robot.model
         self.data = data = model.createData()
         self.frame_id = int(frame_id)
@@ -74,15 +71,21 @@ class ArmKinematics:
                     self.descendants[idx_v[a], idx_v[j]] = 1.0
         self.frame_support = np.zeros(n)
         for a in ancestors[model.frames[self.frame_id].parentJoint]:
-            self.frame_support[idx_v[a]] = 1.0
+            self.frame_support[idx_v[a] : idx_v[a] + model.joints[a].nv] = 1.0
+        self.J = np.zeros((6, n))  # the compiled update writes the goal frame's Jacobian here
+        self._computeJointJacobians = pin.computeJointJacobians
+        self._updateFramePlacement = pin.updateFramePlacement
+        self._compiled: Any = None
+        if compiled:  # one numba call, bound to these buffers (they never change)
+            args: tuple[Any, ...] = (self._Rbuf, self._tbuf, self._cp_joint, self._cp_local, self.S, self.p)
+            args += (self.frame_support, self.points, self.J)
+            self._compiled = functools.partial(fast.bind(fast.compiled().kinematics, *args), *args)
 
     def _alias_placements(self, njoints: int) -> bool:
         """Point ``_Rbuf`` / ``_tbuf`` straight at pinocchio's joint placements when they lie in
         memory at one fixed stride (an ``std::vector<SE3>``: 9 doubles of column-major rotation, 3
         of translation), so that no copy is needed per step. The layout is checked here against
         the ordinary accessors, and the copying path is kept when it does not hold."""
-        import ctypes
-
         addr = [M.rotation.__array_interface__["data"][0] for M in self._joints]
         taddr = [M.translation.__array_interface__["data"][0] for M in self._joints]
         stride = addr[1] - addr[0] if njoints > 1 else 0
@@ -114,18 +117,20 @@ class ArmKinematics:
         return out
 
     def update(self, q: np.ndarray) -> None:
-        """Forward kinematics, Jacobians and control points at ``q``."""
-        pin = self._pin
-        pin.computeJointJacobians(self.model, self.data, q)
-        pin.updateFramePlacement(self.model, self.data, self.frame_id)
-        self.J = pin.getFrameJacobian(self.model, self.data, self.frame_id, pin.LOCAL_WORLD_ALIGNED)
-        if len(self._cp_joint):
-            if not self._aliased:
-                np.stack(self._Rviews, out=self._Rbuf)
-                np.stack(self._tviews, out=self._tbuf)
-            j = self._cp_joint
-            if self._positions is not None:
-                self._positions(self._Rbuf, self._tbuf, j, self._cp_local, self.points)
-            else:
-                np.einsum("nij,nj->ni", self._Rbuf[j], self._cp_local, out=self.points)
-                self.points += self._tbuf[j]
+        """Forward kinematics, Jacobians and control points at ``q``.
+
+        Two pinocchio calls, then (compiled) one numba call for the control points and the goal
+        frame's Jacobian, or (numpy) ``getFrameJacobian`` and a batched product."""
+        model, data = self.model, self.data
+        self._computeJointJacobians(model, data, q)
+        self._updateFramePlacement(model, data, self.frame_id)
+        if not self._aliased:
+            np.stack(self._Rviews, out=self._Rbuf)
+            np.stack(self._tviews, out=self._tbuf)
+        if self._compiled is not None:
+            self._compiled()
+            return
+        self.J = pin.getFrameJacobian(model, data, self.frame_id, pin.LOCAL_WORLD_ALIGNED)
+        j = self._cp_joint
+        np.einsum("nij,nj->ni", self._Rbuf[j], self._cp_local, out=self.points)
+        self.points += self._tbuf[j]

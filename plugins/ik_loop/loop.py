@@ -1,6 +1,6 @@
 """The IK loop shared by every field planner: attraction, null-space repulsion, limits, endings.
 
-METHOD.md section 4. Per step ``k`` (``t = k dt``), from ``q``:
+docs/method.md, section 4. Per step ``k`` (``t = k dt``), from ``q``:
 
 1. kinematics: goal-frame pose ``(p, R)``, its Jacobian ``J`` (LOCAL_WORLD_ALIGNED), the spatial
    Jacobian ``S`` and the control points ``p_i`` (:mod:`.kinematics`);
@@ -42,7 +42,9 @@ per path row): ``position_error`` [m], ``orientation_error`` [rad], ``repulsion`
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -60,7 +62,7 @@ DIAGNOSTICS = ("position_error", "orientation_error", "repulsion", "manipulabili
 """The per-step diagnostics every loop planner records, in the order of the step's ``diag`` array."""
 
 
-def stalled(best_error: np.ndarray, k: int, window: int, ratio: float) -> bool:
+def stalled(best_error: Sequence[float] | np.ndarray, k: int, window: int, ratio: float) -> bool:
     """The local-minimum test: True when progress stalls over a window.
 
     ``best_error[k]`` is the smallest goal error ``e = |p_g - p| + rho * angle`` [m] seen in steps
@@ -108,8 +110,13 @@ class ZeroRepulsion:
 
     gain = 0.0
 
+    def __init__(self) -> None:
+        self._zeros = np.zeros((0, 3))
+
     def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return kin.points, np.zeros_like(kin.points), kin.support, kin.cp_joint
+        if self._zeros.shape != kin.points.shape:
+            self._zeros = np.zeros_like(kin.points)
+        return kin.points, self._zeros, kin.support, kin.cp_joint
 
 
 class StepInputs:
@@ -208,14 +215,15 @@ class IKLoopPlanner(Planner):
             from planbench.collision import CollisionChecker
 
             checker = CollisionChecker(problem.robot, problem.scene)
-        self._step = fast.step_compiled if self.use_numba else fast.step_numpy
+        self._step = fast.compiled().step if self.use_numba else fast.step_numpy
         self._prepared = {"problem": problem, "points": points, "checker": checker}
         self._prepared["repulsion"] = self.make_repulsion(problem, points)
-        self._warm_up(problem)
+        self._prepare_query(problem)
 
-    def _warm_up(self, problem: Problem) -> None:
-        """One step and one repulsion query here, in the untimed setup, so that compilation (or
-        loading numba's cache) and first-call costs stay out of the timed query."""
+    def _prepare_query(self, problem: Problem) -> None:
+        """The query's kinematics, step inputs and buffers (reused by every ``plan`` of this
+        problem), one repulsion query and one step: compilation (or loading numba's cache),
+        first-call costs and the binding of the compiled step stay out of the timed query."""
         prep = self._prepared
         assert prep is not None
         robot = problem.robot
@@ -224,18 +232,56 @@ class IKLoopPlanner(Planner):
         q = np.array(problem.start, dtype=float)
         kin.update(q)
         inputs = self._inputs(problem, frame_id)
-        points, F, support, _ = prep["repulsion"].forces(kin)
-        self.solve_step(
-            kin,
-            q,
-            inputs,
-            points,
-            np.zeros_like(F),
-            support,
-            np.zeros(0, dtype=np.intp),
-            np.zeros(robot.nq),
-            np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics)),
-        )
+        points, F, support, joint = prep["repulsion"].forces(kin)
+        tool = np.flatnonzero(joint == inputs.tool_joint)
+        qd = np.zeros(robot.nq)
+        dg = np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics))
+        prep.update(kin=kin, inputs=inputs, q=q, qd=qd, dg=dg, joint=joint, tool=tool)
+        prep["step"] = self._step_function(kin, q, inputs, qd, dg, points, F, support, tool)
+        path = prep["path"] = np.empty((self.config.max_steps + 1, robot.nq))  # plan returns a copy
+        args = (q, qd, self.config.dt, inputs.lower, inputs.upper, path)
+        advance = fast.bind(fast.compiled().advance, *args, 0) if self.use_numba else fast.advance_numpy
+        prep["advance"] = functools.partial(advance, *args)  # (k): q <- clip(q + qd dt); path[k] = q
+        self.solve_step(kin, q, inputs, points, np.zeros_like(F), support, tool, qd, dg)
+
+    def _step_function(
+        self,
+        kin: ArmKinematics,
+        q: np.ndarray,
+        inputs: StepInputs,
+        qd: np.ndarray,
+        dg: np.ndarray,
+        points: np.ndarray,
+        F: np.ndarray,
+        support: np.ndarray,
+        tool: np.ndarray,
+    ) -> Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], None]:
+        """:meth:`solve_step` on the query's buffers, as a function of what the repulsion returns.
+
+        The default step with numba calls the compiled step bound to the types of these arrays
+        (:func:`.fast.bind`): numba's per-call check of 18 argument types costs more than the
+        step's arithmetic. The bound call is taken while the repulsion returns the arrays given
+        here (sources that fill buffers do); other arrays go through :meth:`solve_step`."""
+        solve_step = self.solve_step
+
+        def general(points: np.ndarray, F: np.ndarray, support: np.ndarray, tool: np.ndarray) -> None:
+            solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+
+        if not self.use_numba or type(self).solve_step is not IKLoopPlanner.solve_step:
+            return general
+        args = (kin.S, kin.J, kin.p, kin.R, inputs.p_goal, inputs.R_goal, q, inputs.lower, inputs.upper)
+        qd_max, desc, prm = inputs.qd_max, kin.descendants, inputs.params
+        entry = fast.bind(self._step, *args, qd_max, points, F, support, desc, tool, prm, qd, dg)
+        S, J, p, R, p_goal, R_goal, _, lower, upper = args
+        points0, F0, support0, tool0 = points, F, support, tool
+
+        def bound(points: np.ndarray, F: np.ndarray, support: np.ndarray, tool: np.ndarray) -> None:
+            if points is points0 and F is F0 and support is support0 and tool is tool0:
+                entry(S, J, p, R, p_goal, R_goal, q, lower, upper, qd_max, points, F, support, desc, tool, prm, qd, dg)
+            else:
+                solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+
+        return bound
 
     def _inputs(self, problem: Problem, frame_id: int) -> StepInputs:
         robot = problem.robot
@@ -280,13 +326,11 @@ class IKLoopPlanner(Planner):
         prep = self._prepared
         assert prep is not None
         cfg = self.config
-        robot = problem.robot
         t_start = time.perf_counter()
-        frame_id = robot.frame_id(problem.goal.pose.frame)
-        inputs = self._inputs(problem, frame_id)
+        kin, inputs, q, dg = prep["kin"], prep["inputs"], prep["q"], prep["dg"]
+        q[:] = problem.start  # advanced in place, copied into path every step
         tol_p = cfg.goal_tolerance_scale * problem.tolerances.position
         tol_r = cfg.goal_tolerance_scale * problem.tolerances.orientation
-        lower, upper = inputs.lower, inputs.upper
         dt = cfg.dt
         repulsion: Repulsion = prep["repulsion"]
         checker = prep["checker"]
@@ -294,42 +338,40 @@ class IKLoopPlanner(Planner):
         window = cfg.stall_steps
         n_max = cfg.max_steps + 1
         names = DIAGNOSTICS + self.extra_diagnostics
-        path = np.empty((n_max, robot.nq))
+        path = prep["path"]
         diag = np.full((n_max, len(names)), np.nan)
-        best = np.empty(n_max)
-        q = np.array(problem.start, dtype=float)
+        best: list[float] = []  # best[k]: the smallest goal error in steps 0..k
         status, message = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
-        kin = ArmKinematics(robot, frame_id, prep["points"], compiled=self.use_numba)
-        qd = np.zeros(robot.nq)
-        dg = np.zeros(len(names))
         rho = cfg.rotation_weight
-        last_joint: Any = None
-        tool = np.zeros(0, dtype=np.intp)
+        last_joint, tool = prep["joint"], prep["tool"]
         failure: dict[str, Any] = {}
+        update, forces, step, advance = kin.update, repulsion.forces, prep["step"], prep["advance"]
+        stall_ratio = cfg.stall_ratio
+        best_k = np.inf
         k = 0
+        path[0] = q
         while True:
-            path[k] = q
-            kin.update(q)
-            points, F, support, joint = repulsion.forces(kin)
+            update(q)
+            points, F, support, joint = forces(kin)
             if joint is not last_joint:  # sources on fixed control points return the same array
                 tool, last_joint = np.flatnonzero(joint == inputs.tool_joint), joint
             try:
-                self.solve_step(kin, q, inputs, points, F, support, tool, qd, dg)
+                step(points, F, support, tool)
             except StepFailure as exc:  # no valid step from q: q is the last configuration
                 status, message, failure = exc.status, f"step {k}: {exc.message}", exc.info
                 diag[k] = np.nan
                 break
             diag[k] = dg
-            err_p, err_r = dg[0], dg[1]
-            e = err_p + rho * err_r
-            best[k] = e if k == 0 else min(e, best[k - 1])
+            err_p, err_r = dg.item(0), dg.item(1)
+            best_k = min(err_p + rho * err_r, best_k)
+            best.append(best_k)
             if checker is not None and check_every > 0 and k % check_every == 0 and k > 0 and checker.in_collision(q):
                 status, message = PlanStatus.COLLISION, f"the arm is in collision at step {k} (t = {k * dt:.2f} s)"
                 break
             if err_p <= tol_p and err_r <= tol_r:
                 status, message = PlanStatus.SUCCESS, f"goal reached in {k} steps"
                 break
-            if stalled(best, k, window, cfg.stall_ratio):
+            if k >= window and stalled(best, k, window, stall_ratio):
                 status = PlanStatus.LOCAL_MINIMUM
                 message = (
                     f"local minimum: the goal error fell by less than {cfg.stall_ratio:.0%} over "
@@ -342,8 +384,7 @@ class IKLoopPlanner(Planner):
             if k % 16 == 0 and time.perf_counter() - t_start > time_limit:
                 status, message = PlanStatus.TIMEOUT, f"time limit of {time_limit:g} s reached after {k} steps"
                 break
-            q = q + qd * dt
-            np.clip(q, lower, upper, out=q)
+            advance(k + 1)
             k += 1
         n = k + 1
         if checker is not None and status is not PlanStatus.COLLISION:
