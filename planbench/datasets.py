@@ -5,6 +5,8 @@ Selectors:
 - ``mbm`` or ``mbm:*``: all 700 MotionBenchMaker Panda problems (7 families x 100);
 - ``mbm:<family>``: one family; ``mbm:<family>/0007``: one problem;
 - ``mbm:<family>/0001-0020`` or ``mbm:*/0021-0100``: an index range (inclusive);
+- ``gen`` or ``gen:*``: planbench's own generated problems (``planbench/data/gen``, see
+  :mod:`planbench.generators`); ``gen:<robot>_<family>/0001-0003``, ``gen:ur5_*``, ``gen:*_shelf``;
 - a path to a problem JSON file, or to a folder of them.
 
 The MotionBenchMaker data ships inside planbench (``planbench/data/mbm``, with its README as
@@ -13,6 +15,7 @@ attribution and licence notice: Apache-2.0 via VAMP, generated with BSD-3-Clause
 
 from __future__ import annotations
 
+import fnmatch
 import functools
 import json
 import re
@@ -21,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from planbench.errors import DuplicateProblemError, PlanbenchError, UnknownNameError
+from planbench.generators import shipped_problems, shipped_sets
 from planbench.problem import Goal, Pose, Problem, Tolerances
 from planbench.robot import load_robot
 from planbench.scene import Scene
@@ -34,7 +38,9 @@ def problem_sets() -> dict[str, str]:
     """Names of the built-in problem sets and what they are."""
     return {
         "mbm": "MotionBenchMaker Panda set (Chamzas et al. 2022), 7 families x 100 problems: "
-        + ", ".join(mbm_families())
+        + ", ".join(mbm_families()),
+        "gen": "planbench's own generated scenes (planbench.generators), 25 problems per set: "
+        + ", ".join(shipped_sets()),
     }
 
 
@@ -86,6 +92,8 @@ def load_problems(selector: str | Path) -> list[Problem]:
     text = str(selector)
     if text == "mbm" or text.startswith("mbm:"):
         return _load_mbm(text.partition(":")[2] or "*")
+    if text == "gen" or text.startswith("gen:"):
+        return _load_gen(text.partition(":")[2] or "*")
     path = Path(text)
     if path.is_dir():
         files = sorted(path.glob("*.json"))
@@ -94,7 +102,8 @@ def load_problems(selector: str | Path) -> list[Problem]:
         return _unique_ids([(Problem.load(f), str(f)) for f in files])
     if path.is_file():
         return [Problem.load(path)]
-    raise UnknownNameError("problem set or file", text, ["mbm", "mbm:*"] + [f"mbm:{f}" for f in mbm_families()])
+    names = ["mbm", "mbm:*", *(f"mbm:{f}" for f in mbm_families()), "gen:*", *(f"gen:{s}" for s in shipped_sets())]
+    raise UnknownNameError("problem set or file", text, names)
 
 
 _ONE: dict[str, Problem] = {}
@@ -145,4 +154,23 @@ def _load_mbm(rest: str) -> list[Problem]:
         out.extend(_mbm_problem(p, data) for p in data["problems"] if lo <= p["index"] <= hi)
     if not out:
         raise PlanbenchError(f"no MotionBenchMaker problem matches 'mbm:{rest}' (indices run 0001-0100)")
+    return out
+
+
+def _load_gen(rest: str) -> list[Problem]:
+    pattern, _, idx_part = rest.partition("/")
+    names = shipped_sets()
+    chosen = [n for n in names if fnmatch.fnmatchcase(n, pattern or "*")]
+    if not chosen:
+        raise UnknownNameError("generated problem set (<robot>_<family>)", pattern, names)
+    lo, hi = 1, 10**9
+    if idx_part:
+        m = _RANGE.match(idx_part)
+        if not m:
+            raise PlanbenchError(f"bad problem index {idx_part!r}: use e.g. 0007 or 0001-0020")
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) else lo
+    out = [p for name in chosen for p in shipped_problems(name, lo, hi)]
+    if not out:
+        raise PlanbenchError(f"no generated problem matches 'gen:{rest}' (indices run 0001-0025)")
     return out
