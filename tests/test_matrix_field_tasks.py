@@ -289,6 +289,19 @@ def test_config_defaults_and_overrides_freeze():
     assert MatrixFieldConfig().stall_steps == 100
 
 
+@pytest.mark.parametrize("damping", ["adaptive", "fixed"])
+def test_step_params_are_the_config_settings_by_name(damping):
+    from planbench_plugins.ik_loop import fast
+
+    cfg = MatrixFieldConfig(damping=damping, speed_max=0.3, dt=0.02, tool_repulsion_gain=0.5)
+    prm = fast.step_params(cfg)
+    assert prm.adaptive == (1.0 if damping == "adaptive" else 0.0)
+    for name in prm._fields:
+        if name != "adaptive":
+            assert getattr(prm, name) == getattr(cfg, name)
+    assert (prm.speed_max, prm.dt, prm.tool_repulsion_gain) == (0.3, 0.02, 0.5)
+
+
 # --- the compiled step equals the composition of the task functions ------------------------
 @pytest.mark.skipif(
     not __import__("planbench_plugins.ik_loop.fast", fromlist=["x"]).have_numba(), reason="numba not installed"

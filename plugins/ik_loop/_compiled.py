@@ -1,4 +1,5 @@
-"""The compiled (numba) step of the matrix-field planner; imported only when numba is installed.
+"""The compiled (numba) step of the IK loop, its kinematics (control points, the goal frame's
+Jacobian) and its integration; imported only when numba is installed.
 
 Module-level functions, so that numba's on-disk cache (``cache=True``) works: each new process
 loads the compiled step instead of compiling it again (a closure would be recompiled every time).

@@ -3,8 +3,10 @@
 Python call overhead, not arithmetic, dominates a step with small arrays (a 6x6 solve costs
 microseconds in numpy for nanoseconds of work). :func:`step_numpy` composes the task functions of
 :mod:`.tasks` (readable, unit-tested term by term); :func:`step_compiled` does the same arithmetic
-in one numba function (Cholesky factorisations written out). Tests check that both agree to
-rounding. ``backend="auto"`` uses numba when it is installed.
+in one numba function (products and Cholesky factorisations written out, no BLAS call). Tests
+check that both agree to rounding. ``backend="auto"`` uses numba when it is installed. The loop
+calls the compiled step through :func:`bind` (no per-call type dispatch) and integrates with
+``compiled().advance`` or :func:`advance_numpy`.
 
 Inputs: ``S`` (6, n) spatial Jacobian, ``J`` (6, n) goal-frame Jacobian, ``p``, ``R`` its pose,
 ``q``, ``F`` (N, 3) repulsive velocities ``k_rep F(p_i)`` [m/s] at ``points`` (N, 3), ``tool``

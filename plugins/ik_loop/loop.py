@@ -97,6 +97,8 @@ class Repulsion(Protocol):
     ``points`` (M, 3) world points on the arm [m], ``F`` (M, 3) repulsive velocities there [m/s],
     ``support`` (M, n) 1.0 where joint ``k`` moves point ``i``, ``joint`` (M,) the pinocchio joint
     carrying each point. Returned arrays may be reused buffers: they are read before the next call.
+    A source that returns the same arrays every step (``kin.points``, ``kin.support``, its own
+    ``F`` filled in place) lets the loop call its compiled step without numba's type dispatch.
     ``gain`` is the gain in use (reported in the result's ``info``).
     """
 
