@@ -24,12 +24,11 @@ from pathlib import Path
 from typing import Any
 
 from planbench.errors import DuplicateProblemError, PlanbenchError, UnknownNameError
-from planbench.generators import shipped_problems, shipped_sets
 from planbench.problem import Goal, Pose, Problem, Tolerances
 from planbench.robot import load_robot
 from planbench.scene import Scene
 
-__all__ = ["load_problem", "load_problems", "mbm_families", "problem_sets"]
+__all__ = ["load_problem", "load_problems", "mbm_families", "problem_sets", "shipped_problems", "shipped_sets"]
 
 _RANGE = re.compile(r"^(\d+)(?:-(\d+))?$")
 
@@ -174,3 +173,56 @@ def _load_gen(rest: str) -> list[Problem]:
     if not out:
         raise PlanbenchError(f"no generated problem matches 'gen:{rest}' (indices run 0001-0025)")
     return out
+
+
+# --- planbench's own generated set (written by planbench.generators) --------------------------
+
+GEN_SEED = 0
+"""The seed of the shipped generated set; problems of other seeds are named ``gen-s<seed>:``."""
+
+
+def _gen_dir() -> Any:
+    return resources.files("planbench") / "data" / "gen"
+
+
+@functools.cache
+def _gen_manifest() -> dict[str, Any]:
+    return json.loads((_gen_dir() / "manifest.json").read_text())  # type: ignore[no-any-return]
+
+
+def shipped_sets() -> list[str]:
+    """Names of the shipped generated sets, ``<robot>_<family>``."""
+    return sorted(_gen_manifest()["sets"])
+
+
+@functools.cache
+def _set_data(name: str) -> dict[str, Any]:
+    return json.loads((_gen_dir() / _gen_manifest()["sets"][name]["file"]).read_text())  # type: ignore[no-any-return]
+
+
+def problem_from_record(record: dict[str, Any], header: dict[str, Any]) -> Problem:
+    """A problem of a ``planbench-gen/1`` file (the goal pose is the end effector's at the goal)."""
+    robot = load_robot(header["robot"])
+    if list(robot.joint_names) != header["joint_names"]:
+        raise PlanbenchError(f"generated set {header['name']}: joints {header['joint_names']} differ from the robot's")
+    pid = f"gen:{record['id']}" if header["seed"] == GEN_SEED else f"gen-s{header['seed']}:{record['id']}"
+    scene = Scene.from_dict({"name": pid, "obstacles": record["obstacles"]}, pid)
+    metadata = {
+        "set": "gen",
+        "family": header["family"],
+        "robot": header["robot"],
+        "index": record["index"],
+        "seed": header["seed"],
+        "generator": header["generator"],
+        "attempts": record["attempts"],
+        **record["params"],
+    }
+    return Problem.create(robot, scene, record["start"], record["goal"], id=pid, metadata=metadata)
+
+
+def shipped_problems(name: str, lo: int = 1, hi: int = 10**9) -> list[Problem]:
+    """Problems ``lo``..``hi`` (indices, inclusive) of the shipped set ``name``."""
+    if name not in shipped_sets():
+        raise UnknownNameError("generated problem set", name, shipped_sets())
+    data = _set_data(name)
+    return [problem_from_record(rec, data) for rec in data["problems"] if lo <= rec["index"] <= hi]

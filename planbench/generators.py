@@ -58,7 +58,6 @@ import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +65,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.collision import CollisionChecker
+from planbench.datasets import GEN_SEED, problem_from_record, shipped_problems, shipped_sets
 from planbench.errors import PlanbenchError, UnknownNameError
 from planbench.harness import plan
 from planbench.problem import Problem
@@ -93,7 +93,7 @@ GEN_FORMAT = "planbench-gen/1"
 MANIFEST_FORMAT = "planbench-gen-manifest/1"
 SHIPPED_ROBOTS = ("panda", "ur5")
 SHIPPED_COUNT = 25
-SHIPPED_SEED = 0
+SHIPPED_SEED = GEN_SEED
 COMMAND = "python -m planbench.generate --out planbench/data/gen"
 
 START_NOISE = 0.15  # [rad] standard deviation of the start's offset from home, per joint
@@ -691,53 +691,6 @@ def write_set(
     }
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return manifest
-
-
-def _gen_dir() -> Any:
-    return resources.files("planbench") / "data" / "gen"
-
-
-@functools.cache
-def _manifest() -> dict[str, Any]:
-    return json.loads((_gen_dir() / "manifest.json").read_text())  # type: ignore[no-any-return]
-
-
-def shipped_sets() -> list[str]:
-    """Names of the shipped generated sets, ``<robot>_<family>``."""
-    return sorted(_manifest()["sets"])
-
-
-@functools.cache
-def _set_data(name: str) -> dict[str, Any]:
-    return json.loads((_gen_dir() / _manifest()["sets"][name]["file"]).read_text())  # type: ignore[no-any-return]
-
-
-def problem_from_record(record: dict[str, Any], header: dict[str, Any]) -> Problem:
-    """A problem of a ``planbench-gen/1`` file (the goal pose is the end effector's at the goal)."""
-    robot = load_robot(header["robot"])
-    if list(robot.joint_names) != header["joint_names"]:
-        raise PlanbenchError(f"generated set {header['name']}: joints {header['joint_names']} differ from the robot's")
-    pid = f"gen:{record['id']}" if header["seed"] == SHIPPED_SEED else f"gen-s{header['seed']}:{record['id']}"
-    scene = Scene.from_dict({"name": pid, "obstacles": record["obstacles"]}, pid)
-    metadata = {
-        "set": "gen",
-        "family": header["family"],
-        "robot": header["robot"],
-        "index": record["index"],
-        "seed": header["seed"],
-        "generator": header["generator"],
-        "attempts": record["attempts"],
-        **record["params"],
-    }
-    return Problem.create(robot, scene, record["start"], record["goal"], id=pid, metadata=metadata)
-
-
-def shipped_problems(name: str, lo: int = 1, hi: int = 10**9) -> list[Problem]:
-    """Problems ``lo``..``hi`` (indices, inclusive) of the shipped set ``name``."""
-    if name not in shipped_sets():
-        raise UnknownNameError("generated problem set", name, shipped_sets())
-    data = _set_data(name)
-    return [problem_from_record(rec, data) for rec in data["problems"] if lo <= rec["index"] <= hi]
 
 
 # --- solvability --------------------------------------------------------------------------------
