@@ -14,9 +14,10 @@ The field is evaluated with :func:`planbench.field.lazy_field` (the same numbers
 at a point ``--distance`` in front of the wall's face, for kernels with the planner's defaults
 (``kernel_reach`` 0.15 m, linear taper, width = reach) and each profile. It prints ``|F_x|`` [field
 units] per resolution, the ratio between consecutive resolutions, and then what the planner's
-repulsion makes of it: the gain derived from ``standoff`` (``repulsion_gain=None``) at each
-resolution, and the push [m/s] at the point, with that gain and with a gain fixed at the
-``--reference`` resolution (an explicit ``repulsion_gain``). Takes a few seconds.
+repulsion makes of it: the gain derived from ``standoff`` at each resolution (what the planners
+use, times ``repulsion_gain``), and the push [m/s] at the point, with that gain and with a raw
+``k_rep`` fixed at the ``--reference`` resolution (what a gain in field units would do). Takes a
+few seconds.
 """
 
 from __future__ import annotations
@@ -93,7 +94,7 @@ def main() -> None:
     )
     print(
         "\n| profile | resolution | derived gain [m/s per unit] | push, derived gain [m/s] | "
-        f"push, gain fixed at {ref:g} m [m/s] |"
+        f"push, raw k_rep fixed at {ref:g} m [m/s] |"
     )
     print("|---|---|---|---|---|")
     for profile in PROFILES:

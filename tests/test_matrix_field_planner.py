@@ -207,3 +207,28 @@ def test_control_points_from_the_robot_file_and_from_settings(tmp_path):
     bad.write_text(text.replace("panda_link1 = []", "panda_lnk1 = []"))
     with pytest.raises(UnknownNameError, match="panda_link1"):
         load_robot(bad)
+
+
+def test_repulsion_gain_means_the_same_push_at_any_resolution(robot):
+    """The field in field units grows ~3x per halving of the cell size; the push [m/s] a planner
+    derives from the stand-off (times repulsion_gain) stays within the profile's sampling error
+    (a 0.2 m thick wall: its surface pass leaves one cell layer, the calibration wall)."""
+    start = np.array(robot.home)
+    goal = start.copy()
+    goal[0] = 0.3
+    for x in (0.36, 0.40):  # the nearest control point 5 and 9 cm from the wall
+        wall = Obstacle("wall", "box", position=(x + 0.1, 0.0, 0.4), size=(0.2, 0.6, 0.8))
+        problem = Problem.create(robot, Scene((wall,), name="wall"), start, goal, id="test:thick-wall")
+        push, field = {}, {}
+        for r in (0.04, 0.02, 0.01):
+            planner = MatrixFieldPlanner(grid_resolution=r, repulsion_gain=2.0)
+            planner.setup(problem)
+            points, F = planner.repulsion_at(start)
+            push[r] = float(np.linalg.norm(F, axis=1).max())
+            field[r] = float(np.linalg.norm(planner.field_at(points), axis=1).max())
+        assert push[0.02] > 0.3
+        assert field[0.01] / field[0.02] > 2.0 and field[0.02] / field[0.04] > 2.0  # raw values scale
+        assert 0.85 < push[0.01] / push[0.02] < 1.15 and 0.85 < push[0.04] / push[0.02] < 1.15
+    half = MatrixFieldPlanner(grid_resolution=0.02, repulsion_gain=1.0)
+    half.setup(problem)
+    assert np.linalg.norm(half.repulsion_at(start)[1], axis=1).max() == pytest.approx(push[0.02] / 2, rel=1e-12)

@@ -182,11 +182,11 @@ def test_plan_set_values_reach_the_planner_as_their_types(monkeypatch, capsys):
 
     monkeypatch.setattr(PlannerSetup, "build", spy)
     monkeypatch.setattr(planbench, "load_problems", lambda selector: [])
-    sets = ["verify_path=false", "repulsion_gain=none", "speed_max=0.3", "max_steps=50", "field_mode=lazy"]
+    sets = ["verify_path=false", "repulsion_gain=2", "speed_max=0.3", "max_steps=50", "field_mode=lazy"]
     argv = ["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field"]
     assert main([*argv, *(x for s in sets for x in ("--set", s))]) == 0
     (config,) = seen
-    assert config.verify_path is False and config.repulsion_gain is None and config.field_mode == "lazy"
+    assert config.verify_path is False and config.repulsion_gain == 2.0 and config.field_mode == "lazy"
     assert config.speed_max == 0.3 and type(config.speed_max) is float and type(config.max_steps) is int
     assert main([*argv, "--set", "dt=0.1", "--set", "dt=0.2"]) == 2
     assert "--set dt is given twice" in capsys.readouterr().err

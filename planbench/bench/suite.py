@@ -27,7 +27,7 @@ The limits shown are examples; a suite that leaves one out gets :data:`DEFAULT_T
 :data:`DEFAULT_MEMORY_LIMIT`, :data:`DEFAULT_SETUP_TIMEOUT`, :data:`DEFAULT_GRACE` or
 :data:`DEFAULT_VALIDATION_TIMEOUT`. The same planner may appear several times under different labels
 with different settings; each setting is parsed to the type of its ``Config`` field before any run
-(``speed_max = "0.3"`` is 0.3, ``verify_path = "no"`` is False, ``repulsion_gain = "none"`` is None;
+(``speed_max = "0.3"`` is 0.3, ``verify_path = "no"`` is False, ``"none"`` is None for an optional setting;
 see :meth:`planbench.registry.Registry.configure`). The built-in suites (``smoke``, ``mbm``) ship in
 ``planbench/bench/suites``.
 

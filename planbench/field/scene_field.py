@@ -171,14 +171,11 @@ class FieldRepulsion:
 def scene_repulsion(problem: Any, config: Any) -> FieldRepulsion | None:
     """The matrix field of ``problem``'s scene as a repulsion, or ``None`` when nothing pushes (no
     obstacle in reach, or a zero gain). ``config``: :class:`FieldSettings` plus the loop's
-    ``speed_max`` [m/s], ``standoff`` [m] and ``repulsion_gain`` (explicit [m/s per field unit],
-    or ``None`` for :func:`standoff_gain`)."""
+    ``speed_max`` [m/s], ``standoff`` [m] and ``repulsion_gain`` [-], a multiplier of
+    :func:`standoff_gain` (computed for the kernels at the grid's resolution, so the same
+    ``repulsion_gain`` gives the same push at any resolution)."""
     grid, kernels, field = build_scene_field(problem, config)
-    gain = (
-        float(config.repulsion_gain)
-        if config.repulsion_gain is not None
-        else standoff_gain(kernels, config.speed_max, config.standoff)
-    )
+    gain = config.repulsion_gain * standoff_gain(kernels, config.speed_max, config.standoff)
     if grid is None or gain <= 0:
         return None
     return FieldRepulsion(grid, kernels, field, gain)

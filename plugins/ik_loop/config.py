@@ -27,9 +27,9 @@ class IKLoopConfig:
 
     Stand-off: every repulsion source derives its gain from ``standoff``, so that a point on the
     arm ``standoff`` from a flat wall is pushed away at the attraction's cruising speed
-    ``speed_max``: closer than that, the push beats the pull. Set ``repulsion_gain`` to use a gain
-    directly (``standoff`` is then ignored). One stand-off, whatever the field, keeps the
-    comparison between fields fair.
+    ``speed_max``: closer than that, the push beats the pull. ``repulsion_gain`` scales that gain
+    (2 pushes twice as hard everywhere). One stand-off, whatever the field and whatever the grid
+    resolution, keeps the comparison between fields fair and a setting's meaning fixed.
     """
 
     # --- time and budget -----------------------------------------------------------------
@@ -64,9 +64,10 @@ class IKLoopConfig:
     # --- repulsion (gain, tool, control points) ----------------------------------------
     standoff: float = 0.10
     """Distance [m] from a flat wall at which a point on the arm is pushed at ``speed_max``."""
-    repulsion_gain: float | None = None
-    """The repulsion's gain in its own units (see the planner's settings); ``None`` = derived from
-    ``standoff``."""
+    repulsion_gain: float = 1.0
+    """Multiplier [-] of the gain derived from ``standoff``: 1 pushes a point ``standoff`` from a
+    flat wall at ``speed_max``, 0 turns the repulsion off. The same number means the same push
+    whatever the field and the grid resolution (the derived gain is computed for both)."""
     tool_repulsion_gain: float = 0.0
     """Weight [-] of the repulsion added to the primary task: the strongest ``f_i`` among the
     control points carried by the goal frame's joint (hand, fingers) is added to the attraction's
@@ -144,8 +145,7 @@ class IKLoopConfig:
             check_number(self, name, lambda v: v >= 0, "finite and >= 0")
         for name, hi in (("goal_tolerance_scale", 1.0), ("slowdown_min", 1.0), ("velocity_scale", 1.0)):
             check_number(self, name, lambda v, hi=hi: v <= hi, f"<= {hi}")
-        if self.repulsion_gain is not None:
-            check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0 (or None)")
+        check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0")
         for name in ("max_steps", "collision_check_every"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "max_steps" else 0):

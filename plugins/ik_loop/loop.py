@@ -36,7 +36,7 @@ The result is a trajectory: ``path[k]`` at ``times[k] = k dt``, with velocities 
 by construction, and ``target="pose"``. ``info`` holds per-step diagnostics as arrays (one entry
 per path row): ``position_error`` [m], ``orientation_error`` [rad], ``repulsion`` (largest
 ``|f_i|`` [m/s]), ``manipulability`` [m^3], ``slowdown`` [-], ``damping`` [m], plus what
-:attr:`IKLoopPlanner.extra_diagnostics` adds; and ``steps``, ``repulsion_gain``,
+:attr:`IKLoopPlanner.extra_diagnostics` adds; and ``steps``, ``field_gain`` (the gain in use, in the repulsion's units),
 ``n_control_points``.
 """
 
@@ -402,7 +402,7 @@ class IKLoopPlanner(Planner):
                 )
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
-        info.update(steps=n - 1, dt=dt, repulsion_gain=repulsion.gain, n_control_points=len(prep["points"]))
+        info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 
     def _first_collision(self, checker: Any, problem: Problem, path: np.ndarray) -> int | None:

@@ -2,7 +2,7 @@
 plus the field's (:class:`~planbench.field.scene_field.FieldSettings`).
 
 Units: metres, radians, seconds. Field values are dimensionless sums of occupancy times kernel
-weight; ``repulsion_gain`` turns them into a speed [m/s].
+weight; the gain derived from the stand-off (times ``repulsion_gain``) turns them into a speed [m/s].
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ class MatrixFieldConfig(FieldSettings, IKLoopConfig):
 
     Stand-off: the field is exactly zero farther than ``kernel_reach`` from every occupied cell,
     so nothing pushes a control point beyond that distance. Closer in, ``standoff`` fixes the gain:
-    ``repulsion_gain = speed_max / F_wall(standoff)`` [m/s per field unit], where ``F_wall(d)`` is
+    ``k_rep = repulsion_gain * speed_max / F_wall(standoff)`` [m/s per field unit], where ``F_wall(d)`` is
     the field of a flat, one-cell-thick wall at distance ``d`` (computed from the kernels
     themselves). Control points sit on the link axes, so the link *surface* keeps about
     ``standoff`` minus the link radius (~0.05-0.09 m on the Panda).

@@ -20,9 +20,9 @@ __all__ = ["PotentialFieldConfig", "DistanceFieldConfig", "EDTFieldConfig"]
 class PotentialFieldConfig(IKLoopConfig):
     """The loop's settings plus Khatib's profile ``|f| = k (1/d - 1/d0) / d^2`` [m/s].
 
-    Gain: ``repulsion_gain`` is ``k`` [m^2/s]; ``None`` derives it from the loop's ``standoff`` so
-    that the push equals ``speed_max`` at ``d = standoff``: ``k = speed_max standoff^2 /
-    (1/standoff - 1/influence_distance)``.
+    Gain ``k`` [m^2/s] from the loop's ``standoff``, so that the push equals ``speed_max`` at
+    ``d = standoff``: ``k = speed_max standoff^2 / (1/standoff - 1/influence_distance)``, times
+    ``repulsion_gain`` [-].
     """
 
     influence_distance: float = 0.15

@@ -179,11 +179,7 @@ class DistanceFieldPlanner(IKLoopPlanner):
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """The robot's hulls and the scene's obstacles in one geometry model; the gain from the stand-off."""
         cfg = self.config
-        gain = (
-            cfg.repulsion_gain
-            if cfg.repulsion_gain is not None
-            else khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
-        )
+        gain = cfg.repulsion_gain * khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
         if len(problem.scene) == 0 or gain <= 0:
             return ZeroRepulsion()
         return DistanceFieldRepulsion(problem.robot, problem.scene, gain, cfg.influence_distance, cfg.distance_floor)

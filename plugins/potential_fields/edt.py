@@ -96,11 +96,7 @@ class EDTFieldPlanner(IKLoopPlanner):
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize, distance-transform and differentiate the scene; the gain from the stand-off."""
         cfg = self.config
-        gain = (
-            cfg.repulsion_gain
-            if cfg.repulsion_gain is not None
-            else khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
-        )
+        gain = cfg.repulsion_gain * khatib_gain(cfg.speed_max, cfg.standoff, cfg.influence_distance)
         margin = cfg.influence_distance + cfg.grid_resolution
         grid = scene_grid(problem.scene, cfg.grid_resolution, margin, robot=problem.robot)
         if grid is None or gain <= 0:
