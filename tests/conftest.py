@@ -24,6 +24,7 @@ SLOW_CASES = {
     "test_conformance.py::test_every_registered_planner_conforms[ompl-rrtstar]",  # RRT* plans to its time limit
     "test_ompl_planners.py::test_conformance[ompl-rrtstar]",
     "test_bench_processes.py::test_a_planner_flooding_stdout_reaches_neither_the_terminal_nor_the_disk_unbounded",
+    "test_bench_processes.py::test_a_run_killed_on_timeout_takes_its_child_processes_with_it",
 }
 
 

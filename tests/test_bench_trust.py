@@ -255,6 +255,7 @@ def test_clean_result_keeps_json_data_and_names_everything_else():
             clean_result({**_fields(info=info), "path": None, "times": None})
 
 
+@pytest.mark.slow
 def test_planners_are_checked_in_a_probe_process_with_named_errors(tmp_path):
     from planbench.errors import InvalidSettingError, PlanbenchError
 
@@ -270,6 +271,7 @@ def test_planners_are_checked_in_a_probe_process_with_named_errors(tmp_path):
     assert outcome.ran == 1 and outcome.skipped_planners and "missing" in outcome.skipped_planners[0]
 
 
+@pytest.mark.slow
 def test_a_planner_that_freezes_the_worker_clock_is_charged_the_time_the_parent_saw(tmp_path):
     planners = f'[[planners]]\nlabel = "liar"\nplanner = "{A}:ClockLiarPlanner"\nfresh_process = true\n'
     s = parse_suite(suite(planners, time_limit=3.0), "liar.toml")
