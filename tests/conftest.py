@@ -25,6 +25,7 @@ SLOW_CASES = {
     "test_ompl_planners.py::test_conformance[ompl-rrtstar]",
     "test_bench_processes.py::test_a_planner_flooding_stdout_reaches_neither_the_terminal_nor_the_disk_unbounded",
     "test_bench_processes.py::test_a_run_killed_on_timeout_takes_its_child_processes_with_it",
+    "test_bench_processes.py::test_workers_and_their_children_die_when_the_main_process_is_killed",
 }
 
 

@@ -177,6 +177,7 @@ def test_kill_minus_nine_then_resume_runs_only_what_is_missing(tmp_path):
     assert again.ran == 0
 
 
+@pytest.mark.slow
 def test_resume_refuses_changed_settings(tmp_path):
     s = parse_suite(suite('[[planners]]\nplanner = "straight-line"\n', problems=("mbm:box/0001",)), "a.toml")
     run_benchmark(s, tmp_path / "r.db", jobs=1)

@@ -150,6 +150,7 @@ planner = "straight-line"
     assert rows["straight-line"]["worker_pid"] == bad["worker_pid"]
 
 
+@pytest.mark.slow
 def test_a_pickle_sent_to_the_parent_is_refused_unread(tmp_path):
     marker = tmp_path / "unpickled.txt"
     planners = f"""

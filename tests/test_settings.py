@@ -211,6 +211,7 @@ def test_the_probe_parses_settings_and_sends_them_back_as_data():
     assert "setting timed = 'perhaps' is not accepted" in answers[2]["error"]
 
 
+@pytest.mark.slow
 def test_bench_set_stores_the_parsed_settings(tmp_path):
     out = tmp_path / "r.db"
     suite = tmp_path / "s.toml"
