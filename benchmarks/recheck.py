@@ -1,11 +1,12 @@
 """Re-check every path planbench validated with an independent dense checker.
 
-Plans each problem with each planner, validates with ``planbench.evaluate`` (certified), then
-re-checks every *accepted* path with a plain dense collision check (pinocchio + coal, every pair, no
-broadphase, configurations at most ``--resolution`` rad apart, default 1e-4). Prints, per planner,
-the runs, the validated successes and how many of those the dense check finds colliding (which
-must be zero). Problems: MotionBenchMaker selectors, plus generated scenes the repository does not
-ship (random boxes, spheres, cylinders and thin plates around the arm) for the Panda and the UR5.
+Runs each planner on each problem with ``planbench.bench`` (isolated workers, the certified
+validation; benchmarks/_bench.py), then re-checks every *accepted* path with a plain dense
+collision check (pinocchio + coal, every pair, no broadphase, configurations at most
+``--resolution`` rad apart, default 1e-4). Prints, per planner, the runs, the validated successes
+and how many of those the dense check finds colliding (which must be zero). Problems:
+MotionBenchMaker selectors, plus generated scenes the repository does not ship (random boxes,
+spheres, cylinders and thin plates around the arm) for the Panda and the UR5.
 
     python benchmarks/recheck.py --mbm "mbm:*/0021-0022" --generated 6 --time-limit 2 --seed 1
 """
@@ -14,9 +15,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 from collections import defaultdict
 
 import numpy as np
+from _bench import run_suite, write_problems
 
 import planbench
 from planbench import Problem, Scene
@@ -86,23 +89,23 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1, help="seed of the generated scenes")
     args = ap.parse_args()
 
-    problems = planbench.load_problems(args.mbm) if args.mbm else []
+    generated: list[Problem] = []
     for robot in ("panda", "ur5"):
-        problems += generated_problems(robot, args.generated, seed=args.seed)
+        generated += generated_problems(robot, args.generated, seed=args.seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        selectors = ([args.mbm] if args.mbm else []) + ([write_problems(generated, tmp)] if generated else [])
+        rows = run_suite("recheck", selectors, args.planners.split(","), time_limit=args.time_limit)
+        problems = {p.id: p for sel in selectors for p in planbench.load_problems(sel)}
     counts: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0])
     bad: list[str] = []
-    for p in problems:
-        for planner in args.planners.split(","):
-            result = planbench.plan(p, planner, seed=0, time_limit=args.time_limit)
-            ev = planbench.evaluate(p, result)
-            c = counts[planner]
-            c[0] += 1
-            if ev.success and result.path is not None:
-                c[1] += 1
-                if dense_collides(p, np.asarray(result.path), args.resolution):
-                    c[2] += 1
-                    bad.append(f"{planner} {p.id}")
-        print(f"{p.id}: done", flush=True)
+    for row in rows:  # validated by the benchmark; re-checked here densely with a fresh checker
+        c = counts[row["planner"]]
+        c[0] += 1
+        if row["success"] and row["path"] is not None:
+            c[1] += 1
+            if dense_collides(problems[row["problem"]], row["path"], args.resolution):
+                c[2] += 1
+                bad.append(f"{row['planner']} {row['problem']}")
     print(f"\n{len(problems)} problems; dense re-check every {args.resolution:g} rad")
     print(f"{'planner':<18} {'runs':>5} {'validated':>9} {'dense collides':>14}")
     for planner, (runs, ok, hit) in counts.items():
