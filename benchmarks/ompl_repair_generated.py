@@ -2,7 +2,8 @@
 (benchmarks/recheck.py's generator) for the Panda and the UR5, with and without repair.
 
 Prints per robot and variant the certified successes (``planbench.evaluate``), the median planning
-time and where the returned paths came from. In-process runs (OMPL reseeded per query).
+time and where the returned paths came from. Runs through ``planbench.bench`` (benchmarks/_bench.py):
+one suite per robot with the planner twice, ``repair_attempts`` 0 and 5.
 
     python benchmarks/ompl_repair_generated.py --problems 12 --seed 3
 """
@@ -10,15 +11,13 @@ time and where the returned paths came from. In-process runs (OMPL reseeded per 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
-import sys
+import tempfile
 from collections import Counter
-from pathlib import Path
 
-import planbench
-
-sys.path.insert(0, str(Path(__file__).parent))
-from recheck import generated_problems  # noqa: E402  (the scene generator beside this script)
+from _bench import run_suite, write_problems
+from recheck import generated_problems  # the scene generator beside this script
 
 
 def main() -> None:
@@ -27,17 +26,20 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=3, help="seed of the generated scenes")
     ap.add_argument("--time-limit", type=float, default=5.0)
     args = ap.parse_args()
+    variants = {
+        "no repair": ("ompl-rrtconnect", {"repair_attempts": 0}),
+        "repair": ("ompl-rrtconnect", {"repair_attempts": 5}),
+    }
     for robot in ("panda", "ur5"):
         problems = generated_problems(robot, args.problems, seed=args.seed)
-        for label, attempts in (("no repair", 0), ("repair", 5)):
-            solved, times, sources = 0, [], Counter()
-            for p in problems:
-                r = planbench.plan(p, "ompl-rrtconnect", seed=0, time_limit=args.time_limit, repair_attempts=attempts)
-                solved += planbench.evaluate(p, r).success
-                times.append(r.planning_time)
-                sources[r.info.get("path_source", "-")] += 1
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = run_suite(f"repair-{robot}", [write_problems(problems, tmp)], variants, time_limit=args.time_limit)
+        for label in variants:
+            mine = [r for r in rows if r["planner"] == label]
+            sources = Counter(json.loads(r["info"] or "{}").get("path_source", "-") for r in mine)
+            times = [r["planning_time"] for r in mine if r["planning_time"] is not None]
             print(
-                f"{robot:<6} {label:<10} {solved}/{len(problems)} certified, "
+                f"{robot:<6} {label:<10} {sum(bool(r['success']) for r in mine)}/{len(mine)} certified, "
                 f"median planning {statistics.median(times) * 1e3:.0f} ms, paths {dict(sources)}",
                 flush=True,
             )
