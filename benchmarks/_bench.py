@@ -30,12 +30,14 @@ def run_suite(
     time_limit: float = 5.0,
     jobs: int = 1,
     out: str | Path | None = None,
+    resume: bool = False,
 ) -> list[dict[str, Any]]:
     """Rows (with ``path`` and ``times`` arrays) of ``planners`` x ``problems`` x ``seeds``.
 
     ``problems``: selectors (``"mbm:*/0001-0020"``, a folder of problem files); ``planners``: names,
     or ``{label: (planner, settings)}`` to run one planner under several settings. ``out``: keep the
-    results file there (default: a temporary file, removed afterwards).
+    results file there (default: a temporary file, removed afterwards); ``resume``: run only the
+    runs missing from ``out`` (else its runs of this suite are replaced).
     """
     entries = (
         tuple(PlannerEntry(label, planner, dict(settings)) for label, (planner, settings) in planners.items())
@@ -45,7 +47,7 @@ def run_suite(
     suite = Suite(name=name, problems=tuple(problems), planners=entries, seeds=tuple(seeds), time_limit=time_limit)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(out) if out is not None else Path(tmp) / "results.db"
-        run_benchmark(suite, path, jobs=jobs, overwrite=True)
+        run_benchmark(suite, path, jobs=jobs, resume=resume, overwrite=not resume)
         with ResultsDB(path, read_only=True) as db:
             return db.rows(name, with_arrays=True)
 

@@ -3,7 +3,7 @@ process (run it on a quiet machine for timings; ratios come from the same run).
 
     python benchmarks/potential_fields.py step                      # per-step repulsion cost
     python benchmarks/potential_fields.py sweep                     # stand-off sweep on mbm:*/0001-0020
-    python benchmarks/potential_fields.py mbm "mbm:*" --planners edt-field,distance-field --jsonl rows.jsonl
+    python benchmarks/potential_fields.py mbm "mbm:*" --planners edt-field,distance-field --jsonl rows.jsonl --out pf.db
     python benchmarks/potential_fields.py summary rows.jsonl        # the tables of a (partial) run
 
 ``step``: the cost of one repulsion query ``forces(kin)`` (after ``kin.update(q)``, untimed) of
@@ -12,10 +12,10 @@ trajectories on a few MotionBenchMaker problems (arms near and far from obstacle
 over configurations of per-configuration medians; plus the whole loop step (planning time per
 step with no stopping and no collision checks), and the coal pairs left after culling.
 
-``mbm``: every planner on every problem with the same time limit; success validated by
-``planbench.evaluate``, per family: success (count), median planning and setup time over all
-runs, median joint and end-effector path length and minimum clearance over successes, failure
-reasons.
+``mbm``: every planner on every problem with the same time limit, run by ``planbench.bench``
+(isolated workers, certified validation; ``--out`` keeps the results file and resumes); per
+family: success (count), median planning and setup time over all runs, median joint and
+end-effector path length and minimum clearance over successes, failure reasons.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
+from _bench import run_suite
 
 import planbench
 from planbench_plugins.ik_loop import ArmKinematics
@@ -98,50 +99,37 @@ def run_mbm(
     time_limit: float = 5.0,
     verbose: bool = False,
     jsonl: str | None = None,
+    out: str | None = None,
 ) -> list[dict[str, Any]]:
-    """One row per (problem, planner label), all validated by ``planbench.evaluate``.
-
-    Problems run interleaved across families (0001 of every family, then 0002, ...), so that a run
-    cut short still covers every family alike. ``jsonl``: every row is appended to this file as
-    it ends, and rows already there are not run again (resume).
-    """
+    """One row per (problem, planner label), run and validated by ``planbench.bench``
+    (benchmarks/_bench.py). ``out``: the results file (runs already in it are not run again);
+    ``jsonl``: the rows are also written to this file."""
+    entries = {label: (cls.name, settings) for label, (cls, settings) in planners.items()}
+    bench_rows = run_suite("potential-fields", [selector], entries, time_limit=time_limit, out=out, resume=bool(out))
     rows: list[dict[str, Any]] = []
-    done: set[tuple[str, str]] = set()
-    if jsonl:
-        try:
-            with open(jsonl) as fh:
-                rows = [json.loads(line) for line in fh if line.strip()]
-        except FileNotFoundError:
-            pass
-        done = {(r["id"], r["planner"]) for r in rows}
-    problems = sorted(planbench.load_problems(selector), key=lambda p: (p.id.rpartition("/")[2], p.id))
-    for problem in problems:
-        fam = problem.metadata.get("family", "?")
-        for label, (cls, settings) in planners.items():
-            if (problem.id, label) in done:
-                continue
-            r = planbench.plan(problem, cls, time_limit=time_limit, **settings)
-            ev = planbench.evaluate(problem, r)
-            rows.append(
-                dict(
-                    planner=label,
-                    family=fam,
-                    id=problem.id,
-                    ok=bool(ev.success),
-                    reason=_reason(r, ev),
-                    time=r.planning_time,
-                    setup=r.setup_time,
-                    qlen=ev.joint_path_length,
-                    eelen=ev.ee_path_length,
-                    clearance=ev.min_clearance,
-                    steps=r.info.get("steps", 0),
-                )
+    for r in bench_rows:
+        info = json.loads(r["info"] or "{}")
+        reason = "success" if r["success"] else (r["failure"] or r["status"] or "?").split(":")[0][:40]
+        rows.append(
+            dict(
+                planner=r["planner"],
+                family=r["family"],
+                id=r["problem"],
+                ok=bool(r["success"]),
+                reason=reason,
+                time=r["planning_time"],
+                setup=r["setup_time"],
+                qlen=r["joint_path_length"],
+                eelen=r["ee_path_length"],
+                clearance=r["min_clearance"],
+                steps=info.get("steps", 0),
             )
-            if jsonl:
-                with open(jsonl, "a") as fh:
-                    fh.write(json.dumps(rows[-1], default=float) + "\n")
-            if verbose:
-                print(problem.id, label, rows[-1]["reason"], f"{r.planning_time * 1e3:.1f} ms", flush=True)
+        )
+        if verbose:
+            print(r["problem"], r["planner"], reason, flush=True)
+    if jsonl:
+        with open(jsonl, "w") as fh:
+            fh.writelines(json.dumps(row, default=float) + "\n" for row in rows)
     return rows
 
 
@@ -206,13 +194,15 @@ def main(argv: list[str] | None = None) -> int:
     )
     m.add_argument("--time-limit", type=float, default=5.0)
     m.add_argument("--json", help="write the rows and summary to this file")
-    m.add_argument("--jsonl", help="append each row here as it ends; rows already there are skipped (resume)")
+    m.add_argument("--jsonl", help="write the rows here (for summary)")
+    m.add_argument("--out", help="keep the results file here; runs already in it are not run again (resume)")
     m.add_argument("-v", action="store_true")
     su = sub.add_parser("summary", help="the tables of an mbm or sweep --jsonl file")
     su.add_argument("jsonl")
     sw = sub.add_parser("sweep")
     sw.add_argument("--selector", default="mbm:*/0001-0020")
-    sw.add_argument("--jsonl", help="append each row here as it ends (resume)")
+    sw.add_argument("--jsonl", help="write the rows here (for summary)")
+    sw.add_argument("--out", help="keep the results file here; runs already in it are not run again (resume)")
     sw.add_argument(
         "--grid",
         default='{"edt-field": [0.07, 0.1, 0.12], "distance-field": [0.03, 0.05, 0.1]}',
@@ -232,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         config = json.loads(args.config)
         planners = {name: (PLANNERS[name], config.get(name, {})) for name in args.planners.split(",")}
         t0 = time.perf_counter()
-        rows = run_mbm(args.selector, planners, args.time_limit, verbose=args.v, jsonl=args.jsonl)
+        rows = run_mbm(args.selector, planners, args.time_limit, verbose=args.v, jsonl=args.jsonl, out=args.out)
         summary = summarize(rows)
         print_summary(summary)
         print(f"\nwall time {time.perf_counter() - t0:.0f} s")
@@ -242,9 +232,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         grid = json.loads(args.grid)
         planners = {
-            f"{name} standoff={s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items() for s in values
+            f"{name}-standoff-{s}": (PLANNERS[name], {"standoff": s}) for name, values in grid.items() for s in values
         }
-        sweep = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl))
+        sweep = summarize(run_mbm(args.selector, planners, jsonl=args.jsonl, out=args.out))
         fams = [f for f in next(iter(sweep.values())) if f != "all"]
         print("| planner | success | " + " | ".join(fams) + " |")
         print("| --- | --- | " + " | ".join("---" for _ in fams) + " |")
