@@ -15,9 +15,9 @@ repulsion mapping, DLS with null space, limits), the integration; glue is the re
 loop and its bookkeeping). The numpy reference step (the task functions composed in Python) is
 timed alone too.
 
-``mbm``: success (validated by ``planbench.evaluate``), median planning and setup time, median
-joint and end-effector path length and minimum clearance of the solved problems, and the failure
-reasons, per family, next to the straight-line reference planner.
+``mbm``: run by ``planbench.bench`` (isolated workers, certified validation): success, median
+planning and setup time, median joint and end-effector path length and minimum clearance of the
+solved problems, and the failure reasons, per family, next to the straight-line reference planner.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
+from _bench import run_suite
 
 import planbench
 from planbench_plugins.ik_loop import fast
@@ -128,46 +129,43 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000, repeats: int
 def run_mbm(
     selector: str, config: dict[str, Any], time_limit: float = 5.0, straight: bool = True, verbose: bool = False
 ) -> dict[str, Any]:
-    problems = planbench.load_problems(selector)
+    """matrix-field (with ``config``) and the straight line on every problem, run and validated by
+    ``planbench.bench`` (benchmarks/_bench.py); rows per problem with both planners' numbers."""
+    planners = {"matrix-field": ("matrix-field", config)}
+    if straight:
+        planners["straight-line"] = ("straight-line", {})
+    bench_rows = run_suite("matrix-field-mbm", [selector], planners, time_limit=time_limit)
+    by_label: dict[str, dict[str, dict[str, Any]]] = {label: {} for label in planners}
+    for r in bench_rows:
+        by_label[r["planner"]][r["problem"]] = r
     rows = []
-    for problem in problems:
-        fam = problem.metadata.get("family", "?")
-        r = planbench.plan(problem, MatrixFieldPlanner, time_limit=time_limit, **config)
-        ev = planbench.evaluate(problem, r)
-        reason = (
-            "success"
-            if ev.success
-            else (
-                r.status.value
-                if r.status is not planbench.PlanStatus.SUCCESS
-                else "invalid:" + ev.failure.split(":")[0][:30]
-            )
-        )
+    for pid, r in by_label["matrix-field"].items():
+        nan = float("nan")
+        reason = "success" if r["success"] else (r["failure"] or r["status"] or "?").split(":")[0][:30]
         row = dict(
-            family=fam,
-            id=problem.id,
-            ok=ev.success,
+            family=r["family"],
+            id=pid,
+            ok=bool(r["success"]),
             reason=reason,
-            time=r.planning_time,
-            setup=r.setup_time,
-            qlen=ev.joint_path_length,
-            eelen=ev.ee_path_length,
-            clearance=ev.min_clearance,
-            steps=r.info.get("steps", 0),
+            time=r["planning_time"] if r["planning_time"] is not None else nan,
+            setup=r["setup_time"] if r["setup_time"] is not None else nan,
+            qlen=r["joint_path_length"] if r["joint_path_length"] is not None else nan,
+            eelen=r["ee_path_length"] if r["ee_path_length"] is not None else nan,
+            clearance=r["min_clearance"] if r["min_clearance"] is not None else nan,
+            steps=json.loads(r["info"] or "{}").get("steps", 0),
         )
         if straight:
-            s = planbench.plan(problem, "straight-line", time_limit=time_limit)
-            es = planbench.evaluate(problem, s)
+            sl = by_label["straight-line"][pid]
             row.update(
-                sl_ok=es.success,
-                sl_qlen=es.joint_path_length,
-                sl_eelen=es.ee_path_length,
-                sl_clearance=es.min_clearance,
-                sl_time=s.planning_time,
+                sl_ok=bool(sl["success"]),
+                sl_qlen=sl["joint_path_length"] if sl["joint_path_length"] is not None else nan,
+                sl_eelen=sl["ee_path_length"] if sl["ee_path_length"] is not None else nan,
+                sl_clearance=sl["min_clearance"] if sl["min_clearance"] is not None else nan,
+                sl_time=sl["planning_time"],
             )
         rows.append(row)
         if verbose:
-            print(problem.id, reason, f"{r.planning_time * 1e3:.1f} ms", ev.failure[:80], flush=True)
+            print(pid, reason, f"{row['time'] * 1e3:.1f} ms", flush=True)
     return {"rows": rows, "summary": summarize(rows, straight)}
 
 
