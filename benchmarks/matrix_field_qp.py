@@ -8,11 +8,12 @@
 QP matrices and their wrapping; ``qp_solve_time``: the backend's solve call) over a fixed number
 of steps on one problem, for every installed backend, next to the matrix-field planner's whole step.
 
-``mbm``: for every problem, ``matrix-field`` then ``matrix-field-qp`` (same process, same run),
-every path validated by ``planbench.evaluate``. Per family: success, median planning time (all
-runs), median joint and end-effector path length and minimum clearance (solved runs), failure
-reasons, median solver share of planning time; and over ALL runs with a path (success or not)
-the largest joint-limit violation [rad] and velocity ratio ``|qd| / qd_max`` found by the harness.
+``mbm``: ``matrix-field`` and ``matrix-field-qp`` on every problem, one suite run by
+``planbench.bench`` (isolated workers, every path validated by the certified check). Per
+family: success, median planning time (all runs), median joint and end-effector path length and
+minimum clearance (solved runs), failure reasons, median solver share of planning time; and over
+ALL runs with a path (success or not) the largest joint-limit violation [rad] and velocity ratio
+``|qd| / qd_max`` found by the harness.
 With ``--report-from 21`` (default) the tables use problems 0021-0100 only, the violations all.
 """
 
@@ -27,6 +28,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
+from _bench import run_suite
 
 import planbench
 from planbench_plugins.matrix_field import MatrixFieldPlanner
@@ -72,36 +74,40 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 300) -> dict[str, 
     return out
 
 
-def run_one(problem: Any, planner: str, settings: dict[str, Any], time_limit: float) -> dict[str, Any]:
-    r = planbench.plan(problem, PLANNERS[planner], time_limit=time_limit, **settings)
-    ev = planbench.evaluate(problem, r)
-    if ev.success:
+def _row(r: dict[str, Any]) -> dict[str, Any]:
+    """The script's row of one benchmark run (a ``ResultsDB`` row)."""
+    nan = float("nan")
+
+    def num(key: str) -> float:
+        return float(r[key]) if r[key] is not None else nan
+
+    info = json.loads(r["info"] or "{}")
+    if r["success"]:
         reason = "success"
-    elif r.status is planbench.PlanStatus.SUCCESS:
+    elif r["status"] == "success":
         reason = "claimed success, invalid"
     else:
-        reason = r.status.value
-    info = r.info
+        reason = r["status"] or "?"
     return dict(
-        planner=planner,
-        family=problem.metadata.get("family", "?"),
-        id=problem.id,
-        number=int(problem.id.rsplit("/", 1)[-1]),
-        ok=ev.success,
+        planner=r["planner"],
+        family=r["family"],
+        id=r["problem"],
+        number=int(r["problem"].rsplit("/", 1)[-1]),
+        ok=bool(r["success"]),
         reason=reason,
-        status=r.status.value,
-        message=r.message[:200],
-        time=r.planning_time,
-        setup=r.setup_time,
-        qlen=ev.joint_path_length,
-        eelen=ev.ee_path_length,
-        clearance=ev.min_clearance,
-        limit_violation=ev.max_limit_violation,
-        velocity_ratio=ev.max_velocity_ratio,
-        has_path=r.path is not None,
+        status=r["status"],
+        message=(r["message"] or "")[:200],
+        time=num("planning_time"),
+        setup=num("setup_time"),
+        qlen=num("joint_path_length"),
+        eelen=num("ee_path_length"),
+        clearance=num("min_clearance"),
+        limit_violation=num("max_limit_violation"),
+        velocity_ratio=num("max_velocity_ratio"),
+        has_path=r["path"] is not None,
         steps=info.get("steps", 0),
-        solver_time=info.get("solver_time", float("nan")),
-        build_time=info.get("build_time", float("nan")),
+        solver_time=info.get("solver_time", nan),
+        build_time=info.get("build_time", nan),
     )
 
 
@@ -145,13 +151,12 @@ def run_mbm(
     time_limit: float = 5.0,
     verbose: bool = False,
 ) -> list[dict[str, Any]]:
-    rows = []
-    for problem in planbench.load_problems(selector):
-        for name in planners:
-            row = run_one(problem, name, settings.get(name, {}), time_limit)
-            rows.append(row)
-            if verbose:
-                print(problem.id, name, row["reason"], f"{row['time'] * 1e3:.0f} ms", flush=True)
+    """Every planner on every problem, run and validated by ``planbench.bench`` (benchmarks/_bench.py)."""
+    entries = {name: (name, settings.get(name, {})) for name in planners}
+    rows = [_row(r) for r in run_suite("matrix-field-qp", [selector], entries, time_limit=time_limit)]
+    if verbose:
+        for row in rows:
+            print(row["id"], row["planner"], row["reason"], f"{row['time'] * 1e3:.0f} ms", flush=True)
     return rows
 
 
