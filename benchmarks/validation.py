@@ -1,9 +1,10 @@
 """Certified path validation against the sampled check it replaced, on the same paths, in one run.
 
-Plans MotionBenchMaker problems with the given planners (seed 0), then validates every returned path
-with both checkers, ``--repeats`` times each, and prints per planner the median time per path [ms],
-the ratio certified / sampled (median of per-path ratios), the distance queries the certified check
-needed, and the verdicts on which the two disagree.
+Runs the given planners on MotionBenchMaker problems with ``planbench.bench`` (seed 0;
+benchmarks/_bench.py), then validates every path a planner claimed with both checkers,
+``--repeats`` times each, and prints per planner the median time per path [ms], the ratio
+certified / sampled (median of per-path ratios), the distance queries the certified check needed,
+and the verdicts on which the two disagree.
 
 The sampled check is planbench's former validation: configurations 0.01 rad apart along every
 segment, each checked for collision (coal, broadphase), plus the clearance every 0.05 rad.
@@ -18,6 +19,7 @@ import statistics
 import time
 
 import numpy as np
+from _bench import run_suite
 
 import planbench
 from planbench.certified import CertifiedChecker
@@ -52,20 +54,23 @@ def main() -> None:
     ap.add_argument("--per-path", action="store_true", help="also print every path's timings and queries")
     args = ap.parse_args()
 
-    problems = planbench.load_problems(args.problems)
+    problems = {p.id: p for p in planbench.load_problems(args.problems)}
+    planners = args.planners.split(",")
+    runs = run_suite("validation", [args.problems], planners, time_limit=args.time_limit)
     settings = ValidationSettings().certification()
     print(f"{len(problems)} problems, planners {args.planners}, {args.repeats} repeats per check")
     print(
         f"{'planner':<18} {'paths':>5} {'certified ms':>12} {'sampled ms':>10} {'ratio':>6} "
         f"{'queries':>8} {'exact':>6} {'sampled-only free':>17}"
     )
-    for planner in args.planners.split(","):
+    for planner in planners:
         rows = []
-        for p in problems:
-            result = planbench.plan(p, planner, seed=0, time_limit=args.time_limit)
-            if result.path is None or len(result.path) == 0 or not result.status.solved:
+        for run in runs:
+            if run["planner"] != planner or run["path"] is None or len(run["path"]) == 0:
                 continue
-            path = np.asarray(result.path)
+            if run["status"] != "success":  # the planner's own claim; both checkers then judge the path
+                continue
+            p, path = problems[run["problem"]], run["path"]
             certified = CertifiedChecker(p.robot, p.scene, settings)
             sampled = CollisionChecker(p.robot, p.scene)
             verdict = certified.check_path(path)  # warm both, and keep one verdict
