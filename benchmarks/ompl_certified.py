@@ -11,7 +11,9 @@ Each variant is a set of planner settings (``motion_check``, ``simplify_check``,
 OMPL plugin as it was at git revision ``REV`` (its files read with ``git show``, imported under
 another name, against today's planbench) as the variant ``before``.
 
-Every run is one fresh process, as ``planbench bench`` runs OMPL planners: ``setup`` untimed, ``plan``
+This script keeps its own loop: ``--before REV`` imports the plugin of another git revision under
+another name, which a suite's workers cannot load. Every run is one fresh process, as
+``planbench bench`` runs OMPL planners: ``setup`` untimed, ``plan``
 timed, then ``planbench.evaluate`` (the certified harness) decides success. The variants of one
 problem run one after the other, in an order rotated from problem to problem, so a busy machine
 slows all of them alike. Printed: per variant, certified successes, median planning time over all

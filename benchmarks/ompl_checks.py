@@ -19,17 +19,18 @@ problems.
 ``sweep`` runs ``ompl-rrtconnect`` (seed 0, 5 s) with each ``range`` (0: OMPL's own default) on the
 problems, one range after the other, and prints validated successes and the median planning time.
 
-``mbm`` plans each problem once in this process (the planner reseeds OMPL per query, see
-plugins/ompl_planners/base.py) and validates each path with planbench.evaluate.
+``mbm`` and ``sweep`` run through ``planbench.bench`` (isolated workers, certified validation).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
 
 import numpy as np
+from _bench import run_suite
 
 import planbench
 from planbench.collision import CollisionChecker
@@ -133,50 +134,44 @@ def checks(selector: str, n: int, with_boxes: bool) -> None:
 
 
 def mbm(selector: str, planner: str, time_limit: float) -> None:
-    from planbench_plugins import ompl_planners
-
-    classes = {c.name: c for c in (getattr(ompl_planners, n) for n in ompl_planners.__all__) if hasattr(c, "name")}
-    cls = classes[planner]
+    """``planner`` on every problem, run and validated by ``planbench.bench`` (benchmarks/_bench.py)."""
+    rows = run_suite("ompl-checks-mbm", [selector], [planner], time_limit=time_limit)
     by_family: dict[str, list[tuple[bool, float, float]]] = {}
-    for problem in load_problems(selector):
-        result = planbench.plan(problem, cls, seed=0, time_limit=time_limit)
-        ev = planbench.evaluate(problem, result)
-        fam = problem.metadata.get("family", "?")
-        by_family.setdefault(fam, []).append((ev.success, result.planning_time, ev.joint_path_length))
+    for r in rows:
+        info = json.loads(r["info"] or "{}")
+        by_family.setdefault(r["family"], []).append(
+            (bool(r["success"]), r["planning_time"] or float("nan"), r["joint_path_length"] or float("nan"))
+        )
         print(
-            f"{problem.id:28s} {result.status.value:10s} valid={ev.success!s:5s} {result.planning_time:6.3f} s "
-            f"solve {result.info.get('solve_time', float('nan')):.3f} s "
-            f"simplify {result.info.get('simplify_time', float('nan')):.3f} s"
-            + (f"  {ev.failure[:60]}" if not ev.success else "")
+            f"{r['problem']:28s} {r['status']:10s} valid={bool(r['success'])!s:5s} {r['planning_time']:6.3f} s "
+            f"solve {info.get('solve_time', float('nan')):.3f} s "
+            f"simplify {info.get('simplify_time', float('nan')):.3f} s"
+            + (f"  {(r['failure'] or '')[:60]}" if not r["success"] else "")
         )
     print(f"\n{planner}, time limit {time_limit} s")
     print("family              solved   median time [s] (solved)   median joint length [rad]")
     everything = []
-    for fam, rows in sorted(by_family.items()):
-        everything += rows
-        ok = [r for r in rows if r[0]]
-        t = statistics.median(r[1] for r in ok) if ok else float("nan")
-        length = statistics.median(r[2] for r in ok) if ok else float("nan")
-        print(f"{fam:20s} {len(ok):3d}/{len(rows):<3d}  {t:10.3f}                 {length:8.2f}")
-    ok = [r for r in everything if r[0]]
-    t_all = statistics.median(r[1] for r in ok) if ok else float("nan")
+    for fam, fam_rows in sorted(by_family.items()):
+        everything += fam_rows
+        ok = [x for x in fam_rows if x[0]]
+        t = statistics.median(x[1] for x in ok) if ok else float("nan")
+        length = statistics.median(x[2] for x in ok) if ok else float("nan")
+        print(f"{fam:20s} {len(ok):3d}/{len(fam_rows):<3d}  {t:10.3f}                 {length:8.2f}")
+    ok = [x for x in everything if x[0]]
+    t_all = statistics.median(x[1] for x in ok) if ok else float("nan")
     print(f"{'all':20s} {len(ok):3d}/{len(everything):<3d}  {t_all:10.3f}")
 
 
 def sweep(selector: str, ranges: list[float], time_limit: float) -> None:
-    from planbench_plugins.ompl_planners import RRTConnectPlanner
-
-    problems = load_problems(selector)
-    for value in ranges:
-        times, failed = [], []
-        for problem in problems:
-            result = planbench.plan(problem, RRTConnectPlanner(params={"range": value}), seed=0, time_limit=time_limit)
-            if planbench.evaluate(problem, result).success:
-                times.append(result.planning_time)
-            else:
-                failed.append(f"{problem.id} ({result.status.value})")
+    """``ompl-rrtconnect`` with each ``range``, one suite (one label per range) run by ``planbench.bench``."""
+    planners = {f"range-{value:g}": ("ompl-rrtconnect", {"params": {"range": value}}) for value in ranges}
+    rows = run_suite("ompl-checks-sweep", [selector], planners, time_limit=time_limit)
+    for label in planners:
+        mine = [r for r in rows if r["planner"] == label]
+        times = [r["planning_time"] for r in mine if r["success"]]
+        failed = [f"{r['problem']} ({r['status']})" for r in mine if not r["success"]]
         median = statistics.median(times) if times else float("nan")
-        print(f"range {value:g}: {len(times)}/{len(problems)} validated, median {median:.3f} s; failed: {failed}")
+        print(f"{label}: {len(times)}/{len(mine)} validated, median {median:.3f} s; failed: {failed}")
 
 
 def main() -> None:
