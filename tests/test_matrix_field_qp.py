@@ -70,7 +70,7 @@ def test_no_active_constraint_gives_the_unconstrained_least_squares_step(robot):
 
 
 def test_objective_minimiser_is_the_matrix_field_merge_with_damped_least_squares():
-    """Unconstrained, the QP's minimiser is s J_dls^+ v + w_sec/(w_sec+mu) N x_sec (docs/method.md, section 4, step 8)."""
+    """Unconstrained, the QP's minimiser is s J_dls^+ v + w_sec/(w_sec+mu) N x_sec (docs/method.md 4, step 8)."""
     rng = np.random.default_rng(3)
     J, v, x_sec = rng.normal(size=(6, 7)), rng.normal(size=6), rng.normal(size=7)
     w_task, w_sec, mu = 2.0, 1e-3, 1e-4
