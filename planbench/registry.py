@@ -169,9 +169,11 @@ class Registry:
     def resolve(self, planner: str | type) -> tuple[str, type, dict[str, Any]]:
         """The name, class and implied settings of ``planner``.
 
-        ``planner`` is a planner class, a registered name, ``family:variant`` (e.g.
-        ``ompl:AORRTC``: planner ``family`` with the setting ``planner="variant"``, so a plugin can
-        offer every algorithm of a library by name), or a ``"module:Attr"`` entry point.
+        ``planner`` is a planner class, a registered name, ``family:variant``, or a
+        ``"module:Attr"`` entry point. ``family:variant`` is planner ``family`` with the settings of
+        its preset ``variant`` when the class declares one (``presets = {"paper": {...}}``, e.g.
+        ``matrix-field:paper``), else with the setting ``planner="variant"`` (``ompl:AORRTC``: a
+        plugin can offer every algorithm of a library by name).
         """
         if isinstance(planner, type):
             return getattr(planner, "name", "") or planner.__qualname__, planner, {}
@@ -179,7 +181,11 @@ class Registry:
         if not sep or planner in self.names():
             return planner, self.get(planner), {}
         if family in self.names():
-            return planner, self.get(family), {"planner": variant}
+            cls = self.get(family)
+            presets = getattr(cls, "presets", None) or {}
+            if variant in presets:
+                return planner, cls, dict(presets[variant])
+            return planner, cls, {"planner": variant}
         return planner, _load_entry_point(planner), {}
 
     def configure(

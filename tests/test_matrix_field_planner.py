@@ -232,3 +232,29 @@ def test_repulsion_gain_means_the_same_push_at_any_resolution(robot):
     half = MatrixFieldPlanner(grid_resolution=0.02, repulsion_gain=1.0)
     half.setup(problem)
     assert np.linalg.norm(half.repulsion_at(start)[1], axis=1).max() == pytest.approx(push[0.02] / 2, rel=1e-12)
+
+
+def test_paper_preset_is_the_method_as_specified():
+    """``matrix-field:paper`` resolves to the planner with the preset's settings; a setting given
+    beside it wins; an unknown variant is still refused by name."""
+    name, cls, implied = planbench.REGISTRY.resolve("matrix-field:paper")
+    assert cls is MatrixFieldPlanner and implied == MatrixFieldPlanner.presets["paper"]
+    planner = planbench.make_planner("matrix-field:paper", standoff=0.08)
+    assert planner.config.damping == "fixed" and planner.config.goal_tolerance_scale == 1.0
+    assert planner.config.standoff == 0.08
+    with pytest.raises(planbench.PlanbenchError, match="planner"):
+        planbench.make_planner("matrix-field:nonsense")
+
+
+def test_a_six_joint_arm_is_warned_that_the_nullspace_repulsion_cannot_act(caplog):
+    ur5 = planbench.load_robot("ur5")
+    wall = Obstacle("wall", "box", position=(0.8, 0.0, 0.3), size=(0.1, 0.6, 0.6))
+    start = np.array(ur5.home)
+    goal = start.copy()
+    goal[0] += 0.5
+    problem = Problem.create(ur5, Scene((wall,), name="wall"), start, goal, id="test:ur5-wall")
+    with caplog.at_level("WARNING"):
+        result = planbench.plan(problem, MatrixFieldPlanner, time_limit=2.0, max_steps=5)
+    assert any("no null space" in w for w in result.info["warnings"])
+    panda = planbench.plan(wall_problem(planbench.load_robot("panda")), MatrixFieldPlanner, max_steps=5)
+    assert "warnings" not in panda.info

@@ -43,12 +43,14 @@ per path row): ``position_error`` [m], ``orientation_error`` [rad], ``repulsion`
 from __future__ import annotations
 
 import functools
+import logging
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
+from planbench.collision import CollisionChecker
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench_plugins.ik_loop import fast
@@ -57,6 +59,9 @@ from planbench_plugins.ik_loop.control_points import ControlPoints, place_contro
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
 
 __all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
+
+log = logging.getLogger(__name__)
+_WARNED: set[tuple[str, str, str]] = set()
 
 DIAGNOSTICS = ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown", "damping")
 """The per-step diagnostics every loop planner records, in the order of the step's ``diag`` array."""
@@ -214,13 +219,30 @@ class IKLoopPlanner(Planner):
         points = place_control_points(problem.robot, cfg.control_point_spacing, self.control_point_overrides(problem))
         checker = None
         if cfg.collision_check_every > 0 or cfg.verify_path:
-            from planbench.collision import CollisionChecker
-
             checker = CollisionChecker(problem.robot, problem.scene)
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
         self._prepared = {"problem": problem, "points": points, "checker": checker}
         self._prepared["repulsion"] = self.make_repulsion(problem, points)
+        self._prepared["warnings"] = self._warnings(problem)
         self._prepare_query(problem)
+
+    def _warnings(self, problem: Problem) -> list[str]:
+        """What the configuration cannot do on this arm (logged once per planner and robot, and
+        reported in every result's ``info["warnings"]``)."""
+        out = []
+        n = problem.robot.nq
+        nullspace_step = type(self).solve_step is IKLoopPlanner.solve_step
+        if nullspace_step and n <= 6 and self._prepared and not isinstance(self._prepared["repulsion"], ZeroRepulsion):
+            out.append(
+                f"robot {problem.robot.name!r} has {n} joints: the 6-D pose task leaves no null space, so the "
+                "repulsion, projected into it, cannot move the arm (only tool_repulsion_gain > 0 lets the field act)"
+            )
+        for text in out:
+            key = (type(self).__name__, problem.robot.name, text)
+            if key not in _WARNED:
+                _WARNED.add(key)
+                log.warning("%s: %s", self.name, text)
+        return out
 
     def _prepare_query(self, problem: Problem) -> None:
         """The query's kinematics, step inputs and buffers (reused by every ``plan`` of this
@@ -403,6 +425,8 @@ class IKLoopPlanner(Planner):
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
         info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
+        if prep["warnings"]:
+            info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 
     def _first_collision(self, checker: Any, problem: Problem, path: np.ndarray) -> int | None:
