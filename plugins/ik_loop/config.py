@@ -16,9 +16,10 @@ from typing import Any
 
 from planbench.errors import InvalidConfigError
 
-__all__ = ["IKLoopConfig", "DAMPING_MODES", "check_number"]
+__all__ = ["IKLoopConfig", "DAMPING_MODES", "HIERARCHIES", "check_number"]
 
 DAMPING_MODES = ("fixed", "adaptive")
+HIERARCHIES = ("auto", "nullspace", "priority")
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,25 @@ class IKLoopConfig:
     """Before claiming success, certify the whole trajectory against the true scene with the
     harness's checker (:mod:`planbench.certified`), so that success is never claimed on a colliding path."""
 
+    # --- task hierarchy -------------------------------------------------------------------
+    hierarchy: str = "auto"
+    """Where the repulsion acts. ``"nullspace"``: in the null space of the 6-D pose task (the
+    method as specified; a 6-joint arm has none, so there it does nothing). ``"priority"``: also
+    as one weighted task row per control point beside the pose task (``n_i^T J_i qd = |f_i|``,
+    ``n_i`` the push direction), its weight rising smoothly as the point nears an obstacle, so close
+    to one the push wins over the pose task. ``"auto"``: ``"priority"`` on arms without
+    redundancy (6 joints or fewer), ``"nullspace"`` otherwise."""
+    priority_onset: float = 0.5
+    """Push ratio ``|f_i| / speed_max`` [-] below which a point's row has no weight (1 = at the
+    stand-off from a flat wall; smaller = farther out)."""
+    priority_full: float = 1.5
+    """Push ratio [-] at which a point's row reaches ``priority_weight`` (smoothstep in between)."""
+    priority_weight: float = 1.0
+    """Largest weight [-] of a repulsion row, against 1 for the position rows."""
+    orientation_priority: float = 0.1
+    """Weight [-] of the orientation rows in ``"priority"`` mode on arms without redundancy, so
+    the order is position, then repulsion, then orientation (1 on redundant arms)."""
+
     def __post_init__(self) -> None:
         if self.control_points is not None:
             object.__setattr__(self, "control_points", _freeze_points(self.control_points))
@@ -154,7 +174,16 @@ class IKLoopConfig:
                 )
         if not isinstance(self.verify_path, bool):
             raise InvalidConfigError(f"verify_path must be true or false, got {self.verify_path!r}")
-        for name, choices in (("backend", ("auto", "numba", "numpy")), ("damping", DAMPING_MODES)):
+        for name in ("priority_onset", "priority_weight", "orientation_priority"):
+            check_number(self, name, lambda v: v >= 0, "finite and >= 0")
+        check_number(
+            self, "priority_full", lambda v: v > self.priority_onset, f"> priority_onset ({self.priority_onset})"
+        )
+        for name, choices in (
+            ("backend", ("auto", "numba", "numpy")),
+            ("damping", DAMPING_MODES),
+            ("hierarchy", HIERARCHIES),
+        ):
             if getattr(self, name) not in choices:
                 raise InvalidConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
 

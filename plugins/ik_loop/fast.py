@@ -28,6 +28,8 @@ from planbench_plugins.ik_loop import tasks as T
 __all__ = [
     "StepParams",
     "step_params",
+    "Priority",
+    "step_priority",
     "step_numpy",
     "step_compiled",
     "advance_numpy",
@@ -125,6 +127,94 @@ def step_numpy(
     qd1, nx = T.dls_with_nullspace(J, v, x, lam)
     s = T.slowdown_factor(rep, prm.slowdown_gain, prm.slowdown_min) if prm.slowdown_gain > 0 else 1.0
     qd, _ = T.scale_to_velocity_limits(T.merge(qd1, s, nx), qd_max)
+    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
+    diag[:] = (err_p, err_r, rep, m, s, lam)
+
+
+_PRIORITY_FLOOR2 = 1e-6  # (1 mm)^2: the stacked task's least squares stays defined at any rank
+
+
+class Priority(NamedTuple):
+    """The ``"priority"`` hierarchy's settings (:class:`~.config.IKLoopConfig`), resolved for one arm."""
+
+    onset: float
+    full: float
+    weight: float
+    orientation: float
+    """Weight of the orientation rows (``orientation_priority`` without redundancy, else 1)."""
+
+
+def step_priority(
+    S,
+    J,
+    p,
+    R,
+    p_goal,
+    R_goal,
+    q,
+    lower,
+    upper,
+    qd_max,
+    points,
+    F,
+    support,
+    descendants,
+    tool,
+    prm,
+    qd_out,
+    diag,
+    priority: Priority,
+) -> None:  # type: ignore[no-untyped-def]
+    """:func:`step_numpy` with the repulsion also as weighted task rows beside the pose task
+    (``hierarchy="priority"``): row ``i`` asks point ``i`` to move along its push at ``|f_i|``, with
+    weight ``weight * smoothstep((|f_i| / speed_max - onset) / (full - onset))``; the orientation
+    rows are weighted by ``orientation``. The rows, the pose task and the damping form one damped
+    least squares; the secondary tasks (repulsion, manipulability, mid-joint) stay in the null
+    space of the stack. Numpy only (the compiled step has the null-space hierarchy)."""
+    e = p_goal - p
+    err_p = math.sqrt(float(e @ e))
+    err_r = float(np.linalg.norm(T.orientation_error(R, R_goal)))
+    v = T.attraction(
+        p,
+        R,
+        p_goal,
+        R_goal,
+        speed_max=prm.speed_max,
+        sigmoid_gain=prm.sigmoid_gain,
+        position_gain=prm.position_gain,
+        orientation_gain=prm.orientation_gain,
+        angular_speed_max=prm.angular_speed_max,
+    )
+    x = T.mid_joint_velocity(q, lower, upper, prm.mid_joint_gain)
+    m, grad = T.manipulability_gradient(S, descendants)
+    if prm.manipulability_gain > 0:
+        x = x + prm.manipulability_gain * grad
+    mag = np.sqrt(np.einsum("ij,ij->i", F, F)) if len(F) else np.zeros(0)
+    rep = float(mag.max()) if len(F) else 0.0
+    if rep > 0:
+        x = x + T.repulsion_joint_velocity(S, points, F, support)
+        if prm.tool_repulsion_gain > 0:
+            fade = min(1.0, err_p / prm.tool_fade_distance)
+            v[:3] += (prm.tool_repulsion_gain * fade) * T.strongest(F, tool)
+    lam_max = prm.damping_factor
+    lam = T.adaptive_damping(m, lam_max, prm.manipulability_threshold) if prm.adaptive else lam_max
+    s = T.slowdown_factor(rep, prm.slowdown_gain, prm.slowdown_min) if prm.slowdown_gain > 0 else 1.0
+    row_w = np.sqrt(np.diag([1.0, 1.0, 1.0] + [priority.orientation] * 3))
+    A, b = row_w @ J, row_w @ (s * v)
+    span = priority.full - priority.onset
+    weights = np.array([priority.weight * T.smoothstep((f / prm.speed_max - priority.onset) / span) for f in mag])
+    active = np.flatnonzero(weights > 0)
+    if len(active):
+        rows = T.repulsion_rows(S, points[active], F[active], support[active])
+        root = np.sqrt(weights[active])
+        A = np.vstack((A, root[:, None] * rows))
+        b = np.concatenate((b, root * mag[active]))
+    # joint-space normal equations: the stack may have more rows than joints (rank-deficient A A^T)
+    H = A.T @ A
+    H.flat[:: H.shape[0] + 1] += lam * lam + _PRIORITY_FLOOR2
+    sol = np.linalg.solve(H, np.stack((A.T @ b, H @ x - (lam * lam + _PRIORITY_FLOOR2) * x), axis=1))
+    qd1, nx = sol[:, 0], x - sol[:, 1]
+    qd, _ = T.scale_to_velocity_limits(qd1 + nx, qd_max)
     qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
     diag[:] = (err_p, err_r, rep, m, s, lam)
 

@@ -159,6 +159,7 @@ class IKLoopPlanner(Planner):
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
         self._prepared: dict[str, Any] | None = None
+        self._hierarchy = "nullspace"
 
     # --- for subclasses ---------------------------------------------------------------------
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
@@ -211,16 +212,31 @@ class IKLoopPlanner(Planner):
     # --- setup (untimed by the harness, reported as setup time) ------------------------------
     @property
     def use_numba(self) -> bool:
+        if self._hierarchy == "priority" and type(self).solve_step is IKLoopPlanner.solve_step:
+            return False  # the priority step exists in numpy only
         return self.config.backend == "numba" or (self.config.backend == "auto" and fast.have_numba())
+
+    def hierarchy_for(self, n_joints: int) -> str:
+        """The hierarchy on an arm of ``n_joints`` joints: the setting, or for ``"auto"``
+        ``"priority"`` without redundancy (``n <= 6``) and ``"nullspace"`` with it."""
+        if self.config.hierarchy != "auto":
+            return str(self.config.hierarchy)
+        return "priority" if n_joints <= 6 else "nullspace"
 
     def setup(self, problem: Problem) -> None:
         """Place control points, build the repulsion source and the collision checker."""
         cfg = self.config
+        n = problem.robot.nq
+        self._hierarchy = self.hierarchy_for(n)
         points = place_control_points(problem.robot, cfg.control_point_spacing, self.control_point_overrides(problem))
         checker = None
         if cfg.collision_check_every > 0 or cfg.verify_path:
             checker = CollisionChecker(problem.robot, problem.scene)
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
+        if self._hierarchy == "priority":
+            orientation = cfg.orientation_priority if n <= 6 else 1.0
+            priority = fast.Priority(cfg.priority_onset, cfg.priority_full, cfg.priority_weight, orientation)
+            self._step = functools.partial(fast.step_priority, priority=priority)
         self._prepared = {"problem": problem, "points": points, "checker": checker}
         self._prepared["repulsion"] = self.make_repulsion(problem, points)
         self._prepared["warnings"] = self._warnings(problem)
@@ -232,10 +248,16 @@ class IKLoopPlanner(Planner):
         out = []
         n = problem.robot.nq
         nullspace_step = type(self).solve_step is IKLoopPlanner.solve_step
-        if nullspace_step and n <= 6 and self._prepared and not isinstance(self._prepared["repulsion"], ZeroRepulsion):
+        if (
+            nullspace_step
+            and self._hierarchy == "nullspace"
+            and n <= 6
+            and self._prepared
+            and not isinstance(self._prepared["repulsion"], ZeroRepulsion)
+        ):
             out.append(
                 f"robot {problem.robot.name!r} has {n} joints: the 6-D pose task leaves no null space, so the "
-                "repulsion, projected into it, cannot move the arm (only tool_repulsion_gain > 0 lets the field act)"
+                "repulsion, projected into it, cannot move the arm (hierarchy='priority' or 'auto' lets it act)"
             )
         for text in out:
             key = (type(self).__name__, problem.robot.name, text)
@@ -425,6 +447,7 @@ class IKLoopPlanner(Planner):
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
         info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
+        info["hierarchy"] = self._hierarchy
         if prep["warnings"]:
             info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)

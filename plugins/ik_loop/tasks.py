@@ -220,3 +220,19 @@ def clamp_to_position_limits(
 def merge(qd_primary: np.ndarray, slowdown: float, qd_secondary_projected: np.ndarray) -> np.ndarray:
     """``qd = s qd_1 + N (qd_rep + qd_m + qd_c)`` (the projection is done by the caller)."""
     return slowdown * qd_primary + qd_secondary_projected
+
+
+def smoothstep(u: float) -> float:
+    """``3u^2 - 2u^3`` on [0, 1], 0 below, 1 above: a C1 ramp."""
+    u = min(1.0, max(0.0, u))
+    return u * u * (3.0 - 2.0 * u)
+
+
+def repulsion_rows(S: np.ndarray, points: np.ndarray, forces: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """``(N, n)``: row ``i`` is ``n_i^T J_i`` with ``n_i = f_i / |f_i|`` (zeros where ``f_i = 0``), the
+    rate of approach of point ``i`` along its push per unit joint velocity. Formed from ``S`` like
+    :func:`repulsion_joint_velocity`: ``n_i . (S_v,k + S_w,k x p_i) = S_v,k . n_i + S_w,k . (p_i x n_i)``."""
+    mag = np.sqrt(np.einsum("ij,ij->i", forces, forces))
+    unit = np.divide(forces, mag[:, None], out=np.zeros_like(forces), where=mag[:, None] > 0)
+    wrench = np.concatenate((unit, np.cross(points, unit)), axis=1)  # (N, 6)
+    return (wrench @ S) * support  # type: ignore[no-any-return]

@@ -25,11 +25,19 @@ class MatrixFieldPlanner(IKLoopPlanner):
 
     name = "matrix-field"
     Config = MatrixFieldConfig
-    presets = {"paper": {"damping": "fixed", "goal_tolerance_scale": 1.0, "tool_repulsion_gain": 0.0}}
+    presets = {
+        "paper": {
+            "damping": "fixed",
+            "goal_tolerance_scale": 1.0,
+            "tool_repulsion_gain": 0.0,
+            "hierarchy": "nullspace",
+        }
+    }
     """``matrix-field:paper``: the method as specified (docs/method.md), every configurable departure
-    set back: a fixed damping ``lambda``, success at the problem's own tolerances, no tool
-    repulsion. Departures that are not settings (the angular speed cap, the collision checks, the
-    limit handling) stay; docs/method.md lists them."""
+    set back: the repulsion in the pose task's null space only, a fixed damping ``lambda``,
+    success at the problem's own tolerances, no tool repulsion. Departures that are not settings
+    (the angular speed cap, the collision checks, the limit handling) stay; docs/method.md lists
+    them."""
 
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize the scene, build the kernels and (full mode) the whole field; derive the gain."""
