@@ -130,6 +130,9 @@ class IKLoopConfig:
     """Push ratio [-] at which a point's row reaches ``priority_weight`` (smoothstep in between)."""
     priority_weight: float = 1.0
     """Largest weight [-] of a repulsion row, against 1 for the position rows."""
+    priority_fade_distance: float = 0.1
+    """[m] the repulsion rows fade linearly to 0 within this position error of the goal, so a goal
+    next to an obstacle (a grasp) stays reachable."""
     orientation_priority: float = 0.1
     """Weight [-] of the orientation rows in ``"priority"`` mode on arms without redundancy, so
     the order is position, then repulsion, then orientation (1 on redundant arms)."""
@@ -174,6 +177,7 @@ class IKLoopConfig:
                 )
         if not isinstance(self.verify_path, bool):
             raise InvalidConfigError(f"verify_path must be true or false, got {self.verify_path!r}")
+        check_number(self, "priority_fade_distance", lambda v: v > 0, "finite and > 0")
         for name in ("priority_onset", "priority_weight", "orientation_priority"):
             check_number(self, name, lambda v: v >= 0, "finite and >= 0")
         check_number(

@@ -142,6 +142,8 @@ class Priority(NamedTuple):
     weight: float
     orientation: float
     """Weight of the orientation rows (``orientation_priority`` without redundancy, else 1)."""
+    fade: float
+    """[m] the rows' weights fade linearly to 0 within this position error of the goal."""
 
 
 def step_priority(
@@ -167,7 +169,8 @@ def step_priority(
 ) -> None:  # type: ignore[no-untyped-def]
     """:func:`step_numpy` with the repulsion also as weighted task rows beside the pose task
     (``hierarchy="priority"``): row ``i`` asks point ``i`` to move along its push at ``|f_i|``, with
-    weight ``weight * smoothstep((|f_i| / speed_max - onset) / (full - onset))``; the orientation
+    weight ``weight * smoothstep((|f_i| / speed_max - onset) / (full - onset))``, faded to 0 within
+    ``fade`` of the goal (a grasp next to an object stays reachable); the orientation
     rows are weighted by ``orientation``. The rows, the pose task and the damping form one damped
     least squares; the secondary tasks (repulsion, manipulability, mid-joint) stay in the null
     space of the stack. Numpy only (the compiled step has the null-space hierarchy)."""
@@ -202,7 +205,10 @@ def step_priority(
     row_w = np.sqrt(np.diag([1.0, 1.0, 1.0] + [priority.orientation] * 3))
     A, b = row_w @ J, row_w @ (s * v)
     span = priority.full - priority.onset
-    weights = np.array([priority.weight * T.smoothstep((f / prm.speed_max - priority.onset) / span) for f in mag])
+    near = min(1.0, err_p / priority.fade)  # goals next to obstacles stay reachable
+    weights = np.array(
+        [near * priority.weight * T.smoothstep((f / prm.speed_max - priority.onset) / span) for f in mag]
+    )
     active = np.flatnonzero(weights > 0)
     if len(active):
         rows = T.repulsion_rows(S, points[active], F[active], support[active])

@@ -235,7 +235,9 @@ class IKLoopPlanner(Planner):
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
         if self._hierarchy == "priority":
             orientation = cfg.orientation_priority if n <= 6 else 1.0
-            priority = fast.Priority(cfg.priority_onset, cfg.priority_full, cfg.priority_weight, orientation)
+            priority = fast.Priority(
+                cfg.priority_onset, cfg.priority_full, cfg.priority_weight, orientation, cfg.priority_fade_distance
+            )
             self._step = functools.partial(fast.step_priority, priority=priority)
         self._prepared = {"problem": problem, "points": points, "checker": checker}
         self._prepared["repulsion"] = self.make_repulsion(problem, points)
