@@ -98,6 +98,19 @@ def step_numpy(
     diag,
 ) -> None:
     """The reference step, composed of the :mod:`.tasks` functions."""
+    err_p, err_r, v, x, m, lam, s, mag = _terms(
+        S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm
+    )
+    qd1, nx = T.dls_with_nullspace(J, v, x, lam)
+    qd, _ = T.scale_to_velocity_limits(T.merge(qd1, s, nx), qd_max)
+    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
+    diag[:] = (err_p, err_r, float(mag.max()) if len(mag) else 0.0, m, s, lam)
+
+
+def _terms(S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm):  # type: ignore[no-untyped-def]
+    """The task terms every numpy step shares: ``(err_p, err_r, v, x, m, lam, s, |f_i|)`` with ``v``
+    the attraction (plus the tool's push), ``x`` the secondary velocity (mid-joint, manipulability,
+    repulsion), ``m`` the manipulability, ``lam`` the damping and ``s`` the slow-down."""
     e = p_goal - p
     err_p = math.sqrt(float(e @ e))
     err_r = float(np.linalg.norm(T.orientation_error(R, R_goal)))
@@ -116,7 +129,8 @@ def step_numpy(
     m, grad = T.manipulability_gradient(S, descendants)
     if prm.manipulability_gain > 0:
         x = x + prm.manipulability_gain * grad
-    rep = float(np.sqrt(np.max(np.einsum("ij,ij->i", F, F)))) if len(F) else 0.0
+    mag = np.sqrt(np.einsum("ij,ij->i", F, F)) if len(F) else np.zeros(0)
+    rep = float(mag.max()) if len(mag) else 0.0
     if rep > 0:
         x = x + T.repulsion_joint_velocity(S, points, F, support)
         if prm.tool_repulsion_gain > 0:
@@ -124,11 +138,8 @@ def step_numpy(
             v[:3] += (prm.tool_repulsion_gain * fade) * T.strongest(F, tool)
     lam_max = prm.damping_factor
     lam = T.adaptive_damping(m, lam_max, prm.manipulability_threshold) if prm.adaptive else lam_max
-    qd1, nx = T.dls_with_nullspace(J, v, x, lam)
     s = T.slowdown_factor(rep, prm.slowdown_gain, prm.slowdown_min) if prm.slowdown_gain > 0 else 1.0
-    qd, _ = T.scale_to_velocity_limits(T.merge(qd1, s, nx), qd_max)
-    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
-    diag[:] = (err_p, err_r, rep, m, s, lam)
+    return err_p, err_r, v, x, m, lam, s, mag
 
 
 _PRIORITY_FLOOR2 = 1e-6  # (1 mm)^2: the stacked task's least squares stays defined at any rank
@@ -174,34 +185,10 @@ def step_priority(
     rows are weighted by ``orientation``. The rows, the pose task and the damping form one damped
     least squares; the secondary tasks (repulsion, manipulability, mid-joint) stay in the null
     space of the stack. Numpy only (the compiled step has the null-space hierarchy)."""
-    e = p_goal - p
-    err_p = math.sqrt(float(e @ e))
-    err_r = float(np.linalg.norm(T.orientation_error(R, R_goal)))
-    v = T.attraction(
-        p,
-        R,
-        p_goal,
-        R_goal,
-        speed_max=prm.speed_max,
-        sigmoid_gain=prm.sigmoid_gain,
-        position_gain=prm.position_gain,
-        orientation_gain=prm.orientation_gain,
-        angular_speed_max=prm.angular_speed_max,
+    err_p, err_r, v, x, m, lam, s, mag = _terms(
+        S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm
     )
-    x = T.mid_joint_velocity(q, lower, upper, prm.mid_joint_gain)
-    m, grad = T.manipulability_gradient(S, descendants)
-    if prm.manipulability_gain > 0:
-        x = x + prm.manipulability_gain * grad
-    mag = np.sqrt(np.einsum("ij,ij->i", F, F)) if len(F) else np.zeros(0)
-    rep = float(mag.max()) if len(F) else 0.0
-    if rep > 0:
-        x = x + T.repulsion_joint_velocity(S, points, F, support)
-        if prm.tool_repulsion_gain > 0:
-            fade = min(1.0, err_p / prm.tool_fade_distance)
-            v[:3] += (prm.tool_repulsion_gain * fade) * T.strongest(F, tool)
-    lam_max = prm.damping_factor
-    lam = T.adaptive_damping(m, lam_max, prm.manipulability_threshold) if prm.adaptive else lam_max
-    s = T.slowdown_factor(rep, prm.slowdown_gain, prm.slowdown_min) if prm.slowdown_gain > 0 else 1.0
+    rep = float(mag.max()) if len(mag) else 0.0
     row_w = np.sqrt(np.diag([1.0, 1.0, 1.0] + [priority.orientation] * 3))
     A, b = row_w @ J, row_w @ (s * v)
     span = priority.full - priority.onset
