@@ -1,6 +1,7 @@
 """Benchmarks of the matrix-field planner. Prints medians; run on a quiet machine for timings.
 
     python benchmarks/matrix_field.py step                  # per-step cost and its split
+    python benchmarks/matrix_field.py step --config '{"hierarchy": "priority"}'   # with settings
     python benchmarks/matrix_field.py mbm "mbm:*/0021-0100"  # planning on MotionBenchMaker
     python benchmarks/matrix_field.py sweep                 # parameter sweep on 0001-0020
 
@@ -45,7 +46,9 @@ def _per_call_us(fn: Any, reps: int = 2000) -> float:
     return (time.perf_counter() - t0) / reps * 1e6
 
 
-def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000, repeats: int = 5) -> dict[str, float]:
+def bench_step(
+    problem_id: str = "mbm:box/0001", steps: int = 1000, repeats: int = 5, settings: dict[str, Any] | None = None
+) -> dict[str, float]:
     """Per-step time of the planner's loop and of its parts, each the median of ``repeats``
     rounds; in each round every part is timed once, right after the loop, so that the ratio to
     the bare pinocchio calls (``ratio``, the median of the rounds' ratios) is taken under the
@@ -54,7 +57,12 @@ def bench_step(problem_id: str = "mbm:box/0001", steps: int = 1000, repeats: int
 
     problem = planbench.load_problems(problem_id)[0]
     cfg = MatrixFieldConfig(
-        stall_ratio=0.0, max_steps=steps, collision_check_every=0, verify_path=False, goal_tolerance_scale=1e-9
+        stall_ratio=0.0,
+        max_steps=steps,
+        collision_check_every=0,
+        verify_path=False,
+        goal_tolerance_scale=1e-9,
+        **(settings or {}),
     )
     planner = MatrixFieldPlanner(cfg)
     planner.setup(problem)
@@ -220,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     st = sub.add_parser("step")
     st.add_argument("--problem", default="mbm:box/0001")
+    st.add_argument("--config", default="{}", help='JSON object of settings, e.g. {"hierarchy": "priority"}')
     m = sub.add_parser("mbm")
     m.add_argument("selector", nargs="?", default="mbm:*/0021-0100")
     m.add_argument("--config", default="{}", help="JSON object of MatrixFieldConfig settings")
@@ -230,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     sw.add_argument("--grid", default='{"standoff": [0.08, 0.1, 0.12], "tool_repulsion_gain": [0.0, 1.0]}')
     args = ap.parse_args(argv)
     if args.cmd == "step":
-        res = bench_step(args.problem)
+        res = bench_step(args.problem, settings=json.loads(args.config))
         print(f"{args.problem}, {int(res.pop('control_points'))} control points, median of 5 rounds [us per step]:")
         print(f"  full loop step     {res.pop('step'):7.2f}  (kinematics + repulsion + solve + integrate + loop)")
         print(f"  bare pinocchio     {res.pop('pinocchio'):7.2f}  (computeJointJacobians + updateFramePlacement)")

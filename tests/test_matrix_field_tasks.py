@@ -293,32 +293,55 @@ def test_config_defaults_and_overrides_freeze():
 def test_step_params_are_the_config_settings_by_name(damping):
     from planbench_plugins.ik_loop import fast
 
-    cfg = MatrixFieldConfig(damping=damping, speed_max=0.3, dt=0.02, tool_repulsion_gain=0.5)
-    prm = fast.step_params(cfg)
+    cfg = MatrixFieldConfig(damping=damping, speed_max=0.3, dt=0.02, tool_repulsion_gain=0.5, orientation_priority=0.2)
+    prm = fast.step_params(cfg, 7)
     assert prm.adaptive == (1.0 if damping == "adaptive" else 0.0)
     for name in prm._fields:
-        if name != "adaptive":
+        if name not in ("adaptive", "priority", "orientation_weight"):
             assert getattr(prm, name) == getattr(cfg, name)
     assert (prm.speed_max, prm.dt, prm.tool_repulsion_gain) == (0.3, 0.02, 0.5)
+    # the hierarchy's fields are resolved for the arm (tests/test_hierarchy.py)
+    assert (prm.priority, prm.orientation_weight) == (0.0, 1.0)
+    assert fast.step_params(cfg, 7, "priority").priority == 1.0
+    assert (fast.step_params(cfg, 6).priority, fast.step_params(cfg, 6).orientation_weight) == (1.0, 0.2)
+    assert fast.step_params(MatrixFieldConfig(hierarchy="nullspace"), 7).priority == 0.0
 
 
 # --- the compiled step equals the composition of the task functions ------------------------
 @pytest.mark.skipif(
     not __import__("planbench_plugins.ik_loop.fast", fromlist=["x"]).have_numba(), reason="numba not installed"
 )
-@pytest.mark.parametrize("damping", ["adaptive", "fixed"])
-def test_compiled_step_matches_numpy_reference(robot, damping):
+@pytest.mark.parametrize(
+    "robot_name, damping, hierarchy",
+    [
+        ("panda", "adaptive", "nullspace"),
+        ("panda", "fixed", "nullspace"),
+        ("panda", "adaptive", "priority"),
+        ("panda", "fixed", "priority"),
+        ("ur5", "adaptive", "priority"),
+        ("ur5", "fixed", "auto"),
+        ("ur5", "adaptive", "nullspace"),
+    ],
+)
+def test_compiled_step_matches_numpy_reference(robot_name, damping, hierarchy):
+    """Both backends, both hierarchies, a redundant arm and one without redundancy (orientation
+    rows weighted), random configurations, goals and pushes (some steps without repulsion, some
+    points without push, pushes from below the priority onset to far above it)."""
     from planbench_plugins.ik_loop import fast
 
-    cfg = MatrixFieldConfig(damping=damping, tool_repulsion_gain=1.0)
-    prm = fast.step_params(cfg)
+    robot = load_robot(robot_name)
+    n = robot.nq
+    cfg = MatrixFieldConfig(damping=damping, tool_repulsion_gain=1.0, hierarchy=hierarchy)
+    prm = fast.step_params(cfg, n, "priority")
+    assert prm.priority == (0.0 if hierarchy == "nullspace" else 1.0)
     kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=True)
     ref_kin = ArmKinematics(robot, robot.ee_frame_id, place_control_points(robot), compiled=False)
     rng = np.random.default_rng(7)
     lo, hi = np.asarray(robot.lower), np.asarray(robot.upper)
     vmax = np.asarray(robot.velocity_limit)
-    tool = np.flatnonzero(kin.cp.joint == 7).astype(np.intp)
-    for trial in range(10):
+    tool = np.flatnonzero(kin.cp.joint == kin.cp.joint.max()).astype(np.intp)
+    rows_seen = 0
+    for trial in range(12):
         q = rng.uniform(lo, hi)
         if trial == 0:
             q[3] = hi[3]  # at a limit
@@ -326,12 +349,15 @@ def test_compiled_step_matches_numpy_reference(robot, damping):
         ref_kin.update(q)
         assert np.allclose(kin.points, ref_kin.points, atol=1e-14)
         assert np.allclose(kin.J, ref_kin.J, atol=1e-14)  # compiled from S, as pinocchio.getFrameJacobian
-        F = rng.normal(size=kin.points.shape) * (trial % 3)  # some steps without repulsion
+        F = rng.normal(size=kin.points.shape) * (trial % 3) * 0.4
+        F[rng.random(len(F)) < 0.3] = 0.0  # points without push
+        mag = np.linalg.norm(F, axis=1)
+        rows_seen += int(np.sum(mag / prm.speed_max > prm.priority_onset))
         p_goal = rng.uniform(-0.5, 0.5, 3)
         R_goal = Rotation.random(random_state=rng).as_matrix()
         out = []
         for fn, k in ((fast.step_compiled, kin), (fast.step_numpy, ref_kin)):
-            qd, dg = np.zeros(7), np.zeros(6)
+            qd, dg = np.zeros(n), np.zeros(6)
             fn(
                 k.S,
                 k.J,
@@ -356,3 +382,4 @@ def test_compiled_step_matches_numpy_reference(robot, damping):
         assert np.allclose(out[0][0], out[1][0], atol=1e-10, rtol=1e-8)
         assert np.allclose(out[0][1], out[1][1], atol=1e-10, rtol=1e-8)
         assert np.all(np.abs(out[0][0]) <= vmax * (1 + 1e-12))
+    assert rows_seen > 20  # the priority rows were exercised

@@ -137,3 +137,39 @@ def test_family_variant_names_pass_the_variant_as_the_planner_setting():
     assert isinstance(planner, OMPLPlanner) and planner.config.planner == "LBKPIECE1"
     with pytest.raises(UnknownNameError, match="RRTConnect"):
         planbench.make_planner("ompl:RRTConect")
+
+
+def test_family_variant_names_a_preset_when_the_planner_declares_it():
+    """``family:variant`` is the planner's preset ``variant`` (its settings, a setting given beside
+    it wins) when the class declares one in ``presets``; otherwise the variant is the ``planner``
+    setting, and a class without such a setting refuses it by name."""
+    from dataclasses import dataclass
+
+    registry = Registry(discover=False)
+
+    @dataclass(frozen=True)
+    class TunedConfig:
+        speed: float = 1.0
+        careful: bool = False
+
+    @register_planner(registry=registry)
+    class Tuned(planbench.Planner):
+        name = "tuned"
+        Config = TunedConfig
+        presets = {"slow": {"speed": 0.25, "careful": True}}
+
+        def plan(self, problem, *, time_limit, rng):
+            return PlanResult(PlanStatus.TIMEOUT, problem.start[None, :])
+
+    name, cls, implied = registry.resolve("tuned:slow")
+    assert (name, cls, implied) == ("tuned:slow", Tuned, {"speed": 0.25, "careful": True})
+    implied["speed"] = 9.0  # a copy: the class's preset is untouched
+    assert Tuned.presets["slow"]["speed"] == 0.25
+    assert registry.configure("tuned:slow").config == TunedConfig(speed=0.25, careful=True)
+    assert registry.configure("tuned:slow", {"speed": 0.5}).config == TunedConfig(speed=0.5, careful=True)
+    assert registry.configure("tuned", {}).config == TunedConfig()
+    assert registry.resolve("tuned:fast")[2] == {"planner": "fast"}
+    with pytest.raises(InvalidConfigError, match="planner"):
+        registry.configure("tuned:fast")
+    planner = planbench.make_planner("matrix-field:paper")
+    assert planner.config.hierarchy == "nullspace" and planner.config.tool_repulsion_gain == 0.0

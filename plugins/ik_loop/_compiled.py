@@ -202,6 +202,7 @@ def step(
     if prm.adaptive != 0.0:
         m0 = prm.manipulability_threshold
         lam = 0.0 if m >= m0 else lam * math.sqrt(1.0 - (m / m0) ** 2)
+    s = max(prm.slowdown_min, 1.0 / (1.0 + prm.slowdown_gain * rep)) if prm.slowdown_gain > 0.0 else 1.0
     gram(J, A)
     for i in range(6):
         A[i, i] += lam * lam + 1e-18
@@ -214,8 +215,6 @@ def step(
         Y[r, 0] = v[r]
         Y[r, 1] = t
     chol_solve(L, Y)
-    s = max(prm.slowdown_min, 1.0 / (1.0 + prm.slowdown_gain * rep)) if prm.slowdown_gain > 0.0 else 1.0
-    ratio = 0.0
     for k in range(n):
         a1 = 0.0
         a2 = 0.0
@@ -223,6 +222,10 @@ def step(
             a1 += J[r, k] * Y[r, 0]
             a2 += J[r, k] * Y[r, 1]
         qd_out[k] = s * a1 + x[k] - a2
+    if prm.priority != 0.0:
+        push(S, J, lam, points, F, support, err_p, prm, qd_out)
+    ratio = 0.0
+    for k in range(n):
         rr = abs(qd_out[k]) / qd_max[k]
         if rr > ratio:
             ratio = rr
@@ -234,6 +237,81 @@ def step(
         hi = (upper[k] - q[k]) / dt
         qd_out[k] = min(max(val, lo), hi)
     diag[0], diag[1], diag[2], diag[3], diag[4], diag[5] = err_p, err_r, rep, m, s, lam
+
+
+@nb.njit(cache=True)
+def push(S, J, lam, points, F, support, err_p, prm, qd):  # type: ignore[no-untyped-def]
+    """The ``"priority"`` hierarchy's correction added to the null-space step ``qd`` in place
+    (``tasks.push_correction``): the rows of the points with a non-zero activation and the
+    weighted pose rows accumulated into the n x n normal matrix row by row (no stack formed),
+    ``mu = lam^2 + (1 mm)^2``, one Cholesky factorisation."""
+    n = qd.shape[0]
+    near = min(1.0, err_p / prm.priority_fade_distance)
+    if not near > 0.0:
+        return
+    span = prm.priority_full - prm.priority_onset
+    H = np.empty((n, n))  # lower triangle of A^T A + mu I
+    g = np.zeros(n)  # A^T b
+    row = np.empty(n)
+    active = False
+    for i in range(points.shape[0]):
+        f0, f1, f2 = F[i, 0], F[i, 1], F[i, 2]
+        mag = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        u = min(1.0, max(0.0, (mag / prm.speed_max - prm.priority_onset) / span))
+        a = near * (u * u * (3.0 - 2.0 * u))
+        if not a > 0.0:
+            continue
+        if not active:  # the pose rows, once
+            active = True
+            for k in range(n):
+                for c in range(k + 1):
+                    h = 0.0
+                    for r in range(6):
+                        h += (1.0 if r < 3 else prm.orientation_weight) * J[r, k] * J[r, c]
+                    H[k, c] = h
+        n0, n1, n2 = f0 / mag, f1 / mag, f2 / mag
+        p0, p1, p2 = points[i, 0], points[i, 1], points[i, 2]
+        t0, t1, t2 = p1 * n2 - p2 * n1, p2 * n0 - p0 * n2, p0 * n1 - p1 * n0
+        speed = 0.0  # n_i^T J_i qd
+        for k in range(n):
+            row[k] = support[i, k] * (
+                S[0, k] * n0 + S[1, k] * n1 + S[2, k] * n2 + S[3, k] * t0 + S[4, k] * t1 + S[5, k] * t2
+            )
+            speed += row[k] * qd[k]
+        w = prm.priority_weight * a
+        wb = w * a * max(0.0, mag - speed)
+        for k in range(n):
+            g[k] += row[k] * wb
+            wr = w * row[k]
+            for c in range(k + 1):
+                H[k, c] += wr * row[c]
+    if not active:
+        return
+    mu = lam * lam + 1e-6  # tasks.PRIORITY_FLOOR2
+    for k in range(n):
+        H[k, k] += mu
+    # H = L L^T in place (lower triangle), then the two triangular solves on g
+    for i in range(n):
+        for j in range(i + 1):
+            h = H[i, j]
+            for k in range(j):
+                h -= H[i, k] * H[j, k]
+            if i == j:
+                H[i, i] = math.sqrt(h) if h > 0.0 else 1e-150
+            else:
+                H[i, j] = h / H[j, j]
+    for i in range(n):
+        h = g[i]
+        for k in range(i):
+            h -= H[i, k] * g[k]
+        g[i] = h / H[i, i]
+    for i in range(n - 1, -1, -1):
+        h = g[i]
+        for k in range(i + 1, n):
+            h -= H[k, i] * g[k]
+        g[i] = h / H[i, i]
+    for k in range(n):
+        qd[k] += g[k]
 
 
 @nb.njit(cache=True)

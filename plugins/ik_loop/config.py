@@ -12,14 +12,56 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from planbench.errors import InvalidConfigError
 
-__all__ = ["IKLoopConfig", "DAMPING_MODES", "HIERARCHIES", "check_number"]
+__all__ = ["IKLoopConfig", "DAMPING_MODES", "HIERARCHIES", "Hierarchy", "check_number", "resolve_hierarchy"]
 
 DAMPING_MODES = ("fixed", "adaptive")
 HIERARCHIES = ("auto", "nullspace", "priority")
+RAMP_WITHOUT_REDUNDANCY = (0.0, 1.0)
+"""``(onset, full)`` push ratios of the repulsion rows on an arm without redundancy, where they are
+the repulsion's only way to the joints and replace the null-space push: on from the field's edge,
+fully on at the stand-off, where by definition the push equals the cruising speed (a redundant
+arm uses ``priority_onset`` and ``priority_full``)."""
+
+
+class Hierarchy(NamedTuple):
+    """The hierarchy a step uses on one arm (:func:`resolve_hierarchy`)."""
+
+    mode: str
+    """``"nullspace"`` or ``"priority"``."""
+    onset: float
+    """Push ratio [-] where the repulsion rows switch on."""
+    full: float
+    """Push ratio [-] where they are fully on."""
+    orientation_weight: float
+    """Weight [-] of the orientation rows against the repulsion rows."""
+
+
+def resolve_hierarchy(cfg: Any, n_joints: int, redundant: str = "nullspace") -> Hierarchy:
+    """The hierarchy of ``cfg`` (an :class:`IKLoopConfig`) on an arm of ``n_joints`` joints.
+
+    ``"auto"`` is chosen from the arm's redundancy ``n_joints - 6`` (at setup). Without redundancy
+    the pose task leaves the repulsion no null space, so only the priority rows let it act, and
+    they replace it: they ramp from the field's edge to the stand-off
+    (:data:`RAMP_WITHOUT_REDUNDANCY`), the same distances in every field since each derives its
+    gain from the stand-off. With redundancy the null space carries the repulsion and the rows may
+    help only close to obstacles (``priority_onset`` to ``priority_full``), where a push ratio
+    means a different distance in each field: ``"auto"`` is then ``redundant``, the planner's
+    measured choice (:attr:`~.loop.IKLoopPlanner.auto_hierarchy_redundant`; ``"nullspace"``
+    unless measured otherwise). The orientation rows weigh ``orientation_priority`` without
+    redundancy, else 1."""
+    is_redundant = n_joints > 6
+    orientation = 1.0 if is_redundant else float(cfg.orientation_priority)
+    onset, full = float(cfg.priority_onset), float(cfg.priority_full)
+    if not is_redundant:
+        onset, full = RAMP_WITHOUT_REDUNDANCY
+    mode = str(cfg.hierarchy)
+    if mode == "auto":
+        mode = redundant if is_redundant else "priority"
+    return Hierarchy(mode, onset, full, orientation)
 
 
 @dataclass(frozen=True)
@@ -117,19 +159,29 @@ class IKLoopConfig:
 
     # --- task hierarchy -------------------------------------------------------------------
     hierarchy: str = "auto"
-    """Where the repulsion acts. ``"nullspace"``: in the null space of the 6-D pose task (the
-    method as specified; a 6-joint arm has none, so there it does nothing). ``"priority"``: also
-    as one weighted task row per control point beside the pose task (``n_i^T J_i qd = |f_i|``,
-    ``n_i`` the push direction), its weight rising smoothly as the point nears an obstacle, so close
-    to one the push wins over the pose task. ``"auto"``: ``"priority"`` on arms without
-    redundancy (6 joints or fewer), ``"nullspace"`` otherwise."""
-    priority_onset: float = 0.5
-    """Push ratio ``|f_i| / speed_max`` [-] below which a point's row has no weight (1 = at the
-    stand-off from a flat wall; smaller = farther out)."""
-    priority_full: float = 1.5
-    """Push ratio [-] at which a point's row reaches ``priority_weight`` (smoothstep in between)."""
-    priority_weight: float = 1.0
-    """Largest weight [-] of a repulsion row, against 1 for the position rows."""
+    """Where the repulsion acts. ``"nullspace"``: only in the null space of the 6-D pose task (the
+    method as specified; a 6-joint arm has none, so there it does nothing, and the planner warns).
+    ``"priority"``: the null-space step plus, for each control point near an obstacle, a task row
+    beside the pose task asking it to move away along its push ``n_i^T J_i qd = |f_i|``
+    (``n_i = f_i / |f_i|``), activated smoothly by the push (``priority_onset`` to
+    ``priority_full``) and weighted ``priority_weight`` against 1 for the position rows, so close
+    to an obstacle the push wins over the pose task. ``"auto"``: chosen from the arm's redundancy
+    ``n - 6`` at setup: ``"priority"`` without redundancy (the rows are the only way the
+    repulsion acts, and they replace it: on from the field's edge, fully on at the stand-off); with
+    it, the planner's measured choice (``matrix-field``: ``"priority"``, measured on
+    MotionBenchMaker 0001-0020; the other loop planners: ``"nullspace"``; :func:`resolve_hierarchy`)."""
+    priority_onset: float = 2.0
+    """Push ratio ``|f_i| / speed_max`` [-] below which a point's row is off (1: the push at the
+    stand-off from a flat wall; 2: about 3 cm from it with the default field; corners and shelves
+    add up). Chosen for the matrix field on MotionBenchMaker 0001-0020 (0.5, 1, 1.5, 2, 3
+    measured); other fields push harder close in. On an arm without redundancy the rows ramp from
+    0 to 1 instead (they replace the null-space push there)."""
+    priority_full: float = 3.0
+    """Push ratio [-] at which a point's row is fully on (smoothstep, C1, from ``priority_onset``;
+    redundant arms)."""
+    priority_weight: float = 10.0
+    """Weight [-] of a fully active repulsion row, against 1 for the position rows: above 1 the
+    push wins over the pose task where they conflict (0 turns the rows off)."""
     priority_fade_distance: float = 0.1
     """[m] the repulsion rows fade linearly to 0 within this position error of the goal, so a goal
     next to an obstacle (a grasp) stays reachable."""

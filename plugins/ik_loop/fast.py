@@ -12,6 +12,8 @@ Inputs: ``S`` (6, n) spatial Jacobian, ``J`` (6, n) goal-frame Jacobian, ``p``, 
 ``q``, ``F`` (N, 3) repulsive velocities ``k_rep F(p_i)`` [m/s] at ``points`` (N, 3), ``tool``
 (indices of the tool's points), ``prm`` (:class:`StepParams`). Outputs: ``qd`` (n,) after limits
 and ``diag`` = [position error, orientation error, repulsion, manipulability, slow-down, damping].
+With ``prm.priority`` (``hierarchy="priority"``) the step adds the repulsion rows' correction
+(:func:`.tasks.push_correction`) to the null-space step before the limits.
 """
 
 from __future__ import annotations
@@ -24,12 +26,11 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from planbench_plugins.ik_loop import tasks as T
+from planbench_plugins.ik_loop.config import resolve_hierarchy
 
 __all__ = [
     "StepParams",
     "step_params",
-    "Priority",
-    "step_priority",
     "step_numpy",
     "step_compiled",
     "advance_numpy",
@@ -42,7 +43,9 @@ __all__ = [
 class StepParams(NamedTuple):
     """The settings one step reads, by name, in both backends (``prm.speed_max``). Built from a
     config by :func:`step_params`; the fields are the config's settings of the same name, except
-    ``adaptive``. numba types a NamedTuple of floats, so the compiled step reads the same names."""
+    ``adaptive`` and the hierarchy's (``priority``, ``priority_onset``, ``priority_full``,
+    ``orientation_weight``: resolved for the arm). numba types a NamedTuple of floats, so the
+    compiled step reads the same names."""
 
     speed_max: float
     sigmoid_gain: float
@@ -60,12 +63,38 @@ class StepParams(NamedTuple):
     dt: float
     tool_repulsion_gain: float
     tool_fade_distance: float
+    priority: float
+    """1.0 for the ``"priority"`` hierarchy (``hierarchy`` resolved for the arm), 0.0 for ``"nullspace"``."""
+    priority_onset: float
+    """Push ratio where the repulsion rows switch on (``priority_onset``, or 0 on an arm without
+    redundancy)."""
+    priority_full: float
+    """Push ratio where they are fully on (``priority_full``, or 1 as for ``priority_onset``)."""
+    priority_weight: float
+    priority_fade_distance: float
+    orientation_weight: float
+    """Weight of the orientation rows in the ``"priority"`` stack: ``orientation_priority`` on an
+    arm without redundancy (6 joints or fewer), else 1."""
 
 
-def step_params(cfg: Any) -> StepParams:
-    """The :class:`StepParams` of a config (:class:`~planbench_plugins.ik_loop.config.IKLoopConfig`)."""
-    settings = {name: float(getattr(cfg, name)) for name in StepParams._fields if name != "adaptive"}
-    return StepParams(adaptive=float(cfg.damping == "adaptive"), **settings)
+_RESOLVED = ("adaptive", "priority", "priority_onset", "priority_full", "orientation_weight")
+
+
+def step_params(cfg: Any, n_joints: int, redundant: str = "nullspace") -> StepParams:
+    """The :class:`StepParams` of a config (:class:`~planbench_plugins.ik_loop.config.IKLoopConfig`)
+    for an arm of ``n_joints`` joints: the hierarchy's fields resolved for the arm, ``redundant``
+    what ``hierarchy="auto"`` is on a redundant one
+    (:func:`~planbench_plugins.ik_loop.config.resolve_hierarchy`)."""
+    h = resolve_hierarchy(cfg, n_joints, redundant)
+    settings = {name: float(getattr(cfg, name)) for name in StepParams._fields if name not in _RESOLVED}
+    return StepParams(
+        adaptive=float(cfg.damping == "adaptive"),
+        priority=float(h.mode == "priority"),
+        priority_onset=h.onset,
+        priority_full=h.full,
+        orientation_weight=h.orientation_weight,
+        **settings,
+    )
 
 
 def have_numba() -> bool:
@@ -102,14 +131,17 @@ def step_numpy(
         S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm
     )
     qd1, nx = T.dls_with_nullspace(J, v, x, lam)
-    qd, _ = T.scale_to_velocity_limits(T.merge(qd1, s, nx), qd_max)
+    qd = T.merge(qd1, s, nx)
+    if prm.priority:
+        qd = qd + _push(S, J, qd, lam, points, F, support, mag, err_p, prm)
+    qd, _ = T.scale_to_velocity_limits(qd, qd_max)
     qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
     diag[:] = (err_p, err_r, float(mag.max()) if len(mag) else 0.0, m, s, lam)
 
 
 def _terms(S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm):  # type: ignore[no-untyped-def]
-    """The task terms every numpy step shares: ``(err_p, err_r, v, x, m, lam, s, |f_i|)`` with ``v``
-    the attraction (plus the tool's push), ``x`` the secondary velocity (mid-joint, manipulability,
+    """The task terms of every step: ``(err_p, err_r, v, x, m, lam, s, |f_i|)`` with ``v`` the
+    attraction (plus the tool's push), ``x`` the secondary velocity (mid-joint, manipulability,
     repulsion), ``m`` the manipulability, ``lam`` the damping and ``s`` the slow-down."""
     e = p_goal - p
     err_p = math.sqrt(float(e @ e))
@@ -142,74 +174,32 @@ def _terms(S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descend
     return err_p, err_r, v, x, m, lam, s, mag
 
 
-_PRIORITY_FLOOR2 = 1e-6  # (1 mm)^2: the stacked task's least squares stays defined at any rank
-
-
-class Priority(NamedTuple):
-    """The ``"priority"`` hierarchy's settings (:class:`~.config.IKLoopConfig`), resolved for one arm."""
-
-    onset: float
-    full: float
-    weight: float
-    orientation: float
-    """Weight of the orientation rows (``orientation_priority`` without redundancy, else 1)."""
-    fade: float
-    """[m] the rows' weights fade linearly to 0 within this position error of the goal."""
-
-
-def step_priority(
-    S,
-    J,
-    p,
-    R,
-    p_goal,
-    R_goal,
-    q,
-    lower,
-    upper,
-    qd_max,
-    points,
-    F,
-    support,
-    descendants,
-    tool,
-    prm,
-    qd_out,
-    diag,
-    priority: Priority,
-) -> None:  # type: ignore[no-untyped-def]
-    """:func:`step_numpy` with the repulsion also as weighted task rows beside the pose task
-    (``hierarchy="priority"``): row ``i`` asks point ``i`` to move along its push at ``|f_i|``, with
-    weight ``weight * smoothstep((|f_i| / speed_max - onset) / (full - onset))``, faded to 0 within
-    ``fade`` of the goal (a grasp next to an object stays reachable); the orientation
-    rows are weighted by ``orientation``. The rows, the pose task and the damping form one damped
-    least squares; the secondary tasks (repulsion, manipulability, mid-joint) stay in the null
-    space of the stack. Numpy only (the compiled step has the null-space hierarchy)."""
-    err_p, err_r, v, x, m, lam, s, mag = _terms(
-        S, p, R, p_goal, R_goal, q, lower, upper, points, F, support, descendants, tool, prm
+def _push(S, J, qd, lam, points, F, support, mag, err_p, prm):  # type: ignore[no-untyped-def]
+    """The ``"priority"`` hierarchy's correction of the null-space step ``qd`` (before limits):
+    the points with a non-zero activation (:func:`.tasks.priority_activation`) pushed away
+    against the pose task (:func:`.tasks.push_correction`)."""
+    a = T.priority_activation(
+        mag,
+        err_p,
+        speed_max=prm.speed_max,
+        onset=prm.priority_onset,
+        full=prm.priority_full,
+        fade=prm.priority_fade_distance,
     )
-    rep = float(mag.max()) if len(mag) else 0.0
-    row_w = np.sqrt(np.diag([1.0, 1.0, 1.0] + [priority.orientation] * 3))
-    A, b = row_w @ J, row_w @ (s * v)
-    span = priority.full - priority.onset
-    near = min(1.0, err_p / priority.fade)  # goals next to obstacles stay reachable
-    weights = np.array(
-        [near * priority.weight * T.smoothstep((f / prm.speed_max - priority.onset) / span) for f in mag]
+    active = np.flatnonzero(a > 0)
+    if not len(active):
+        return np.zeros_like(qd)
+    rows = T.repulsion_rows(S, points[active], F[active], support[active])
+    return T.push_correction(
+        J,
+        rows,
+        mag[active],
+        a[active],
+        qd,
+        weight=prm.priority_weight,
+        orientation_weight=prm.orientation_weight,
+        damping2=lam * lam,
     )
-    active = np.flatnonzero(weights > 0)
-    if len(active):
-        rows = T.repulsion_rows(S, points[active], F[active], support[active])
-        root = np.sqrt(weights[active])
-        A = np.vstack((A, root[:, None] * rows))
-        b = np.concatenate((b, root * mag[active]))
-    # joint-space normal equations: the stack may have more rows than joints (rank-deficient A A^T)
-    H = A.T @ A
-    H.flat[:: H.shape[0] + 1] += lam * lam + _PRIORITY_FLOOR2
-    sol = np.linalg.solve(H, np.stack((A.T @ b, H @ x - (lam * lam + _PRIORITY_FLOOR2) * x), axis=1))
-    qd1, nx = sol[:, 0], x - sol[:, 1]
-    qd, _ = T.scale_to_velocity_limits(qd1 + nx, qd_max)
-    qd_out[:] = T.clamp_to_position_limits(q, qd, lower, upper, prm.dt)
-    diag[:] = (err_p, err_r, rep, m, s, lam)
 
 
 def advance_numpy(

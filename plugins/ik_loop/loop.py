@@ -54,14 +54,13 @@ from planbench.collision import CollisionChecker
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench_plugins.ik_loop import fast
-from planbench_plugins.ik_loop.config import IKLoopConfig
+from planbench_plugins.ik_loop.config import IKLoopConfig, resolve_hierarchy
 from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
 
 __all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
 
 log = logging.getLogger(__name__)
-_WARNED: set[tuple[str, str, str]] = set()
 
 DIAGNOSTICS = ("position_error", "orientation_error", "repulsion", "manipulability", "slowdown", "damping")
 """The per-step diagnostics every loop planner records, in the order of the step's ``diag`` array."""
@@ -155,6 +154,9 @@ class IKLoopPlanner(Planner):
     Config = IKLoopConfig
     extra_diagnostics: tuple[str, ...] = ()
     """Names of per-step diagnostics a subclass's ``solve_step`` writes after :data:`DIAGNOSTICS`."""
+    auto_hierarchy_redundant = "nullspace"
+    """What ``hierarchy="auto"`` is on a redundant arm (:func:`.config.resolve_hierarchy`): a
+    planner whose repulsion was measured better with the priority rows says ``"priority"``."""
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
@@ -212,16 +214,12 @@ class IKLoopPlanner(Planner):
     # --- setup (untimed by the harness, reported as setup time) ------------------------------
     @property
     def use_numba(self) -> bool:
-        if self._hierarchy == "priority" and type(self).solve_step is IKLoopPlanner.solve_step:
-            return False  # the priority step exists in numpy only
         return self.config.backend == "numba" or (self.config.backend == "auto" and fast.have_numba())
 
     def hierarchy_for(self, n_joints: int) -> str:
-        """The hierarchy on an arm of ``n_joints`` joints: the setting, or for ``"auto"``
-        ``"priority"`` without redundancy (``n <= 6``) and ``"nullspace"`` with it."""
-        if self.config.hierarchy != "auto":
-            return str(self.config.hierarchy)
-        return "priority" if n_joints <= 6 else "nullspace"
+        """The hierarchy (``"nullspace"`` or ``"priority"``) on an arm of ``n_joints`` joints: the
+        setting, ``"auto"`` chosen from the arm's redundancy (:func:`.config.resolve_hierarchy`)."""
+        return resolve_hierarchy(self.config, n_joints, self.auto_hierarchy_redundant).mode
 
     def setup(self, problem: Problem) -> None:
         """Place control points, build the repulsion source and the collision checker."""
@@ -233,20 +231,14 @@ class IKLoopPlanner(Planner):
         if cfg.collision_check_every > 0 or cfg.verify_path:
             checker = CollisionChecker(problem.robot, problem.scene)
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
-        if self._hierarchy == "priority":
-            orientation = cfg.orientation_priority if n <= 6 else 1.0
-            priority = fast.Priority(
-                cfg.priority_onset, cfg.priority_full, cfg.priority_weight, orientation, cfg.priority_fade_distance
-            )
-            self._step = functools.partial(fast.step_priority, priority=priority)
         self._prepared = {"problem": problem, "points": points, "checker": checker}
         self._prepared["repulsion"] = self.make_repulsion(problem, points)
         self._prepared["warnings"] = self._warnings(problem)
         self._prepare_query(problem)
 
     def _warnings(self, problem: Problem) -> list[str]:
-        """What the configuration cannot do on this arm (logged once per planner and robot, and
-        reported in every result's ``info["warnings"]``)."""
+        """What the configuration cannot do on this arm (logged once per setup, and reported in
+        every result's ``info["warnings"]``)."""
         out = []
         n = problem.robot.nq
         nullspace_step = type(self).solve_step is IKLoopPlanner.solve_step
@@ -262,10 +254,7 @@ class IKLoopPlanner(Planner):
                 "repulsion, projected into it, cannot move the arm (hierarchy='priority' or 'auto' lets it act)"
             )
         for text in out:
-            key = (type(self).__name__, problem.robot.name, text)
-            if key not in _WARNED:
-                _WARNED.add(key)
-                log.warning("%s: %s", self.name, text)
+            log.warning("%s: %s", self.name, text)
         return out
 
     def _prepare_query(self, problem: Problem) -> None:
@@ -341,7 +330,7 @@ class IKLoopPlanner(Planner):
             np.asarray(robot.upper, dtype=float),
             self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
             int(robot.model.frames[frame_id].parentJoint),
-            fast.step_params(self.config),
+            fast.step_params(self.config, robot.nq, self.auto_hierarchy_redundant),
         )
 
     def control_point_overrides(self, problem: Problem) -> list[tuple[str, Any]]:

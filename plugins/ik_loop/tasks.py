@@ -7,6 +7,9 @@ world origin, ``S[:3]`` linear, ``S[3:]`` angular. The velocity of a world point
 carried by joint ``k`` and its ancestors is ``sum_k (S_v,k + S_w,k x p) qd_k``.
 
 Step (``merge``): ``qd = s qd_1 + N (qd_rep + qd_m + qd_c)``, then velocity and position limits.
+With ``hierarchy="priority"`` a correction is added before the limits: the repulsion rows
+(:func:`repulsion_rows`, activations :func:`priority_activation`) against the pose rows, in one
+damped least squares (:func:`push_correction`).
 """
 
 from __future__ import annotations
@@ -34,6 +37,11 @@ __all__ = [
     "scale_to_velocity_limits",
     "clamp_to_position_limits",
     "merge",
+    "smoothstep",
+    "repulsion_rows",
+    "priority_activation",
+    "stacked_dls",
+    "push_correction",
 ]
 
 _HALF_PI = 0.5 * math.pi
@@ -236,3 +244,75 @@ def repulsion_rows(S: np.ndarray, points: np.ndarray, forces: np.ndarray, suppor
     unit = np.divide(forces, mag[:, None], out=np.zeros_like(forces), where=mag[:, None] > 0)
     wrench = np.concatenate((unit, np.cross(points, unit)), axis=1)  # (N, 6)
     return (wrench @ S) * support  # type: ignore[no-any-return]
+
+
+def priority_activation(
+    push: np.ndarray, position_error: float, *, speed_max: float, onset: float, full: float, fade: float
+) -> np.ndarray:
+    """Activations (N,) in [0, 1] of the repulsion rows from the pushes ``|f_i|`` [m/s]
+    (``hierarchy="priority"``).
+
+    ``a_i = smoothstep((|f_i| / speed_max - onset) / (full - onset)) * min(1, e_p / fade)``: 0 while
+    the push is below ``onset`` times the cruising speed (the point is far from every obstacle),
+    rising C1 to 1 at ``full`` times it (close to one), and fading linearly to 0 as the position
+    error ``e_p`` [m] falls below ``fade`` [m], so a goal next to an obstacle stays reachable."""
+    near = min(1.0, position_error / fade)
+    span = full - onset
+    return np.array([near * smoothstep((f / speed_max - onset) / span) for f in push])
+
+
+PRIORITY_FLOOR2 = 1e-6
+"""(1 mm)^2 added to ``lambda^2`` in the stacked least squares: a stack with more rows than joints
+is rank-deficient in task space, so the solve is done in joint space, where the floor keeps it
+defined whatever the rank (it damps only directions moved by less than ~1 mm per radian)."""
+
+
+def stacked_dls(A: np.ndarray, b: np.ndarray, x: np.ndarray, damping2: float) -> np.ndarray:
+    """``qd = (A^T A + mu I)^-1 (A^T b + mu x)`` with ``mu = damping2 + PRIORITY_FLOOR2`` [m^2]: the
+    minimiser of ``|A qd - b|^2 + mu |qd - x|^2``.
+
+    ``A`` (m, n) stacks the (weighted) task rows, ``b`` (m,) their targets, ``x`` (n,) the velocity
+    it stays closest to where the rows leave freedom. With ``A = J`` (6 rows) and ``x`` the secondary
+    velocity it is the DLS step with the null-space projection of :func:`dls_with_nullspace`, in
+    joint space."""
+    mu = damping2 + PRIORITY_FLOOR2
+    H = A.T @ A
+    H.flat[:: H.shape[0] + 1] += mu
+    return np.linalg.solve(H, A.T @ b + mu * x)  # type: ignore[no-any-return]
+
+
+def push_correction(
+    J: np.ndarray,
+    rows: np.ndarray,
+    push: np.ndarray,
+    activation: np.ndarray,
+    qd: np.ndarray,
+    *,
+    weight: float,
+    orientation_weight: float,
+    damping2: float,
+) -> np.ndarray:
+    """The correction ``dq`` (n,) the ``"priority"`` hierarchy adds to the null-space step ``qd``.
+
+    Row ``i`` (``rows[i] = n_i^T J_i``, :func:`repulsion_rows`) asks point ``i`` to move away from
+    its obstacle at ``(1 - a_i) n_i^T J_i qd + a_i max(|f_i|, n_i^T J_i qd)``: at activation
+    ``a_i = 0`` what the step already does, at ``a_i = 1`` at least its push ``|f_i|``. Its weight
+    is ``weight * a_i``; the pose rows (weight 1, the orientation rows ``orientation_weight``) ask to
+    keep the step's end-effector twist ``J qd``. One damped least squares (:func:`stacked_dls`,
+    staying closest to ``qd``) in the correction ``dq``::
+
+        min |W_p^1/2 J dq|^2 + sum_i w_i (n_i^T J_i dq - a_i max(0, |f_i| - n_i^T J_i qd))^2 + mu |dq|^2
+
+    The result is continuous in the activations: no row changes the step while it activates, on
+    any arm (on a 7-joint arm the first row alone would fill the null space and be met exactly
+    whatever its weight, so the blended target, not the weight, makes the activation smooth).
+    Near an obstacle the push competes with the pose task with weight ``weight`` against 1 for
+    the position rows, and wins when it is larger."""
+    n = J.shape[1]
+    w = weight * activation
+    root = np.sqrt(w)
+    pose = np.sqrt([1.0, 1.0, 1.0, orientation_weight, orientation_weight, orientation_weight])
+    short = np.maximum(0.0, push - rows @ qd)  # how much slower than its push each point moves away
+    A = np.vstack((pose[:, None] * J, root[:, None] * rows))
+    b = np.concatenate((np.zeros(6), root * activation * short))
+    return stacked_dls(A, b, np.zeros(n), damping2)

@@ -39,6 +39,11 @@ class MatrixFieldPlanner(IKLoopPlanner):
     (the angular speed cap, the collision checks, the limit handling) stay; docs/method.md lists
     them."""
 
+    auto_hierarchy_redundant = "priority"
+    """``hierarchy="auto"`` on a redundant arm: the priority rows near obstacles (their onset, a
+    push ratio, measured with this field on MotionBenchMaker 0001-0020 with the 7-joint Panda:
+    48/140 solved against 44/140 in the null space, 4 problems gained and none lost)."""
+
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize the scene, build the kernels and (full mode) the whole field; derive the gain."""
         return scene_repulsion(problem, self.config) or ZeroRepulsion()
