@@ -56,11 +56,30 @@ def test_regenerating_gives_the_shipped_bytes(family):
     assert text.split('"problems"')[0] == shipped.split('"problems"')[0]  # the header
 
 
+def _same_numbers(a, b, tol: float) -> bool:
+    """``a == b`` for parsed JSON, numbers within ``tol``."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_numbers(a[k], b[k], tol) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(_same_numbers(x, y, tol) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return isinstance(b, (int, float)) and abs(a - b) <= tol
+    return a == b
+
+
 @pytest.mark.slow
-def test_regenerating_the_whole_set_is_byte_identical(tmp_path):
+def test_regenerating_the_whole_set_gives_the_shipped_problems(tmp_path):
+    """The same scenes, starts and goals, every number within 1e-4 (rad or m). Not byte for byte:
+    goal IK runs through OpenBLAS, whose kernels differ by processor, and one UR5 pillars goal
+    comes out 7e-5 rad apart on a Haswell kernel (the same 1e-6-rounded file on one machine)."""
     generators.main(["--out", str(tmp_path)])
-    for name in ["manifest.json"] + [f"{s}.json" for s in generators.shipped_sets()]:
-        assert (tmp_path / name).read_bytes() == (GEN_DIR / name).read_bytes(), name
+    for name in [f"{s}.json" for s in generators.shipped_sets()]:
+        again, shipped = json.loads((tmp_path / name).read_text()), json.loads((GEN_DIR / name).read_text())
+        assert _same_numbers(again, shipped, 1e-4), name
+    again, shipped = (json.loads((d / "manifest.json").read_text()) for d in (tmp_path, GEN_DIR))
+    for entry in [*again["sets"].values(), *shipped["sets"].values()]:
+        entry.pop("sha256")
+    assert again == shipped
 
 
 def test_manifest_matches_the_files():
