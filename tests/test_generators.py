@@ -61,7 +61,8 @@ def _same_numbers(a, b, tol: float) -> bool:
     if isinstance(a, dict):
         return isinstance(b, dict) and a.keys() == b.keys() and all(_same_numbers(a[k], b[k], tol) for k in a)
     if isinstance(a, list):
-        return isinstance(b, list) and len(a) == len(b) and all(_same_numbers(x, y, tol) for x, y in zip(a, b))
+        same = isinstance(b, list) and len(a) == len(b)
+        return same and all(_same_numbers(x, y, tol) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) or isinstance(b, float):
         return isinstance(b, (int, float)) and abs(a - b) <= tol
     return a == b

@@ -3,17 +3,21 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from scipy.optimize import lsq_linear
 
 import planbench
-from planbench import PlanStatus, Problem, Scene
+from planbench import Obstacle, PlanStatus, Problem, Scene
+from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner, installed_solvers
-from planbench_plugins.matrix_field_qp.formulation import limit_bounds, objective
+from planbench_plugins.matrix_field_qp import planner as qp_planner
+from planbench_plugins.matrix_field_qp.distances import DistanceModel
+from planbench_plugins.matrix_field_qp.formulation import collision_constraints, limit_bounds, objective
 
 EXACT_SOLVERS = ("osqp", "daqp", "quadprog", "proxqp", "clarabel", "piqp", "highs", "qpalm", "cvxopt")
 """Backends expected to agree to 1e-5 rad/s on a step (others, e.g. scs, are first-order and looser)."""
@@ -155,8 +159,6 @@ def test_settings_are_validated():
 
 def elbow_wall_problem(robot):
     """A wall 13 cm beside the elbow at the ready pose; the goal swings the elbow towards it."""
-    from planbench import Obstacle
-
     q = np.array(robot.home)
     elbow = robot.frame_pose(q, "panda_link4").translation
     wall = Obstacle("wall", "box", position=(elbow[0], elbow[1] + 0.13, elbow[2]), size=(0.4, 0.02, 0.4))
@@ -168,11 +170,171 @@ def elbow_wall_problem(robot):
 def test_velocity_dampers_hold_near_an_obstacle(robot):
     problem = elbow_wall_problem(robot)
     q = problem.start
-    planner = prepared(problem, velocity_dampers=True)
+    planner = prepared(problem, velocity_dampers=True, collision_constraints=False)
     qp, qd, diag = planner.step_at(q)
     assert qp.G is not None and len(qp.h) >= 1
     assert np.all(qp.G @ qd <= qp.h + 1e-6)
     assert diag[2] > 0  # the field acts
+
+
+# --- collision constraints (exact distances) ---------------------------------------------------
+
+
+def plate_problem(robot):
+    """A plate across the hand's way: the goal turns joint 1 by 1 rad, and the plate stands
+    half-way between the hand's start and goal positions."""
+    q = np.array(robot.home)
+    goal = q.copy()
+    goal[0] += 1.0
+    a, b = robot.frame_pose(q, "panda_hand").translation, robot.frame_pose(goal, "panda_hand").translation
+    yaw = np.arctan2(b[1] - a[1], b[0] - a[0])
+    plate = Obstacle(
+        "plate",
+        "box",
+        position=tuple(0.5 * (a + b) + [0.0, 0.0, -0.05]),
+        orientation_xyzw=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)),
+        size=(0.02, 0.4, 0.2),
+    )
+    return problem_from(robot, q, goal, Scene((plate,), name="plate"))
+
+
+def test_collision_constraint_rows_are_the_rate_of_the_exact_distance(robot):
+    """-G qd is the time derivative of coal's distance for any qd (normal and witness Jacobians),
+    for robot-obstacle and robot-robot pairs."""
+    problem = elbow_wall_problem(robot)
+    distances = DistanceModel(robot, problem.scene, 0.2)
+    model, data = robot.model, robot.model.createData()
+
+    def near(q):
+        pin.computeJointJacobians(model, data, q)
+        return distances.near(model, data)
+
+    q = np.array(problem.start)
+    pairs = near(q)
+    S = data.J.copy()
+    assert len(pairs) >= 3 and pairs.distance.min() < 0.05
+    assert np.any(pairs.second < distances.n_robot)  # self pairs too: both bodies move
+    G, h = collision_constraints(
+        S,
+        pairs.point,
+        pairs.normal,
+        pairs.support,
+        pairs.distance,
+        gain=5.0,
+        safety=0.003,
+        other_point=pairs.other_point,
+        other_support=pairs.other_support,
+    )
+    assert np.allclose(h, 5.0 * (pairs.distance - 0.003))
+    rng = np.random.default_rng(1)
+    eps = 1e-3  # central differences: GJK's distances are accurate to ~1e-6 m
+    for _ in range(3):
+        qd = 5.0 * rng.normal(size=7)
+        rate = (near(q + eps * qd).by_pair()[pairs.pair] - near(q - eps * qd).by_pair()[pairs.pair]) / (2 * eps)
+        assert np.allclose(rate, -G @ qd, rtol=0.02, atol=1e-3), np.abs(rate + G @ qd).max()
+        assert np.abs(rate[pairs.second < distances.n_robot]).max() > 5e-3  # a self pair moves
+
+
+def test_hull_distances_never_exceed_the_true_clearance(robot):
+    problem = elbow_wall_problem(robot)
+    distances = DistanceModel(robot, problem.scene, 1.0)
+    checker = CollisionChecker(robot, problem.scene)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        q = rng.uniform(robot.lower, robot.upper)
+        pairs = distances.near_at(q)
+        obstacle = pairs.second >= distances.n_robot
+        assert pairs.distance[obstacle].min() <= checker.clearance(q) + 1e-5  # GJK's tolerance
+
+
+def test_collision_constraints_turn_a_collision_into_a_named_stall(robot):
+    """On the plate scene the field alone lets the hand hit the plate; with the constraints the
+    arm stops at the safety distance (a local minimum), the harness finds no collision."""
+    problem = plate_problem(robot)
+    off = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, collision_constraints=False)
+    ev_off = planbench.evaluate(problem, off)
+    assert off.status is PlanStatus.COLLISION and "plate" in ev_off.failure
+    on = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0)
+    ev_on = planbench.evaluate(problem, on)
+    assert on.status is PlanStatus.LOCAL_MINIMUM, on.message
+    assert "collision" not in ev_on.failure
+    safety = MatrixFieldQPConfig().collision_safety
+    assert safety - 1e-4 <= ev_on.min_clearance < safety + 1e-3  # held at the safety distance
+    assert np.nanmin(on.info["qp_clearance"]) >= safety - 1e-4
+    assert np.nanmax(on.info["qp_collision_rows"]) >= 1
+
+
+def test_collision_constraints_off_leave_the_qp_without_rows(robot):
+    problem = plate_problem(robot)
+    q = problem.start
+    qp_on = prepared(problem).step_at(q)[0]
+    qp_off = prepared(problem, collision_constraints=False).step_at(q)[0]
+    assert qp_on.G is not None and len(qp_on.h) >= 1
+    assert qp_off.G is None
+    assert prepared(problem, collision_constraints=False).distances is None
+
+
+def sandwich_problem(robot):
+    """Two plates 1 cm from either side of the arm (links 1 and 2) at the ready pose."""
+    q = np.array(robot.home)
+    c = robot.frame_pose(q, "panda_link4").translation
+    size = (0.6, 0.02, 0.6)
+    plates = []
+    for name, side in (("left", 1.0), ("right", -1.0)):
+        far = c[1] + side * 0.3  # a probe 30 cm away, then moved to leave 1 cm
+        probe = Obstacle("probe", "box", position=(c[0], far, c[2]), size=size)
+        d = DistanceModel(robot, Scene((probe,)), 1.0, self_pairs=False).near_at(q).distance.min()
+        plates.append(Obstacle(name, "box", position=(c[0], far - side * (d - 0.01), c[2]), size=size))
+    goal = q.copy()
+    goal[0] += 0.5
+    return problem_from(robot, q, goal, Scene(tuple(plates), name="sandwich"))
+
+
+@pytest.mark.filterwarnings("ignore:OSQP exited")
+def test_a_retreat_the_limits_cannot_give_is_a_named_infeasible_step(robot):
+    """Closer than the safety distance on both sides, the constraints ask the arm to move away
+    from both plates at once: no step does, and the plan ends INFEASIBLE naming the pair."""
+    problem = sandwich_problem(robot)
+    result = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, collision_safety=0.02)
+    assert result.status is PlanStatus.INFEASIBLE
+    assert "move away from obstacle" in result.message and "safety distance of 20 mm" in result.message
+    assert result.info["qp_failure"]["collision_pair"][1] in ("obstacle:left", "obstacle:right")
+    assert len(result.path) == 1  # no step taken
+    # with room to spare the same scene plans on (and never touches a plate)
+    free = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0)
+    assert free.status is not PlanStatus.INFEASIBLE
+    assert "collision" not in (planbench.evaluate(problem, free).failure or "")
+
+
+def test_the_check_ahead_keeps_a_face_turning_onto_a_shelf_at_the_safety_distance(monkeypatch):
+    """mbm:bookshelf_thin/0005: a finger's face lies flat on a shelf board while the arm turns;
+    the witness point's linearisation misses the corner that comes down. The check ahead adds
+    its rows; without it the finger sinks below the safety distance."""
+    problem = planbench.load_problems("mbm:bookshelf_thin/0005")[0]
+    safety = MatrixFieldQPConfig().collision_safety
+    result = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=10.0)
+    assert np.nansum(result.info["qp_corrections"]) > 0
+    assert np.nanmin(result.info["qp_clearance"]) >= safety - 1e-4
+    monkeypatch.setattr(qp_planner, "MAX_CORRECTIONS", 0)
+    unchecked = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=10.0)
+    assert np.nansum(unchecked.info["qp_corrections"]) == 0
+    assert np.nanmin(unchecked.info["qp_clearance"]) < safety - 5e-4
+
+
+def test_collision_settings_are_validated():
+    with pytest.raises(InvalidConfigError, match="collision_gain"):
+        MatrixFieldQPConfig(collision_gain=200.0)  # times dt = 2 > 1
+    with pytest.raises(InvalidConfigError, match="collision_gain"):
+        MatrixFieldQPConfig(collision_gain=0.0)
+    with pytest.raises(InvalidConfigError, match="collision_safety"):
+        MatrixFieldQPConfig(collision_safety=0.2, collision_influence=0.1)
+    with pytest.raises(InvalidConfigError, match="collision_safety"):
+        MatrixFieldQPConfig(collision_safety=-0.001)
+    with pytest.raises(InvalidConfigError, match="collision_influence"):
+        MatrixFieldQPConfig(collision_influence=float("inf"))
+    with pytest.raises(InvalidConfigError, match="collision_constraints"):
+        MatrixFieldQPConfig(collision_constraints="yes")
+    assert MatrixFieldQPConfig(collision_gain=100.0).collision_gain == 100.0  # gain dt = 1 is allowed
 
 
 SOLVERS = [s for s in EXACT_SOLVERS if s in installed_solvers()]
@@ -192,6 +354,7 @@ def test_backends_give_the_same_step(robot, solver):
         (problem, start, {"speed_max": 5.0}),
         (problem, start + 0.05, {}),
         (wall, wall.start, {"velocity_dampers": True}),
+        (wall, wall.start, {}),  # collision constraints
     ):
         a = prepared(prob, solver=SOLVERS[0], **fast).step_at(q)[1]
         b = prepared(prob, solver=solver, **fast).step_at(q)[1]

@@ -4,7 +4,8 @@ Everything of the IK loop's settings (:class:`~planbench_plugins.ik_loop.IKLoopC
 step, attraction, secondary-task gains, endings) and of the field's
 (:class:`~planbench.field.scene_field.FieldSettings`) keeps its meaning, as in ``matrix-field``;
 what is added here are the weights of the QP's objective (see :mod:`.formulation`),
-the velocity dampers, and the solver.
+the collision constraints (exact distances, :mod:`.distances`), the field's velocity dampers, and
+the solver.
 """
 
 from __future__ import annotations
@@ -56,7 +57,30 @@ class MatrixFieldQPConfig(FieldSettings, IKLoopConfig):
     """``mu_0`` [s^2/rad^2]: smallest weight of ``|qd|^2``, keeping the Hessian positive definite
     whatever the other weights."""
 
-    # --- velocity dampers (obstacle avoidance as a constraint) -----------------------------
+    # --- collision constraints (exact distances; docs/method.md section 5) ---------------------
+    collision_constraints: bool = True
+    """Collision avoidance as hard constraints of the QP: for every pair (robot collision geometry,
+    obstacle) closer than ``collision_influence``, the velocity damper ``d_dot >= -collision_gain (d
+    - collision_safety)`` with ``d`` coal's exact distance (robot meshes as their convex hulls),
+    linear in ``qd`` through the witness point's Jacobian along the separating normal
+    (:func:`.formulation.collision_constraints`). The distance then never falls below the safety
+    distance (to first order in one step), so a step that cannot keep it ends the plan as a named
+    ``INFEASIBLE`` step, never in a collision. Off: collision avoidance by the field alone (the
+    objective), as ``matrix-field``."""
+    collision_influence: float = 0.10
+    """``d_i`` [m]: pairs closer than this get a constraint. Larger than a control point's travel
+    in one step (the pair is seen before it can touch), and cheap: pairs farther apart are culled
+    by bounding volumes before coal is asked."""
+    collision_safety: float = 0.003
+    """``d_s`` [m]: distance the constraints keep between every robot geometry's hull and every
+    obstacle (below it they ask for a retreat). Small: goal poses of grasps often lie 1 cm from an
+    obstacle, and the hand must reach them."""
+    collision_gain: float = 5.0
+    """``xi`` [1/s]: the approach speed allowed towards an obstacle is ``xi (d - d_s)``, so the gap
+    above ``d_s`` shrinks at most by ``xi dt`` of itself per step (``xi dt <= 1`` is required: the
+    step then cannot jump past ``d_s``)."""
+
+    # --- velocity dampers from the field (obstacle avoidance as a constraint) ----------------
     velocity_dampers: bool = False
     """One linear constraint per control point inside the field: its velocity towards the
     obstacle (against ``f_i``) is at most ``a_i`` (:func:`.formulation.velocity_dampers`). Off by
@@ -98,10 +122,23 @@ class MatrixFieldQPConfig(FieldSettings, IKLoopConfig):
             "damper_speed",
             "damper_stop",
             "residual_tolerance",
+            "collision_influence",
+            "collision_gain",
         ):
             check_number(self, name, lambda v: v > 0, "finite and > 0")
         check_number(self, "secondary_weight", lambda v: v >= 0, "finite and >= 0")
-        for name in ("velocity_dampers", "damper_tool"):
+        check_number(self, "collision_safety", lambda v: v >= 0, "finite and >= 0")
+        if self.collision_safety >= self.collision_influence:
+            raise InvalidConfigError(
+                f"collision_safety ({self.collision_safety:g} m) must be below collision_influence "
+                f"({self.collision_influence:g} m)"
+            )
+        if self.collision_gain * self.dt > 1.0:
+            raise InvalidConfigError(
+                f"collision_gain ({self.collision_gain:g} 1/s) times dt ({self.dt:g} s) must be at most 1: "
+                "a larger gain lets one step jump past the safety distance"
+            )
+        for name in ("collision_constraints", "velocity_dampers", "damper_tool"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         installed = installed_solvers()

@@ -6,7 +6,9 @@ The QP of a step, in qpsolvers' form ``min 1/2 x^T P x + c^T x  s.t.  G x <= h, 
              + 1/2 w_sec  |qd - (qd_rep + qd_m + qd_c)|^2        repulsion, manipulability, mid-joint
              + 1/2 mu     |qd|^2                                 damping
     subject to max(-qd_max, (q_min - q)/dt) <= qd <= min(qd_max, (q_max - q)/dt)   hard limits
-               -u_i^T J_i qd <= a_i   for every damped control point i          velocity dampers (optional)
+               n_k^T J_k qd <= xi (d_k - d_s)   every robot geometry / obstacle pair k   collision constraints
+                                  with d_k < d_i
+               -u_i^T J_i qd <= a_i   for every damped control point i          field dampers (optional)
 
 so ``P = w_task J^T W^2 J + (w_sec + mu) I`` and ``c = -(w_task s J^T W^2 v_att + w_sec x_sec)``.
 The task terms (``v_att``, ``s``, ``qd_rep``, ``qd_m``, ``qd_c``, ``lambda``) are the matrix-field
@@ -16,7 +18,19 @@ combined differs. Unconstrained and with ``W = I``, the minimiser is
 w_task``: the matrix-field step before its limits, with damped least squares and a damped
 null-space projector ``N_l``.
 
-Velocity damper (after Faverjon and Tournassoud 1987, with the field in place of a distance):
+Collision constraint (the velocity damper of Faverjon and Tournassoud 1987; Kanoun, Lamiraux and
+Wieber 2011), per pair ``k`` of a robot collision geometry and an obstacle closer than ``d_i``:
+coal's distance ``d_k`` between them, the witness point ``p_k`` on the robot and the unit normal
+``n_k`` from the robot towards the obstacle (:mod:`.distances`). The obstacle is still, so
+``d_k_dot = -n_k^T J_k qd`` with ``J_k`` the translational Jacobian of ``p_k``, and the damper
+``d_k_dot >= -xi (d_k - d_s)`` is the row above: the approach speed allowed falls linearly to 0 at
+the safety distance ``d_s``, and below it the row asks for a retreat. One step of ``dt`` shrinks
+``d_k - d_s`` by at most the factor ``1 - xi dt`` (to first order; ``xi dt <= 1``), so the
+distance never crosses ``d_s``. With every ``d_k >= d_s`` and ``q`` inside its limits, ``qd = 0``
+is feasible; below ``d_s`` the retreat may conflict with the joint limits, and the solver reports
+the QP infeasible (a named step failure, never a collision).
+
+Field damper (after Faverjon and Tournassoud 1987, with the field in place of a distance):
 ``u_i = f_i / |f_i|`` points away from the obstacles, ``J_i`` is the point's translational
 Jacobian, and the allowed approach speed ``a_i = xi max(0, 1 - |f_i| / (k_stop v_max))`` [m/s]
 falls as the field grows. It never asks for a retreat (``a_i >= 0``), so ``qd = 0`` satisfies
@@ -32,7 +46,15 @@ import numpy as np
 
 from planbench_plugins.ik_loop import tasks as T
 
-__all__ = ["StepQP", "objective", "limit_bounds", "velocity_dampers", "infeasible_joints", "VELOCITY_MARGIN"]
+__all__ = [
+    "StepQP",
+    "objective",
+    "limit_bounds",
+    "collision_constraints",
+    "velocity_dampers",
+    "infeasible_joints",
+    "VELOCITY_MARGIN",
+]
 
 VELOCITY_MARGIN = 1e-9
 """Relative margin under the velocity limits (see :func:`limit_bounds`)."""
@@ -127,4 +149,31 @@ def velocity_dampers(
     Jp = T.point_jacobians(S, points[rows], support[rows])  # (M, 3, n)
     G = -np.einsum("mjn,mj->mn", Jp, u)
     h = speed * np.maximum(0.0, 1.0 - mag / stop)
+    return G, h
+
+
+def collision_constraints(
+    S: np.ndarray,
+    point: np.ndarray,
+    normal: np.ndarray,
+    support: np.ndarray,
+    distance: np.ndarray,
+    *,
+    gain: float,
+    safety: float,
+    other_point: np.ndarray | None = None,
+    other_support: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(G, h)`` of the collision constraints of ``K`` pairs: row ``k`` is ``n_k^T (J_k - J'_k) qd
+    <= gain (d_k - safety)``, ``d_k_dot = -n_k^T (J_k - J'_k) qd`` being the rate of the distance
+    ``distance[k]`` [m] along the unit normal ``normal[k]`` (from the first body to the second).
+    ``J_k[:, j] = support[k, j] (S_v,j + S_w,j x p_k)`` is the translational Jacobian of the first
+    body's witness point ``point[k]`` [m] (``S`` the spatial Jacobian, WORLD); ``J'_k`` that of the
+    second body's ``other_point[k]`` with ``other_support`` (left out for still obstacles).
+    ``gain`` [1/s], ``safety`` [m]."""
+    # n^T (S_v,j + S_w,j x p) = n . S_v,j + (p x n) . S_w,j
+    G = support * (normal @ S[:3] + np.cross(point, normal) @ S[3:])
+    if other_point is not None and other_support is not None and np.any(other_support):
+        G -= other_support * (normal @ S[:3] + np.cross(other_point, normal) @ S[3:])
+    h = gain * (distance - safety)
     return G, h

@@ -10,6 +10,7 @@ violation of the limits (the projection moves ``qd`` by at most that violation).
 from __future__ import annotations
 
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from planbench.planner import PlanStatus
 from planbench_plugins.ik_loop import StepFailure
 from planbench_plugins.matrix_field_qp.formulation import StepQP, infeasible_joints
 
-__all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS"]
+__all__ = ["QPFailure", "QPSolver", "SOLVER_DEFAULTS", "RETRY_OPTIONS"]
 
 SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
     "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "polishing": False, "max_iter": 20000, "raise_error": False},
@@ -29,6 +30,15 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
 (1e-3) leave steps up to 0.3 rad/s from the optimum on planning QPs; at 1e-8 they agree with an
 active-set solver (daqp) to 1e-5 rad/s (median 2e-8). Polishing is off: OSQP 1.1 prints a line on
 every solve that polishes nothing, even with ``verbose=False`` (osqp/osqp#785)."""
+
+RETRY_OPTIONS: dict[str, dict[str, Any]] = {"osqp": {"adaptive_rho": False}}
+"""Options of one second attempt when a backend finds no solution, over the first attempt's (a
+``solver_options`` key wins). OSQP's adaptive step size stalls on a few steps with collision
+constraints, where several rows are nearly parallel (one face of a link held against two bars)
+and a joint sits at its limit: on the 93 steps of ``mbm:cage/0001-0020`` that took OSQP over 3000
+iterations, 3 failed after 200,000 (70 ms each), while a fixed ``rho`` solved all 93 within 1,375
+iterations (2.7e-6 rad/s from daqp's answer). On ordinary steps a fixed ``rho`` needs more
+iterations (median 500 against 75), so it is the second attempt only."""
 
 
 class QPFailure(StepFailure):
@@ -54,6 +64,9 @@ class QPSolver:
         self._qpsolvers = qpsolvers
         self.name = name
         self.options = {**SOLVER_DEFAULTS.get(name, {}), **(options or {})}
+        retry = RETRY_OPTIONS.get(name)
+        self.retry_options = None if retry is None else {**self.options, **retry, **(options or {})}
+        """The second attempt's options (:data:`RETRY_OPTIONS`), None for a backend without one."""
         self.residual_tolerance = residual_tolerance
         self._sparse = name in qpsolvers.sparse_solvers and name not in qpsolvers.dense_solvers
         if self._sparse:
@@ -79,12 +92,9 @@ class QPSolver:
             G = None if G is None else self._csc(G)
         problem = self._qpsolvers.Problem(P, qp.c, G, qp.h, None, None, qp.lb, qp.ub)
         t0 = time.perf_counter()
-        try:
-            solution = self._qpsolvers.solve_problem(problem, solver=self.name, **self.options)
-        except Exception as exc:  # any backend error is a named failure, not an escaping exception
-            raise QPFailure(
-                f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name, f"error: {exc}"
-            ) from exc
+        solution = self._call(problem, self.options)
+        if not solution.found and self.retry_options is not None:
+            solution = self._call(problem, self.retry_options)
         seconds = time.perf_counter() - t0
         x = solution.x
         if not solution.found or x is None or not np.all(np.isfinite(x)):
@@ -99,6 +109,18 @@ class QPSolver:
                 f"{_status(solution)}, violation {violation:.3g}",
             )
         return np.clip(x, qp.lb, qp.ub), violation, seconds
+
+    def _call(self, problem: Any, options: dict[str, Any]) -> Any:
+        """One backend call. qpsolvers' warning of a failed solve is silenced: the answer is
+        checked here, and a failure becomes a :class:`QPFailure` with the backend's status."""
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                return self._qpsolvers.solve_problem(problem, solver=self.name, **options)
+        except Exception as exc:  # any backend error is a named failure, not an escaping exception
+            raise QPFailure(
+                f"QP solver {self.name!r} raised {type(exc).__name__}: {exc}", self.name, f"error: {exc}"
+            ) from exc
 
 
 def _status(solution: Any) -> str:

@@ -1,0 +1,234 @@
+"""Exact distances for the collision constraints of ``matrix-field-qp`` (coal).
+
+One ``pinocchio.GeometryModel`` holds the robot's collision geometries (a mesh replaced by its
+convex hull) and every obstacle of the scene (its own coal geometry), with one distance pair per
+(moving robot geometry, obstacle) and, optionally, the robot's own self-collision pairs (those of
+its collision model, the SRDF's exclusions already removed). Per step, at the configuration the
+loop's kinematics were last updated to (``kin.data``):
+
+1. the robot geometries' world placements (``pinocchio.updateGeometryPlacements``);
+2. culling: bounding spheres of the robot geometries against each other and against the
+   obstacles' world AABBs give lower bounds of the pairs' distances; pairs whose bound is at least
+   the influence distance are skipped;
+3. coal's distance (GJK, EPA when the two overlap) for the remaining pairs: signed distance ``d``
+   [m], the witness points on both bodies [m], and the unit normal ``n`` from the first body (a
+   robot geometry) towards the second (an obstacle, or another robot geometry).
+
+A convex hull (qhull, as :mod:`planbench.certified` builds them) contains its mesh, so ``d`` never
+overestimates the true clearance: a constraint that keeps the hulls apart keeps the meshes apart.
+(``buildConvexRepresentation`` is not a hull: it keeps a mesh's own triangles, and on a non-convex
+mesh such as the UR5's GJK then overestimates distances by centimetres.) Hull-to-primitive queries
+cost a few microseconds each; coal's mesh (BVH) queries cost tens to hundreds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+__all__ = ["DistanceModel", "PairDistances"]
+
+
+class PairDistances:
+    """The pairs near enough to matter at one configuration (arrays of length ``K``).
+
+    ``pair`` (K,) indices of the pairs (names: :attr:`DistanceModel.pair_names`), ``distance`` [m]
+    (negative when overlapping), ``point`` and ``other_point`` (K, 3) the witness points on the
+    first and the second body [m], ``normal`` (K, 3) unit normals from the first body towards the
+    second, ``first`` and ``second`` (K,) the bodies' geometry indices, ``support`` and
+    ``other_support`` (K, n) 1.0 where joint ``k`` moves the first or the second body (all 0 for an
+    obstacle or the robot's fixed base). ``rotation`` (B, 3, 3) and ``translation`` (B, 3): the
+    world placement of every body at that configuration (obstacles: the identity, their geometry
+    being given in the world).
+    """
+
+    def __init__(self, n_pairs: int, **arrays: np.ndarray) -> None:
+        self.pair: np.ndarray = arrays["pair"]
+        self.distance: np.ndarray = arrays["distance"]
+        self.point: np.ndarray = arrays["point"]
+        self.other_point: np.ndarray = arrays["other_point"]
+        self.normal: np.ndarray = arrays["normal"]
+        self.first: np.ndarray = arrays["first"]
+        self.second: np.ndarray = arrays["second"]
+        self.support: np.ndarray = arrays["support"]
+        self.other_support: np.ndarray = arrays["other_support"]
+        self.rotation: np.ndarray = arrays["rotation"]
+        self.translation: np.ndarray = arrays["translation"]
+        self._n_pairs = n_pairs
+
+    def __len__(self) -> int:
+        return len(self.distance)
+
+    def by_pair(self) -> np.ndarray:
+        """Distances [m] indexed by pair, ``inf`` for pairs not reported (P,)."""
+        out = np.full(self._n_pairs, np.inf)
+        out[self.pair] = self.distance
+        return out
+
+    def local(self, body: np.ndarray, world: np.ndarray) -> np.ndarray:
+        """World points (K', 3) [m] in the frames of bodies ``body`` (K',) at this configuration."""
+        return np.einsum("kji,kj->ki", self.rotation[body], world - self.translation[body])
+
+    def world(self, body: np.ndarray, local: np.ndarray) -> np.ndarray:
+        """Points given in the frames of bodies ``body`` (K',), in the world at this configuration."""
+        return np.einsum("kij,kj->ki", self.rotation[body], local) + self.translation[body]
+
+
+def _hull(geometry: Any) -> Any:
+    """The convex hull of a mesh (from a copy: the robot's own geometry is left untouched), or the
+    geometry itself when it is a primitive or the hull cannot be built (a flat mesh)."""
+    if isinstance(geometry, coal.BVHModelBase) and geometry.num_vertices >= 4:
+        try:
+            mesh = geometry.clone()
+            mesh.buildConvexHull(False, "Qt")
+            return mesh.convex
+        except (RuntimeError, ValueError):
+            return geometry
+    return geometry
+
+
+def _support_row(model: Any, joint: int) -> np.ndarray:
+    """1.0 at every velocity index of ``joint`` and its ancestors (the joints that move it)."""
+    row = np.zeros(model.nv)
+    j = joint
+    while j > 0:
+        jm = model.joints[j]
+        row[jm.idx_v : jm.idx_v + jm.nv] = 1.0
+        j = model.parents[j]
+    return row
+
+
+class DistanceModel:
+    """Distances between a robot's collision geometries and a scene's obstacles, and (with
+    ``self_pairs``) between the robot's own geometries.
+
+    ``influence`` [m]: pairs farther apart than this are not reported (:meth:`near`). Not
+    thread-safe (own buffers).
+    """
+
+    def __init__(self, robot: Any, scene: Any, influence: float, self_pairs: bool = True) -> None:
+        self.influence = float(influence)
+        model = robot.model
+        gm = pin.GeometryModel()
+        robot_geoms = list(robot.collision_model.geometryObjects)
+        centres, radii = [], []
+        for g in robot_geoms:
+            geom = _hull(g.geometry)
+            geom.computeLocalAABB()
+            lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
+            centres.append(0.5 * (lo + hi))
+            radii.append(0.5 * float(np.linalg.norm(hi - lo)))
+            gm.addGeometryObject(pin.GeometryObject(g.name, int(g.parentJoint), int(g.parentFrame), g.placement, geom))
+        self.n_robot = n_robot = len(robot_geoms)
+        moving = [g.parentJoint != 0 for g in robot_geoms]
+        lows, highs, names = [], [], [g.name for g in robot_geoms]
+        for obstacle in scene.obstacles:
+            gid = gm.addGeometryObject(
+                pin.GeometryObject(
+                    f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(), obstacle.collision_geometry()
+                )
+            )
+            lo, hi = obstacle.aabb()
+            lows.append(lo)
+            highs.append(hi)
+            names.append(f"obstacle:{obstacle.name}")
+            for rid in range(n_robot):
+                if moving[rid]:
+                    gm.addCollisionPair(pin.CollisionPair(rid, gid))
+        if self_pairs:  # pairs on one joint never move relative to each other: left out
+            joint = [int(g.parentJoint) for g in robot_geoms]
+            for cp in robot.collision_model.collisionPairs:
+                a, b = int(cp.first), int(cp.second)
+                if joint[a] != joint[b]:
+                    gm.addCollisionPair(pin.CollisionPair(a, b))
+        self.n_obstacles = len(lows)
+        n_bodies = n_robot + self.n_obstacles
+        self.body_names = tuple(names)
+        support = np.zeros((n_bodies, model.nv))
+        for i, g in enumerate(robot_geoms):
+            support[i] = _support_row(model, int(g.parentJoint))
+        self._support = support
+        first = np.array([int(p.first) for p in gm.collisionPairs], dtype=np.intp)
+        second = np.array([int(p.second) for p in gm.collisionPairs], dtype=np.intp)
+        if np.any(first >= n_robot):
+            raise AssertionError("every pair's first body is a robot geometry")
+        self._first, self._second = first, second
+        self.n_pairs = len(first)
+        self.pair_names = tuple((names[a], names[b]) for a, b in zip(first, second, strict=True))
+        self.n_self_pairs = int(np.sum(second < n_robot))
+        # culling: a sphere per robot geometry (local centre, radius), a box per obstacle
+        self._centre_local = np.array(centres).reshape(-1, 3)
+        self._radius = np.array(radii)
+        self._obs_lo = np.array(lows).reshape(-1, 3)
+        self._obs_hi = np.array(highs).reshape(-1, 3)
+        self._is_self = second < n_robot
+        self.geometry_model = gm
+        self.geometry_data = gd = pin.GeometryData(gm)
+        for k in range(self.n_pairs):  # the same answer whatever was queried before
+            gd.distanceRequests[k].gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
+        self._oMg = [gd.oMg[i] for i in range(n_robot)]
+        self._rotation = np.tile(np.eye(3), (n_bodies, 1, 1))
+        self._translation = np.zeros((n_bodies, 3))
+        self._model = model
+        self._data = model.createData()  # for :meth:`near_at`
+        self.n_pairs_checked = 0
+        """Pairs handed to coal by the last :meth:`near` (after culling)."""
+
+    def near_at(self, q: np.ndarray) -> PairDistances:
+        """:meth:`near` at configuration ``q`` (forward kinematics on this object's own data)."""
+        pin.forwardKinematics(self._model, self._data, q)
+        return self.near(self._model, self._data)
+
+    def near(self, model: Any, data: Any) -> PairDistances:
+        """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
+        placements ``data.oMi`` up to date: after ``kin.update(q)``)."""
+        gm, gd = self.geometry_model, self.geometry_data
+        pin.updateGeometryPlacements(model, data, gm, gd)
+        n_robot = self.n_robot
+        rotation, translation = self._rotation.copy(), self._translation.copy()
+        rotation[:n_robot] = [M.rotation for M in self._oMg]
+        translation[:n_robot] = [M.translation for M in self._oMg]
+        centre = np.einsum("gij,gj->gi", rotation[:n_robot], self._centre_local) + translation[:n_robot]
+        first, second = self._first, self._second
+        bound = np.empty(self.n_pairs)
+        c = centre[first]
+        obstacle = ~self._is_self
+        o = second[obstacle] - n_robot
+        gap = np.maximum(self._obs_lo[o] - c[obstacle], 0.0) + np.maximum(c[obstacle] - self._obs_hi[o], 0.0)
+        bound[obstacle] = np.sqrt(np.einsum("ka,ka->k", gap, gap)) - self._radius[first[obstacle]]
+        s = self._is_self
+        bound[s] = np.linalg.norm(c[s] - centre[second[s]], axis=1) - self._radius[first[s]] - self._radius[second[s]]
+        candidates = np.flatnonzero(bound < self.influence)
+        m = len(candidates)
+        dist, point, other, normal = np.empty(m), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
+        keep = np.zeros(m, dtype=bool)
+        results = gd.distanceResults
+        for i, k in enumerate(candidates.tolist()):
+            results[k].clear()
+            res = pin.computeDistance(gm, gd, k)
+            d = res.min_distance
+            if d < self.influence:
+                keep[i] = True
+                dist[i] = d
+                point[i] = res.getNearestPoint1()
+                other[i] = res.getNearestPoint2()
+                normal[i] = res.normal
+        self.n_pairs_checked = m
+        pair = candidates[keep]
+        return PairDistances(
+            self.n_pairs,
+            pair=pair,
+            distance=dist[keep],
+            point=point[keep],
+            other_point=other[keep],
+            normal=normal[keep],
+            first=first[pair],
+            second=second[pair],
+            support=self._support[first[pair]],
+            other_support=self._support[second[pair]],
+            rotation=rotation,
+            translation=translation,
+        )
