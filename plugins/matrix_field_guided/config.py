@@ -70,8 +70,10 @@ class MatrixFieldGuidedConfig(FieldSettings):
     1): the unit the field's gain is derived in, as in ``matrix-field``."""
     standoff: float = 0.10
     """Distance [m] from a flat wall at which a point on the arm is pushed at ``speed_max``."""
-    repulsion_gain: float = 1.0
-    """Multiplier [-] of the gain derived from ``standoff``; 0 tracks the global path alone."""
+    repulsion_gain: float = 2.0
+    """Multiplier [-] of the gain derived from ``standoff``; 0 tracks the global path alone.
+    Chosen on MotionBenchMaker 0001-0020 (140 problems, 5 s, seed 0): median smallest clearance
+    6.2 mm at 2, 5.7 mm at 1, RRT-Connect's own path 0.48 mm; all 140 solved either way."""
     control_point_spacing: float = 0.12
     """Largest distance between control points along a link [m] (automatic placement)."""
     control_points: Any = None
