@@ -32,10 +32,9 @@ def interval(k: int, n: int) -> str:
 
 
 def reason(row: dict[str, Any]) -> str:
-    if row["collision_pair"]:
-        pair = json.loads(row["collision_pair"]) if isinstance(row["collision_pair"], str) else row["collision_pair"]
-        a, b = pair[0], pair[1]
-        return f"self {a}/{b}" if not str(b).startswith("obstacle") else f"collision {a}"
+    if row["collision_pair"]:  # "link / obstacle:name" or "link / link"
+        a, _, b = str(row["collision_pair"]).partition(" / ")
+        return f"collision {a}" if b.startswith("obstacle:") else f"self {a}/{b}"
     return str(row["status"]).replace("_", " ")
 
 
@@ -47,7 +46,7 @@ def median(values: list[float], scale: float = 1.0) -> str:
 def table(rows: list[dict[str, Any]]) -> None:
     groups: dict[tuple[str, str], list[dict[str, Any]]] = collections.defaultdict(list)
     for r in rows:
-        family = r["family"] or r["problem"].split("/")[0]
+        family = r["problem"].split("/")[0].removeprefix("mbm:")  # gen: sets keep their robot
         groups[(r["planner"], family)].append(r)
         groups[(r["planner"], "all")].append(r)
     print("| planner | family | solved (95 % interval) | planning [ms] | min clearance [mm] | failures |")
