@@ -57,7 +57,7 @@ def test_wall_is_avoided_with_positive_clearance(robot):
     problem = wall_problem(robot)
     assert problem.check().ok
     # without repulsion the arm hits the wall ...
-    blind = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=0)
+    blind = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=0, escape_attempts=0)
     assert not planbench.evaluate(problem, blind).success
     # ... with it, the hand goes over the wall
     result = planbench.plan(problem, MatrixFieldPlanner, tool_repulsion_gain=1.0)
@@ -82,7 +82,7 @@ def test_named_failures(robot):
     problem = wall_problem(robot)
     short = planbench.plan(problem, MatrixFieldPlanner, max_steps=5)
     assert short.status is PlanStatus.STEP_LIMIT and len(short.path) == 6
-    crash = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=1)
+    crash = planbench.plan(problem, MatrixFieldPlanner, repulsion_gain=0.0, collision_check_every=1, escape_attempts=0)
     assert crash.status is PlanStatus.COLLISION
     assert not planbench.evaluate(problem, crash).success
     # the blind arm in collision: the path ends where the checker first found it
@@ -167,7 +167,7 @@ def test_success_is_never_claimed_on_a_colliding_path(robot):
     it: with the dense path check the planner says COLLISION, not SUCCESS; without it, it claims
     success and the harness disagrees."""
     problem = wall_problem(robot)
-    blind = dict(repulsion_gain=0.0, collision_check_every=0)
+    blind = dict(repulsion_gain=0.0, collision_check_every=0, escape_attempts=0)
     unchecked = planbench.plan(problem, MatrixFieldPlanner, verify_path=False, **blind)
     assert unchecked.status is PlanStatus.SUCCESS
     assert not planbench.evaluate(problem, unchecked).success

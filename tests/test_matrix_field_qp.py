@@ -13,10 +13,10 @@ from planbench.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot
+from planbench_plugins.ik_loop import DistanceModel
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner, installed_solvers
 from planbench_plugins.matrix_field_qp import planner as qp_planner
-from planbench_plugins.matrix_field_qp.distances import DistanceModel
 from planbench_plugins.matrix_field_qp.formulation import collision_constraints, limit_bounds, objective
 
 EXACT_SOLVERS = ("osqp", "daqp", "quadprog", "proxqp", "clarabel", "piqp", "highs", "qpalm", "cvxopt")
@@ -251,10 +251,10 @@ def test_collision_constraints_turn_a_collision_into_a_named_stall(robot):
     """On the plate scene the field alone lets the hand hit the plate; with the constraints the
     arm stops at the safety distance (a local minimum), the harness finds no collision."""
     problem = plate_problem(robot)
-    off = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, collision_constraints=False)
+    off = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, collision_constraints=False, escape_attempts=0)
     ev_off = planbench.evaluate(problem, off)
     assert off.status is PlanStatus.COLLISION and "plate" in ev_off.failure
-    on = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0)
+    on = planbench.plan(problem, MatrixFieldQPPlanner, time_limit=5.0, escape_attempts=0)
     ev_on = planbench.evaluate(problem, on)
     assert on.status is PlanStatus.LOCAL_MINIMUM, on.message
     assert "collision" not in ev_on.failure

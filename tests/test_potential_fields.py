@@ -145,7 +145,7 @@ def test_distance_repulsion_points_away_from_a_wall_and_vanishes_beyond_d0(robot
 @pytest.mark.parametrize("planner", [DistanceFieldPlanner, EDTFieldPlanner])
 def test_wall_is_avoided(robot, planner):
     problem = wall_problem(robot)
-    blind = planbench.plan(problem, planner, repulsion_gain=0.0, collision_check_every=0)
+    blind = planbench.plan(problem, planner, repulsion_gain=0.0, collision_check_every=0, escape_attempts=0)
     assert not planbench.evaluate(problem, blind).success
     result = planbench.plan(problem, planner, tool_repulsion_gain=1.0)
     ev = planbench.evaluate(problem, result)

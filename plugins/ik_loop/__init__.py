@@ -19,7 +19,9 @@ The two seams are :class:`Repulsion` (where the push comes from) and
 :meth:`IKLoopPlanner.solve_step` (how one step's joint velocity is solved; ``matrix-field-qp``
 replaces it with a quadratic program). Modules: ``config``, ``loop``, ``tasks`` (one function per
 task term), ``control_points``, ``kinematics``, ``fast`` and ``_compiled`` (the step in one
-compiled call), ``plots``.
+compiled call), ``escape`` (leaving local minima), ``distances`` (coal's exact distances, robot to
+obstacles and robot to itself), ``self_collision`` (the push between the robot's own links),
+``plots``.
 """
 
 from typing import Any
@@ -27,6 +29,7 @@ from typing import Any
 from planbench_plugins.ik_loop import tasks
 from planbench_plugins.ik_loop.config import DAMPING_MODES, IKLoopConfig, check_number
 from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
+from planbench_plugins.ik_loop.distances import DistanceModel, PairDistances
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
 from planbench_plugins.ik_loop.loop import (
     DIAGNOSTICS,
@@ -43,6 +46,8 @@ __all__ = [
     "DIAGNOSTICS",
     "ArmKinematics",
     "ControlPoints",
+    "DistanceModel",
+    "PairDistances",
     "IKLoopConfig",
     "IKLoopPlanner",
     "Repulsion",

@@ -53,10 +53,13 @@ import numpy as np
 from planbench.collision import CollisionChecker
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
+from planbench.validate import verdict_checker
 from planbench_plugins.ik_loop import fast
 from planbench_plugins.ik_loop.config import IKLoopConfig, resolve_hierarchy
 from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
+from planbench_plugins.ik_loop.escape import escape_motion
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
+from planbench_plugins.ik_loop.self_collision import SelfCollisionPush
 
 __all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
 
@@ -232,23 +235,33 @@ class IKLoopPlanner(Planner):
             checker = CollisionChecker(problem.robot, problem.scene)
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
         self._prepared = {"problem": problem, "points": points, "checker": checker}
-        self._prepared["repulsion"] = self.make_repulsion(problem, points)
-        self._prepared["warnings"] = self._warnings(problem)
+        repulsion = self.make_repulsion(problem, points)
+        self._prepared["warnings"] = self._warnings(problem, repulsion)
+        if self.pushes_off_itself():
+            push = SelfCollisionPush(
+                repulsion,
+                problem.robot,
+                problem.scene,
+                influence=cfg.self_collision_influence,
+                gain=cfg.self_collision_gain,
+                speed_max=cfg.speed_max,
+            )
+            repulsion = push if push.n_pairs else repulsion
+        self._prepared["repulsion"] = repulsion
         self._prepare_query(problem)
 
-    def _warnings(self, problem: Problem) -> list[str]:
+    def pushes_off_itself(self) -> bool:
+        """Whether the self-collision push (:mod:`.self_collision`) is added to the repulsion: the
+        ``self_collision`` setting (a planner that avoids self-collision otherwise says False)."""
+        return bool(self.config.self_collision)
+
+    def _warnings(self, problem: Problem, repulsion: Repulsion) -> list[str]:
         """What the configuration cannot do on this arm (logged once per setup, and reported in
         every result's ``info["warnings"]``)."""
         out = []
         n = problem.robot.nq
         nullspace_step = type(self).solve_step is IKLoopPlanner.solve_step
-        if (
-            nullspace_step
-            and self._hierarchy == "nullspace"
-            and n <= 6
-            and self._prepared
-            and not isinstance(self._prepared["repulsion"], ZeroRepulsion)
-        ):
+        if nullspace_step and self._hierarchy == "nullspace" and n <= 6 and not isinstance(repulsion, ZeroRepulsion):
             out.append(
                 f"robot {problem.robot.name!r} has {n} joints: the 6-D pose task leaves no null space, so the "
                 "repulsion, projected into it, cannot move the arm (hierarchy='priority' or 'auto' lets it act)"
@@ -378,13 +391,38 @@ class IKLoopPlanner(Planner):
         path = prep["path"]
         diag = np.full((n_max, len(names)), np.nan)
         best: list[float] = []  # best[k]: the smallest goal error in steps 0..k
-        status, message = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
+        budget_spent = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
+        status, message = budget_spent
         rho = cfg.rotation_weight
         last_joint, tool = prep["joint"], prep["tool"]
         failure: dict[str, Any] = {}
         update, forces, step, advance = kin.update, repulsion.forces, prep["step"], prep["advance"]
         stall_ratio = cfg.stall_ratio
         best_k = np.inf
+        escapes: list[tuple[str, int]] = []  # (what it escaped, the step it left from)
+        since = 0  # the step the last escape ended on: stalls are judged from there
+        verified = False  # the path so far certified free (by a check before an escape could fire)
+
+        def escape(after: str, frm: int) -> bool:
+            """Rewind to step ``frm`` and escape from there (:meth:`_escape`); False when no escape
+            is left or none was found (the loop then ends as it would have)."""
+            nonlocal k, best_k, since, status, message
+            if checker is None or len(escapes) >= cfg.escape_attempts:
+                return False
+            saved = q.copy()
+            q[:] = path[frm]
+            moved = self._escape(q, rng, checker, inputs, path, diag, frm, n_max)
+            if not moved:
+                q[:] = saved
+                return False
+            escapes.append((after, frm))
+            del best[frm + 1 :]
+            best.extend([np.inf] * (moved - 1))  # best[i] stays the best of step i
+            k = since = frm + moved
+            best_k = np.inf
+            status, message = budget_spent  # what the loop ends on if nothing else ends it
+            return True
+
         k = 0
         path[0] = q
         while True:
@@ -404,17 +442,27 @@ class IKLoopPlanner(Planner):
             best.append(best_k)
             if checker is not None and check_every > 0 and k % check_every == 0 and k > 0 and checker.in_collision(q):
                 status, message = PlanStatus.COLLISION, f"the arm is in collision at step {k} (t = {k * dt:.2f} s)"
+                if escape("collision", max(0, k - check_every)):  # from the last configuration found free
+                    continue
                 break
             if err_p <= tol_p and err_r <= tol_r:
                 status, message = PlanStatus.SUCCESS, f"goal reached in {k} steps"
+                if checker is not None and len(escapes) < cfg.escape_attempts:
+                    # certified now, so that a collision can still be escaped (else after the loop)
+                    hit = self._first_collision(checker, prep["problem"], path[: k + 1])
+                    verified = hit is None
+                    if hit is not None and escape("collision", max(0, hit - max(1, check_every))):
+                        continue
                 break
-            if k >= window and stalled(best, k, window, stall_ratio):
+            if k - since >= window and stalled(best, k, window, stall_ratio):
                 status = PlanStatus.LOCAL_MINIMUM
                 message = (
                     f"local minimum: the goal error fell by less than {cfg.stall_ratio:.0%} over "
                     f"{cfg.stall_window:g} s (position error {err_p * 1000:.1f} mm, "
                     f"orientation error {err_r:.3f} rad)"
                 )
+                if escape("local_minimum", k):
+                    continue
                 break
             if k >= cfg.max_steps:
                 break
@@ -424,7 +472,7 @@ class IKLoopPlanner(Planner):
             advance(k + 1)
             k += 1
         n = k + 1
-        if checker is not None and status is not PlanStatus.COLLISION:
+        if checker is not None and status is not PlanStatus.COLLISION and not verified:
             hit = self._first_collision(checker, prep["problem"], path[:n])
             if hit is not None:
                 n = hit + 1
@@ -439,17 +487,59 @@ class IKLoopPlanner(Planner):
         info.update(failure)
         info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
         info["hierarchy"] = self._hierarchy
+        info["escapes"] = len(escapes)
+        info["escape_after"] = [what for what, _ in escapes]
+        info["escape_steps"] = [step for _, step in escapes]
         if prep["warnings"]:
             info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
+
+    def _escape(
+        self,
+        q: np.ndarray,
+        rng: np.random.Generator,
+        checker: Any,
+        inputs: StepInputs,
+        path: np.ndarray,
+        diag: np.ndarray,
+        k: int,
+        n_max: int,
+    ) -> int:
+        """Move from ``q`` (= ``path[k]``) to a random free configuration nearby
+        (:func:`.escape.escape_motion`): the motion is written to ``path[k + 1 :]`` (diagnostics NaN),
+        ``q`` set to its end; returns its number of steps, 0 when no escape was found or the step
+        budget cannot hold it."""
+        cfg = self.config
+        certified = verdict_checker(self._prepared["problem"]) if self._prepared else None
+
+        def segment_free(a: np.ndarray, b: np.ndarray) -> bool:
+            return certified is None or bool(certified.check_path(np.stack((a, b))).free)
+
+        motion, _ = escape_motion(
+            q.copy(),
+            rng,
+            checker.in_collision,
+            segment_free,
+            inputs.lower,
+            inputs.upper,
+            inputs.qd_max,
+            cfg.dt,
+            cfg.escape_radius,
+            cfg.escape_draws,
+        )
+        if motion is None or k + len(motion) >= n_max:
+            return 0
+        m = len(motion)
+        path[k + 1 : k + 1 + m] = motion
+        diag[k + 1 : k + 1 + m] = np.nan
+        q[:] = motion[-1]
+        return m
 
     def _first_collision(self, checker: Any, problem: Problem, path: np.ndarray) -> int | None:
         """The first step whose segment (or end) is not proven free, or None. With ``verify_path``
         the whole trajectory, certified as the harness certifies it, else only the last configuration."""
         if not self.config.verify_path:
             return len(path) - 1 if checker.in_collision(path[-1]) else None
-        from planbench.validate import verdict_checker
-
         verdict = verdict_checker(problem).check_path(path)
         if verdict.free:
             return None

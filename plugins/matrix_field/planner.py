@@ -31,6 +31,8 @@ class MatrixFieldPlanner(IKLoopPlanner):
             "goal_tolerance_scale": 1.0,
             "tool_repulsion_gain": 0.0,
             "hierarchy": "nullspace",
+            "self_collision": False,
+            "escape_attempts": 0,
         }
     }
     """``matrix-field:paper``: the method as specified (docs/method.md), every configurable departure
@@ -53,6 +55,7 @@ class MatrixFieldPlanner(IKLoopPlanner):
         prep = self._prepared
         assert prep is not None, "call setup(problem) first"
         rep = prep["repulsion"]
+        rep = getattr(rep, "inner", rep)  # under the self-collision push
         if not isinstance(rep, FieldRepulsion):
             return np.zeros((len(points), 3))
         return rep.field_at(points)

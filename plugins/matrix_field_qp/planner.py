@@ -32,10 +32,18 @@ import numpy as np
 from planbench.field.scene_field import scene_repulsion
 from planbench.planner import PlanResult
 from planbench.problem import Problem
-from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, StepInputs, ZeroRepulsion
+from planbench_plugins.ik_loop import (
+    ArmKinematics,
+    ControlPoints,
+    DistanceModel,
+    IKLoopPlanner,
+    PairDistances,
+    Repulsion,
+    StepInputs,
+    ZeroRepulsion,
+)
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp.config import MatrixFieldQPConfig
-from planbench_plugins.matrix_field_qp.distances import DistanceModel, PairDistances
 from planbench_plugins.matrix_field_qp.formulation import (
     StepQP,
     collision_constraints,
@@ -83,6 +91,10 @@ class MatrixFieldQPPlanner(IKLoopPlanner):
         self._next: tuple[np.ndarray, PairDistances] | None = None  # (q, pairs) checked ahead by the last step
         self._last_qp: StepQP | None = None
         self._kept: dict[int, np.ndarray] = {}  # pair -> points kept on its first body, local [m]
+
+    def pushes_off_itself(self) -> bool:
+        """The collision constraints keep the robot's own pairs apart: no push is needed then."""
+        return bool(self.config.self_collision and not self.config.collision_constraints)
 
     def setup(self, problem: Problem) -> None:
         """The loop's setup, and the distance model of the collision constraints."""

@@ -1,4 +1,6 @@
-"""Exact distances for the collision constraints of ``matrix-field-qp`` (coal).
+"""Exact distances between a robot's geometries and a scene's obstacles, and between the robot's
+own geometries (coal): ``matrix-field-qp``'s collision constraints and the loop's self-collision
+push (:mod:`.self_collision`).
 
 One ``pinocchio.GeometryModel`` holds the robot's collision geometries (a mesh replaced by its
 convex hull) and every obstacle of the scene (its own coal geometry), with one distance pair per
@@ -109,7 +111,9 @@ class DistanceModel:
     thread-safe (own buffers).
     """
 
-    def __init__(self, robot: Any, scene: Any, influence: float, self_pairs: bool = True) -> None:
+    def __init__(
+        self, robot: Any, scene: Any, influence: float, self_pairs: bool = True, obstacle_pairs: bool = True
+    ) -> None:
         self.influence = float(influence)
         model = robot.model
         gm = pin.GeometryModel()
@@ -125,7 +129,7 @@ class DistanceModel:
         self.n_robot = n_robot = len(robot_geoms)
         moving = [g.parentJoint != 0 for g in robot_geoms]
         lows, highs, names = [], [], [g.name for g in robot_geoms]
-        for obstacle in scene.obstacles:
+        for obstacle in scene.obstacles if obstacle_pairs else ():
             gid = gm.addGeometryObject(
                 pin.GeometryObject(
                     f"obstacle:{obstacle.name}", 0, 0, obstacle.placement(), obstacle.collision_geometry()

@@ -1,0 +1,70 @@
+"""Leaving local minima (plugins/ik_loop/escape.py): bounded random escapes in the shared loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench import PlanStatus
+from planbench.errors import InvalidConfigError
+from planbench_plugins.ik_loop.escape import escape_motion
+from planbench_plugins.matrix_field import MatrixFieldConfig
+
+
+def test_an_escape_moves_at_the_velocity_limits_to_a_free_configuration():
+    q = np.zeros(3)
+    lower, upper, qd_max = -np.ones(3), np.ones(3), np.array([1.0, 2.0, 4.0])
+    segments = []
+
+    def in_collision(c):
+        return bool(c[0] > 0)  # half the space is blocked: the first draws may land there
+
+    def segment_free(a, b):
+        segments.append((a.copy(), b.copy()))
+        return bool(b[1] < 0)  # and half the motions
+
+    rng = np.random.default_rng(3)
+    motion, draws = escape_motion(q, rng, in_collision, segment_free, lower, upper, qd_max, 0.01, 0.5, 50)
+    assert motion is not None and draws >= 2
+    target = motion[-1]
+    assert target[0] <= 0 and target[1] < 0 and np.all(target >= lower) and np.all(target <= upper)
+    assert np.array_equal(segments[-1][0], q) and np.array_equal(segments[-1][1], target)  # its motion, checked
+    steps = np.diff(np.vstack((q, motion)), axis=0)
+    assert np.all(np.abs(steps) <= qd_max * 0.01 + 1e-12)  # within the velocity limits
+    assert np.allclose(steps, steps[0])  # a straight line at constant speed
+
+
+def test_an_escape_gives_up_after_its_draws():
+    blocked = (lambda c: True, lambda a, b: True)
+    motion, draws = escape_motion(
+        np.zeros(2), np.random.default_rng(0), *blocked, -np.ones(2), np.ones(2), np.ones(2), 0.01, 0.5, 7
+    )
+    assert motion is None and draws == 7
+
+
+@pytest.mark.parametrize(
+    ("problem_id", "ended"),
+    [("mbm:bookshelf_small/0008", PlanStatus.LOCAL_MINIMUM), ("mbm:table_under_pick/0011", PlanStatus.COLLISION)],
+)
+def test_escapes_turn_a_stall_or_a_collision_into_a_validated_path(problem_id, ended):
+    problem = planbench.load_problems(problem_id)[0]
+    plain = planbench.plan(problem, "matrix-field", seed=0, escape_attempts=0)
+    assert plain.status is ended and plain.info["escapes"] == 0
+    result = planbench.plan(problem, "matrix-field", seed=0)  # the defaults escape
+    verdict = planbench.evaluate(problem, result)
+    assert verdict.success, verdict.failure
+    assert 1 <= result.info["escapes"] <= MatrixFieldConfig().escape_attempts
+    assert len(result.info["escape_after"]) == len(result.info["escape_steps"]) == result.info["escapes"]
+    assert set(result.info["escape_after"]) <= {"local_minimum", "collision"}
+    assert verdict.max_velocity_ratio <= 1.0 + 1e-9  # escapes move within the velocity limits
+    again = planbench.plan(problem, "matrix-field", seed=0)
+    assert np.array_equal(again.path, result.path)  # the query's rng: reproducible
+    if ended is PlanStatus.COLLISION:
+        assert "collision" in result.info["escape_after"]
+
+
+def test_escape_settings_are_checked():
+    for bad in ({"escape_attempts": -1}, {"escape_attempts": 1.5}, {"escape_draws": 0}, {"escape_radius": 0.0}):
+        with pytest.raises(InvalidConfigError, match=next(iter(bad))):
+            MatrixFieldConfig(**bad)
