@@ -15,6 +15,7 @@ attribution and licence notice: Apache-2.0 via VAMP, generated with BSD-3-Clause
 
 from __future__ import annotations
 
+import collections
 import fnmatch
 import functools
 import json
@@ -105,18 +106,27 @@ def load_problems(selector: str | Path) -> list[Problem]:
     raise UnknownNameError("problem set or file", text, names)
 
 
-_ONE: dict[str, Problem] = {}
+_ONE: collections.OrderedDict[str, Problem] = collections.OrderedDict()
+LOADED_PROBLEMS_KEPT = 8
+"""Problems :func:`load_problem` keeps loaded, the most recently used. Bounded because what is
+built for a problem is cached on it (collision and certified checkers with their convex hulls,
+tens of MB on a large scene): a worker that kept every problem of a 760-problem suite grew past
+its 4 GiB address-space limit."""
 
 
 def load_problem(ref: str) -> Problem:
-    """The one problem a reference names (``"mbm:box/0001"``, a .json file), loaded once per
-    process: benchmark workers and validators load each run's problem by reference."""
+    """The one problem a reference names (``"mbm:box/0001"``, a .json file), loaded once while it
+    is among the :data:`LOADED_PROBLEMS_KEPT` last used: benchmark workers and validators load each
+    run's problem by reference."""
     problem = _ONE.get(ref)
     if problem is None:
         found = load_problems(ref)
         if len(found) != 1:
             raise PlanbenchError(f"problem reference {ref!r} names {len(found)} problems, not one")
         problem = _ONE[ref] = found[0]
+        while len(_ONE) > LOADED_PROBLEMS_KEPT:
+            _ONE.popitem(last=False)
+    _ONE.move_to_end(ref)
     return problem
 
 

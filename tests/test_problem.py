@@ -5,7 +5,7 @@ import pytest
 
 import planbench
 from conftest import box
-from planbench import PlanStatus, Problem, Scene
+from planbench import PlanStatus, Problem, Scene, datasets
 from planbench.errors import PlanbenchError, ProblemFileError, UnknownNameError
 from planbench.problem import Pose
 
@@ -151,3 +151,16 @@ def test_goal_pose_only_problem_has_no_configuration(panda):
     p = Problem.create(panda, Scene(), panda.home, goal_pose=pose)
     assert p.goal.kind == "pose" and p.goal.q is None
     assert planbench.plan(p, "straight-line").status is PlanStatus.INVALID_GOAL
+
+
+def test_load_problem_keeps_only_the_last_problems_used():
+    """A benchmark worker loads each run's problem by reference; what it builds on a problem is
+    cached on it, so the loaded problems are bounded (a worker keeping all 760 of a suite ran out
+    of its address space)."""
+    refs = [f"mbm:box/{i:04d}" for i in range(1, datasets.LOADED_PROBLEMS_KEPT + 3)]
+    first = datasets.load_problem(refs[0])
+    assert datasets.load_problem(refs[0]) is first  # loaded once while kept
+    for ref in refs[1:]:
+        datasets.load_problem(ref)
+    assert len(datasets._ONE) <= datasets.LOADED_PROBLEMS_KEPT
+    assert refs[0] not in datasets._ONE and datasets.load_problem(refs[0]) is not first  # dropped, loaded anew
