@@ -3,6 +3,7 @@ for ``matrix-field-guided`` the clearance it gains over its global planner on th
 
     python benchmarks/summary.py results.db                      # every planner label in the file
     python benchmarks/summary.py results.db --baseline ompl-rrtconnect --guided matrix-field-guided
+    python benchmarks/summary.py issue17.db tr.db --all-only     # several files, one row per planner and set
 
 Reads a results file written by ``planbench bench`` (e.g. with a suite of ``benchmarks/suites/``)
 and prints Markdown tables. Failure reasons: the harness's verdict (a collision names the robot
@@ -43,9 +44,19 @@ def median(values: list[float], scale: float = 1.0) -> str:
     return f"{statistics.median(values) * scale:.1f}" if values else "-"
 
 
-def table(rows: list[dict[str, Any]]) -> None:
+def problem_set(problem: str) -> str:
+    """``mbm``, or ``gen:<robot>`` for the generated sets."""
+    family = problem.split("/")[0]
+    return "mbm" if family.startswith("mbm:") else family.rsplit("_", 1)[0].split("_")[0]
+
+
+def table(rows: list[dict[str, Any]], by_set: bool = False) -> None:
+    """One row per planner and family (and ``all``), or per planner and problem set (``by_set``)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = collections.defaultdict(list)
     for r in rows:
+        if by_set:
+            groups[(r["planner"], problem_set(r["problem"]))].append(r)
+            continue
         family = r["problem"].split("/")[0].removeprefix("mbm:")  # gen: sets keep their robot
         groups[(r["planner"], family)].append(r)
         groups[(r["planner"], "all")].append(r)
@@ -87,13 +98,16 @@ def guided(rows: list[dict[str, Any]], baseline: str, label: str) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("db")
+    parser.add_argument("db", nargs="+", help="results files (their rows are read together)")
+    parser.add_argument("--all-only", action="store_true", help="one row per planner and problem set")
     parser.add_argument("--baseline", default="ompl-rrtconnect")
     parser.add_argument("--guided", default="matrix-field-guided")
     args = parser.parse_args(argv)
-    with ResultsDB(args.db, create=False, read_only=True) as db:
-        rows = db.rows()
-    table(rows)
+    rows = []
+    for path in args.db:
+        with ResultsDB(path, create=False, read_only=True) as db:
+            rows += db.rows()
+    table(rows, by_set=args.all_only)
     guided(rows, args.baseline, args.guided)
 
 
