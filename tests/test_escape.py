@@ -68,3 +68,20 @@ def test_escape_settings_are_checked():
     for bad in ({"escape_attempts": -1}, {"escape_attempts": 1.5}, {"escape_draws": 0}, {"escape_radius": 0.0}):
         with pytest.raises(InvalidConfigError, match=next(iter(bad))):
             MatrixFieldConfig(**bad)
+
+
+def test_the_qp_variant_escapes_only_to_where_its_constraints_hold():
+    """matrix-field-qp keeps pairs ``collision_safety`` apart on convex hulls; an escape target
+    free on the meshes but closer on the hulls would start its next step in violation (measured:
+    a UR5 step that grazed its own wrist from such a target), so it is refused."""
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    planner = planbench.make_planner("matrix-field-qp")
+    planner.setup(problem)
+    q = np.array(problem.start)
+    gap = float(planner.distances.near_at(q).distance.min())
+    assert 0.003 < gap < 0.1
+    assert planner.escape_target_ok(q)
+    strict = planbench.make_planner("matrix-field-qp", collision_safety=gap + 0.001)
+    strict.setup(problem)
+    assert not strict.escape_target_ok(q)
+    assert planbench.make_planner("matrix-field").escape_target_ok(q)  # the field planners: any free target

@@ -494,6 +494,12 @@ class IKLoopPlanner(Planner):
             info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 
+    def escape_target_ok(self, q: np.ndarray) -> bool:
+        """Whether an escape may end at ``q`` (free of collision already checked): a planner with a
+        stricter notion of free than the true geometry (``matrix-field-qp``'s safety distance on
+        convex hulls) refuses targets that its next step could not start from."""
+        return True
+
     def _escape(
         self,
         q: np.ndarray,
@@ -515,10 +521,13 @@ class IKLoopPlanner(Planner):
         def segment_free(a: np.ndarray, b: np.ndarray) -> bool:
             return certified is None or bool(certified.check_path(np.stack((a, b))).free)
 
+        def refused(target: np.ndarray) -> bool:
+            return bool(checker.in_collision(target)) or not self.escape_target_ok(target)
+
         motion, _ = escape_motion(
             q.copy(),
             rng,
-            checker.in_collision,
+            refused,
             segment_free,
             inputs.lower,
             inputs.upper,

@@ -96,6 +96,15 @@ class MatrixFieldQPPlanner(IKLoopPlanner):
         """The collision constraints keep the robot's own pairs apart: no push is needed then."""
         return bool(self.config.self_collision and not self.config.collision_constraints)
 
+    def escape_target_ok(self, q: np.ndarray) -> bool:
+        """An escape ends where the collision constraints hold: every pair at least
+        ``collision_safety`` apart on the convex hulls (the meshes alone may be free where the
+        hulls overlap, and from there a step that must retreat can graze the meshes)."""
+        if self.distances is None:
+            return True
+        pairs = self.distances.near_at(q)
+        return not len(pairs) or float(pairs.distance.min()) >= self.config.collision_safety
+
     def setup(self, problem: Problem) -> None:
         """The loop's setup, and the distance model of the collision constraints."""
         self._joint_names = list(problem.robot.joint_names)
