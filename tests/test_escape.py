@@ -25,8 +25,8 @@ def test_an_escape_moves_at_the_velocity_limits_to_a_free_configuration():
         return bool(b[1] < 0)  # and half the motions
 
     rng = np.random.default_rng(3)
-    motion, draws = escape_motion(q, rng, in_collision, segment_free, lower, upper, qd_max, 0.01, 0.5, 50)
-    assert motion is not None and draws >= 2
+    motion, draws, toward = escape_motion(q, rng, in_collision, segment_free, lower, upper, qd_max, 0.01, 0.5, 50)
+    assert motion is not None and draws >= 2 and not toward
     target = motion[-1]
     assert target[0] <= 0 and target[1] < 0 and np.all(target >= lower) and np.all(target <= upper)
     assert np.array_equal(segments[-1][0], q) and np.array_equal(segments[-1][1], target)  # its motion, checked
@@ -37,10 +37,38 @@ def test_an_escape_moves_at_the_velocity_limits_to_a_free_configuration():
 
 def test_an_escape_gives_up_after_its_draws():
     blocked = (lambda c: True, lambda a, b: True)
-    motion, draws = escape_motion(
+    motion, draws, _ = escape_motion(
         np.zeros(2), np.random.default_rng(0), *blocked, -np.ones(2), np.ones(2), np.ones(2), 0.01, 0.5, 7
     )
     assert motion is None and draws == 7
+
+
+def test_every_other_draw_heads_part_of_the_way_to_the_goal_configuration():
+    q, goal = np.zeros(3), np.array([0.8, -0.4, 0.2])
+    limits = (-np.ones(3), np.ones(3), np.ones(3))
+    free = (lambda c: False, lambda a, b: True)
+    rng = np.random.default_rng(0)
+    motion, draws, toward = escape_motion(q, rng, *free, *limits, 0.01, 1e-9, 5, goal=goal, toward_goal=True)
+    assert draws == 1 and toward  # the first draw: towards the goal
+    u = motion[-1] @ goal / (goal @ goal)
+    assert 0.2 <= u <= 1.0 and np.allclose(motion[-1], u * goal, atol=1e-6)
+    # refused, the second draw is a detour around the arm's own configuration
+    seen = []
+    motion, draws, toward = escape_motion(
+        q,
+        rng,
+        lambda c: seen.append(c.copy()) or len(seen) == 1,
+        free[1],
+        *limits,
+        0.01,
+        1e-9,
+        5,
+        goal=goal,
+        toward_goal=True,
+    )
+    assert draws == 2 and not toward and np.allclose(motion[-1], q, atol=1e-6)
+    motion, _, toward = escape_motion(q, rng, *free, *limits, 0.01, 1e-9, 5, goal=goal, toward_goal=False)
+    assert not toward and np.allclose(motion[-1], q, atol=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -165,6 +165,7 @@ class IKLoopPlanner(Planner):
         super().__init__(config, **settings)
         self._prepared: dict[str, Any] | None = None
         self._hierarchy = "nullspace"
+        self._escape_toward: list[bool] = []
 
     # --- for subclasses ---------------------------------------------------------------------
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
@@ -400,6 +401,7 @@ class IKLoopPlanner(Planner):
         stall_ratio = cfg.stall_ratio
         best_k = np.inf
         escapes: list[tuple[str, int]] = []  # (what it escaped, the step it left from)
+        self._escape_toward: list[bool] = []  # per escape: centred towards the goal configuration
         since = 0  # the step the last escape ended on: stalls are judged from there
         verified = False  # the path so far certified free (by a check before an escape could fire)
 
@@ -490,6 +492,7 @@ class IKLoopPlanner(Planner):
         info["escapes"] = len(escapes)
         info["escape_after"] = [what for what, _ in escapes]
         info["escape_steps"] = [step for _, step in escapes]
+        info["escape_toward_goal"] = list(self._escape_toward)
         if prep["warnings"]:
             info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
@@ -524,7 +527,8 @@ class IKLoopPlanner(Planner):
         def refused(target: np.ndarray) -> bool:
             return bool(checker.in_collision(target)) or not self.escape_target_ok(target)
 
-        motion, _ = escape_motion(
+        goal = self._prepared["problem"].goal.q if self._prepared else None
+        motion, _, toward = escape_motion(
             q.copy(),
             rng,
             refused,
@@ -535,9 +539,12 @@ class IKLoopPlanner(Planner):
             cfg.dt,
             cfg.escape_radius,
             cfg.escape_draws,
+            goal=None if goal is None else np.asarray(goal, dtype=float),
+            toward_goal=cfg.escape_toward_goal,
         )
         if motion is None or k + len(motion) >= n_max:
             return 0
+        self._escape_toward.append(bool(toward))
         m = len(motion)
         path[k + 1 : k + 1 + m] = motion
         diag[k + 1 : k + 1 + m] = np.nan
