@@ -8,13 +8,12 @@ generator, centred ``c = q`` (a random detour) or, when the problem gives a goal
 ``q_g`` and ``toward_goal`` is set, on every other draw from the first, ``c = q + u (q_g - q)``
 with ``u ~ U(0.2, 1)`` (part of the way to the goal configuration, so the pose task resumes in the
 goal's own IK branch: on an arm without redundancy a Jacobian step never crosses from one branch
-to another). A target
-is taken when it is free of collision and the straight joint-space motion to it is certified free
-by the harness's own checker (so an escape never adds a collision the harness would find, even
-between samples), at most ``draws`` draws; the arm moves there at the velocity limits and the
-loop resumes. After a collision the loop first rewinds to the last configuration the periodic
-check found free. Each query allows ``escape_attempts`` escapes; the result's ``info`` says how
-many fired, after what, and toward what.
+to another). A target is taken when it is free of collision and the straight joint-space motion to
+it is certified free by the harness's own checker (so an escape never adds a collision the harness
+would find, even between samples), at most ``draws`` draws; the arm moves there at the velocity
+limits and the loop resumes. After a collision the loop first rewinds to the last configuration
+the periodic check found free. Each query allows ``escape_attempts`` escapes; the result's
+``info`` says how many fired, after what, and toward what.
 """
 
 from __future__ import annotations
@@ -45,8 +44,9 @@ def escape_motion(
     to a free target drawn as in the module docstring (``radius`` [rad]; ``goal`` the goal
     configuration or None, ``toward_goal``: every other draw centred towards it), one per step of
     ``dt`` [s] at the velocity limits ``qd_max`` [rad/s] (``q`` itself excluded, the target last),
-    or ``None`` when none of ``draws`` candidates is reachable in a straight line without collision. ``in_collision(q)``
-    answers for one configuration (a quick rejection), ``segment_free(a, b)`` for the motion."""
+    or ``None`` when none of ``draws`` candidates is reachable in a straight line without
+    collision. ``in_collision(q)`` answers for one configuration (a quick rejection),
+    ``segment_free(a, b)`` for the motion."""
     for draw in range(1, draws + 1):
         toward = toward_goal and goal is not None and draw % 2 == 1
         centre = q + rng.uniform(0.2, 1.0) * (goal - q) if toward and goal is not None else q

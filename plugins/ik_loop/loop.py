@@ -165,7 +165,6 @@ class IKLoopPlanner(Planner):
         super().__init__(config, **settings)
         self._prepared: dict[str, Any] | None = None
         self._hierarchy = "nullspace"
-        self._escape_toward: list[bool] = []
 
     # --- for subclasses ---------------------------------------------------------------------
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
@@ -380,6 +379,8 @@ class IKLoopPlanner(Planner):
         t_start = time.perf_counter()
         kin, inputs, q, dg = prep["kin"], prep["inputs"], prep["q"], prep["dg"]
         q[:] = problem.start  # advanced in place, copied into path every step
+        if isinstance(prep["repulsion"], SelfCollisionPush):
+            prep["repulsion"].restart()  # the same answer however the previous query ended
         tol_p = cfg.goal_tolerance_scale * problem.tolerances.position
         tol_r = cfg.goal_tolerance_scale * problem.tolerances.orientation
         dt = cfg.dt
@@ -400,8 +401,7 @@ class IKLoopPlanner(Planner):
         update, forces, step, advance = kin.update, repulsion.forces, prep["step"], prep["advance"]
         stall_ratio = cfg.stall_ratio
         best_k = np.inf
-        escapes: list[tuple[str, int]] = []  # (what it escaped, the step it left from)
-        self._escape_toward: list[bool] = []  # per escape: centred towards the goal configuration
+        escapes: list[tuple[str, int, bool]] = []  # (what it escaped, the step it left from, towards the goal)
         since = 0  # the step the last escape ended on: stalls are judged from there
         verified = False  # the path so far certified free (by a check before an escape could fire)
 
@@ -413,11 +413,11 @@ class IKLoopPlanner(Planner):
                 return False
             saved = q.copy()
             q[:] = path[frm]
-            moved = self._escape(q, rng, checker, inputs, path, diag, frm, n_max)
+            moved, toward = self._escape(q, rng, checker, inputs, path, diag, frm, n_max)
             if not moved:
                 q[:] = saved
                 return False
-            escapes.append((after, frm))
+            escapes.append((after, frm, toward))
             del best[frm + 1 :]
             best.extend([np.inf] * (moved - 1))  # best[i] stays the best of step i
             k = since = frm + moved
@@ -490,9 +490,9 @@ class IKLoopPlanner(Planner):
         info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
         info["hierarchy"] = self._hierarchy
         info["escapes"] = len(escapes)
-        info["escape_after"] = [what for what, _ in escapes]
-        info["escape_steps"] = [step for _, step in escapes]
-        info["escape_toward_goal"] = list(self._escape_toward)
+        info["escape_after"] = [what for what, _, _ in escapes]
+        info["escape_steps"] = [step for _, step, _ in escapes]
+        info["escape_toward_goal"] = [toward for _, _, toward in escapes]
         if prep["warnings"]:
             info["warnings"] = list(prep["warnings"])
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
@@ -513,21 +513,23 @@ class IKLoopPlanner(Planner):
         diag: np.ndarray,
         k: int,
         n_max: int,
-    ) -> int:
-        """Move from ``q`` (= ``path[k]``) to a random free configuration nearby
+    ) -> tuple[int, bool]:
+        """Move from ``q`` (= ``path[k]``) to a free configuration nearby
         (:func:`.escape.escape_motion`): the motion is written to ``path[k + 1 :]`` (diagnostics NaN),
-        ``q`` set to its end; returns its number of steps, 0 when no escape was found or the step
-        budget cannot hold it."""
+        ``q`` set to its end; returns its number of steps (0 when no escape was found or the step
+        budget cannot hold it) and whether its target was drawn towards the goal configuration."""
         cfg = self.config
-        certified = verdict_checker(self._prepared["problem"]) if self._prepared else None
+        assert self._prepared is not None
+        problem = self._prepared["problem"]
+        certified = verdict_checker(problem)
 
         def segment_free(a: np.ndarray, b: np.ndarray) -> bool:
-            return certified is None or bool(certified.check_path(np.stack((a, b))).free)
+            return bool(certified.check_path(np.stack((a, b))).free)
 
         def refused(target: np.ndarray) -> bool:
             return bool(checker.in_collision(target)) or not self.escape_target_ok(target)
 
-        goal = self._prepared["problem"].goal.q if self._prepared else None
+        goal = problem.goal.q
         motion, _, toward = escape_motion(
             q.copy(),
             rng,
@@ -543,13 +545,12 @@ class IKLoopPlanner(Planner):
             toward_goal=cfg.escape_toward_goal,
         )
         if motion is None or k + len(motion) >= n_max:
-            return 0
-        self._escape_toward.append(bool(toward))
+            return 0, False
         m = len(motion)
         path[k + 1 : k + 1 + m] = motion
         diag[k + 1 : k + 1 + m] = np.nan
         q[:] = motion[-1]
-        return m
+        return m, bool(toward)
 
     def _first_collision(self, checker: Any, problem: Problem, path: np.ndarray) -> int | None:
         """The first step whose segment (or end) is not proven free, or None. With ``verify_path``

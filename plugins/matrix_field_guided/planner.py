@@ -78,7 +78,6 @@ class MatrixFieldGuidedPlanner(Planner):
             "global": global_planner,
             "kin": kin,
             "repulsion": repulsion,
-            "points": points,
         }
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
