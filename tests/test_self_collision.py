@@ -62,3 +62,20 @@ def test_the_setting_adds_the_push_and_the_paper_preset_leaves_it_out(near_itsel
     qp = planbench.make_planner("matrix-field-qp")  # its collision constraints hold the self pairs
     qp.setup(problem)
     assert not isinstance(qp._prepared["repulsion"], SelfCollisionPush)
+
+
+def test_a_query_asks_the_distances_afresh_however_the_last_one_ended(near_itself):
+    """While no pair is near, the distances are asked every few steps; a new query must not
+    inherit the last one's count, or one planner gives two paths for the same seed."""
+    problem, _ = near_itself
+    planner = MatrixFieldPlanner(max_steps=1)
+    planner.setup(problem)  # then plan() twice on it, as a caller that reuses a prepared planner does
+    planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
+    push = planner._prepared["repulsion"]
+    assert isinstance(push, SelfCollisionPush)
+    asked = []
+    near = push.distances.near
+    push.distances.near = lambda *a: asked.append(1) or near(*a)
+    push._quiet = push.every - 1  # as a query that ended between two asks leaves it
+    planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
+    assert asked  # its first step asked

@@ -47,6 +47,10 @@ class SelfCollisionPush:
         self.pairs_near = 0
         """Pairs within the influence distance at the last call."""
 
+    def restart(self) -> None:
+        """Ask the distances on the next call (a new query starts where the last one did not end)."""
+        self._quiet = 0
+
     @property
     def n_pairs(self) -> int:
         return self.distances.n_pairs
