@@ -33,6 +33,15 @@ class ProblemFileError(PlanbenchError):
         super().__init__(f"{self.path}: {problem}")
 
 
+class ScenarioFileError(PlanbenchError):
+    """A scenario file (JSON, ``planbench-scenario/1``) cannot be used."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
 class UnknownNameError(PlanbenchError, KeyError):
     """A name (planner, robot, problem set, problem) that does not exist; lists close matches."""
 

@@ -10,6 +10,8 @@ which are those of ``shape_msgs/SolidPrimitive``, URDF and coal)::
        {"name": "can", "type": "cylinder", "radius": 0.03, "length": 0.14, # along local z [m]
         "position": [...], "orientation_xyzw": [...]},
        {"name": "ball", "type": "sphere", "radius": 0.05, "position": [...]},
+       {"name": "forearm", "type": "capsule", "radius": 0.05, "length": 0.3, # segment along local z [m]
+        "position": [...], "orientation_xyzw": [...]},
        {"name": "bowl", "type": "mesh", "path": "bowl.stl", "scale": [1, 1, 1], "position": [...]}
      ]}
 
@@ -34,7 +36,7 @@ from planbench.errors import ProblemFileError
 
 __all__ = ["Obstacle", "Scene", "SHAPES"]
 
-SHAPES = ("box", "sphere", "cylinder", "mesh")
+SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh")
 SCENE_FORMAT = "planbench-scene/1"
 
 
@@ -47,8 +49,8 @@ class Obstacle:
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     orientation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     size: tuple[float, float, float] | None = None  # box: full edge lengths [m]
-    radius: float | None = None  # sphere, cylinder [m]
-    length: float | None = None  # cylinder: full height along local z [m]
+    radius: float | None = None  # sphere, cylinder, capsule [m]
+    length: float | None = None  # cylinder: full height along local z; capsule: its segment's length [m]
     path: str | None = None  # mesh file (absolute, or relative to the working directory)
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # mesh scale
 
@@ -67,12 +69,15 @@ class Obstacle:
             _check_vector(self.size, 3, f"{where}: size")
             if min(self.size) <= 0:
                 raise ValueError(f"{where}: box size must be > 0, got {list(self.size)}")
-        if self.type in ("sphere", "cylinder"):
+        if self.type in ("sphere", "cylinder", "capsule"):
             if self.radius is None or not math.isfinite(self.radius) or self.radius <= 0:
                 raise ValueError(f"{where}: a {self.type} needs 'radius' > 0 [m], got {self.radius}")
         if self.type == "cylinder":
             if self.length is None or not math.isfinite(self.length) or self.length <= 0:
                 raise ValueError(f"{where}: a cylinder needs 'length' > 0 [m], got {self.length}")
+        if self.type == "capsule":
+            if self.length is None or not math.isfinite(self.length) or self.length < 0:
+                raise ValueError(f"{where}: a capsule needs 'length' >= 0 [m] (its segment), got {self.length}")
         if self.type == "mesh":
             if not self.path:
                 raise ValueError(f"{where}: a mesh needs 'path'")
@@ -99,6 +104,8 @@ class Obstacle:
             return coal.Sphere(self.radius)
         if self.type == "cylinder":
             return coal.Cylinder(self.radius, self.length)
+        if self.type == "capsule":
+            return coal.Capsule(self.radius, self.length)
         loader = coal.MeshLoader()
         return loader.load(str(self.path), np.array(self.scale, dtype=float))
 
@@ -110,6 +117,9 @@ class Obstacle:
             return np.full(3, float(self.radius))  # type: ignore[arg-type]
         if self.type == "cylinder":
             return np.array([self.radius, self.radius, 0.5 * self.length], dtype=float)  # type: ignore[operator]
+        if self.type == "capsule":
+            r = float(self.radius)  # type: ignore[arg-type]
+            return np.array([r, r, 0.5 * self.length + r], dtype=float)  # type: ignore[operator]
         geom = self.collision_geometry()
         geom.computeLocalAABB()
         aabb = geom.aabb_local
@@ -131,6 +141,11 @@ class Obstacle:
             q = np.abs(local) - 0.5 * np.array(self.size)
         elif self.type == "sphere":
             return np.linalg.norm(local, axis=1) - self.radius  # type: ignore[operator]
+        elif self.type == "capsule":  # distance to the segment along local z, minus the radius
+            h = 0.5 * self.length  # type: ignore[operator]
+            nearest = np.zeros_like(local)
+            nearest[:, 2] = np.clip(local[:, 2], -h, h)
+            return np.linalg.norm(local - nearest, axis=1) - self.radius  # type: ignore[operator]
         elif self.type == "cylinder":
             q = np.stack(
                 [
@@ -152,9 +167,9 @@ class Obstacle:
         d: dict[str, Any] = {"name": self.name, "type": self.type}
         if self.type == "box":
             d["size"] = list(self.size)  # type: ignore[arg-type]
-        if self.type in ("sphere", "cylinder"):
+        if self.type in ("sphere", "cylinder", "capsule"):
             d["radius"] = self.radius
-        if self.type == "cylinder":
+        if self.type in ("cylinder", "capsule"):
             d["length"] = self.length
         if self.type == "mesh":
             d["path"] = self.path

@@ -1,0 +1,99 @@
+"""The controller interface: what a reactive method implements to run in the closed-loop benchmark.
+
+A controller is a class with a kebab-case ``name`` and a frozen ``Config`` dataclass, like a
+planner, registered under the entry-point group ``planbench.controllers``. The runner
+(:mod:`planbench.reactive.runner`) calls, in this order:
+
+- ``setup(task)`` once per scenario, untimed: the robot, start, goal, tolerances and control
+  period are known; the scene is **not** (the controller sees obstacles only through observations).
+- ``reset(q, rng)`` at the start of each run, untimed.
+- ``update(observation)`` on the first control tick after a new sensor frame is delivered. Timed:
+  reported as ``field_update_time`` and charged to that tick's compute time.
+- ``step(t, q, observation, goal)`` every control tick, timed: joint velocities [rad/s] (nq,).
+  ``observation`` is the latest delivered frame (``None`` before the first).
+- ``info()`` after the run: JSON-friendly diagnostics (optional).
+
+A controller that raises, or returns velocities of the wrong shape or with NaN, ends its run as an
+``error`` row; it never takes the benchmark down. Randomness comes only from the ``rng`` of
+``reset``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from planbench.planner import EmptyConfig
+
+if TYPE_CHECKING:
+    from planbench.occupancy import OccupancyGrid
+    from planbench.problem import Goal, Tolerances
+    from planbench.robot import Robot
+    from planbench.scene import Scene
+
+__all__ = ["ControlTask", "Controller", "Observation"]
+
+
+@dataclass(frozen=True, eq=False)
+class ControlTask:
+    """What a controller knows before it runs: the robot, its start and goal, the tolerances of
+    success, and the control period [s]."""
+
+    robot: Robot
+    start: np.ndarray
+    goal: Goal
+    tolerances: Tolerances
+    period: float
+    id: str = "task"
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """One sensor frame as delivered to the controller.
+
+    ``grid``: the observed occupancy grid (robot base frame); ``time``: when the frame was captured
+    [s] (delivered ``latency`` later); ``points``: the (N, 3) point cloud it was built from
+    (``depth`` sensing; None for ``truth``); ``scene``: the exact geometry at capture time
+    (``truth`` sensing only, for controllers that measure distances to geometry; None otherwise).
+    ``frame``: the frame's number, counting from 0.
+    """
+
+    time: float
+    grid: OccupancyGrid
+    frame: int = 0
+    points: np.ndarray | None = None
+    scene: Scene | None = None
+
+
+class Controller:
+    """Base class of controllers (the protocol in the module docstring is what matters)."""
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = EmptyConfig
+
+    def __init__(self, config: Any = None, **settings: Any) -> None:
+        if config is None:
+            config = self.Config(**settings)
+        elif settings:
+            config = dataclasses.replace(config, **settings)
+        self.config = config
+
+    def setup(self, task: ControlTask) -> None:
+        """Untimed preparation for ``task`` (kinematics, compiled code)."""
+
+    def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
+        """The start of a run from configuration ``q`` (untimed)."""
+
+    def update(self, observation: Observation) -> None:
+        """A new sensor frame (timed as ``field_update_time``)."""
+
+    def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
+        """Joint velocities [rad/s] for the tick at time ``t`` [s] from configuration ``q``."""
+        raise NotImplementedError
+
+    def info(self) -> dict[str, Any]:
+        """Diagnostics of the run just finished (JSON-friendly values)."""
+        return {}
