@@ -180,6 +180,10 @@ class CertifiedChecker:
         self._hull_is_exact = [not (has_hull[a] or has_hull[b]) for a, b in self._pairs]
         self._obstacle_pair = [a >= self.n_robot_geoms or b >= self.n_robot_geoms for a, b in self._pairs]
         self.motion_weights = _motion_weights(robot, self.geometry_model, self.n_robot_geoms, self._pairs)
+        self.pair_margin = [0.0] * self.n_pairs
+        """Clearance [m] each pair needs on top of ``required_clearance``: the reactive benchmark
+        widens a moving obstacle by the distance it may travel during a tick
+        (:mod:`planbench.reactive.checker`); 0 for every pair otherwise."""
         names = [o.name for o in self.geometry_model.geometryObjects]
         self._pair_names = [(_display(names[a]), _display(names[b])) for a, b in self._pairs]
         self._placed = {"hull": -1, "exact": -1}
@@ -380,7 +384,7 @@ class CertifiedChecker:
         (u, pair, depth), or None when the pair is certified up to ``stop``. Depth-first, earliest
         interval first: everything before the interval at hand is already certified."""
         cfg = self.settings
-        floor, acc = cfg.required_clearance, cfg.distance_accuracy
+        floor, acc = cfg.required_clearance + self.pair_margin[k], cfg.distance_accuracy
         start = self._sample(0.0)
         if self._bound(start, k) - acc < floor and self._exact(start, k) - acc < floor:
             return 0.0, k, max(0.0, -start.exact[k])

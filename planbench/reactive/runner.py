@@ -1,0 +1,317 @@
+"""The closed loop: a controller drives the arm at a fixed control rate through a changing scene.
+
+Time advances in control ticks of ``T = 1 / control_rate``. At the start of tick ``k`` (time
+``t = k T``):
+
+1. **Sensing.** Frames are captured at the sensor rate (on the first tick at or after each
+   ``j / rate``) from the true scene at that time and the arm's configuration, and delivered
+   ``latency`` later (on the first tick at or after it).
+2. **Control.** When the controller is free, it gets ``update(frame)`` for a newly delivered frame
+   and ``step(t, q, frame, goal)``; both are timed. Compute time is charged as on a robot: a
+   command ready within the period drives tick ``k``; one that takes ``c > T`` misses
+   ``ceil(c / T) - 1`` deadlines: the previous command is held during those ticks, the new one
+   drives the tick in which it became ready, and the controller starts again on the tick after.
+   ``timing="measured"`` charges the measured time; ``"ideal"`` charges nothing (a controller as
+   fast as you like); ``"replay"`` charges the compute times recorded by an earlier run, so a run
+   can be repeated exactly for debugging.
+3. **Motion.** The command is clipped to the robot's velocity limits, the arm moves ``q + T qd``,
+   clamped to its joint limits (both recorded), and the tick is certified against the true, moving
+   geometry (:class:`~planbench.reactive.checker.TickChecker`).
+
+The run ends at the first collision, when the end effector is within the problem's tolerances of
+the goal pose (success), at the horizon, or when the controller raises or returns garbage (an
+``error``: what was run until then is kept). :func:`evaluate_run` recomputes every verdict and
+metric from the recorded trajectory alone (the benchmark calls it in a process where no controller
+code ran).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from planbench.problem import pose_error
+from planbench.reactive.checker import TickChecker
+from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.reactive.scenario import Scenario
+
+__all__ = ["RunSettings", "RunRecord", "RunMetrics", "TIMINGS", "evaluate_run", "run_scenario"]
+
+TIMINGS = ("measured", "ideal", "replay")
+_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """How a closed-loop run is simulated."""
+
+    timing: str = "measured"
+    """Compute time charged to the controller: ``"measured"``, ``"ideal"`` (none) or ``"replay"``."""
+    stall_speed: float = 0.01
+    """Below this joint speed [rad/s] (norm of the applied command) the arm counts as stalled."""
+    check_collisions: bool = True
+    """Certify each tick and end the run at the first collision (off only for timing studies)."""
+
+    def __post_init__(self) -> None:
+        if self.timing not in TIMINGS:
+            raise ValueError(f"timing must be one of {TIMINGS}, got {self.timing!r}")
+        if not (math.isfinite(self.stall_speed) and self.stall_speed >= 0):
+            raise ValueError(f"stall_speed must be >= 0 [rad/s], got {self.stall_speed}")
+
+
+@dataclass
+class RunRecord:
+    """What happened in one run: the trajectory, the commands, the controller's compute times.
+
+    ``times`` (n + 1,) [s] and ``path`` (n + 1, nq) [rad]: the state at each tick boundary;
+    ``commands`` (n, nq) [rad/s]: the velocity that drove each tick (after clipping); ``measured``
+    (n,) [s]: the controller's measured compute time on each tick it started on (NaN on the
+    others), ``compute`` the time charged for it (``timing``: measured, zero, or replayed);
+    ``field_update_times`` [s]: one per sensor frame the controller took in.
+    """
+
+    scenario: str
+    controller: str
+    status: str
+    message: str
+    times: np.ndarray
+    path: np.ndarray
+    commands: np.ndarray
+    compute: np.ndarray
+    measured: np.ndarray
+    field_update_times: list[float] = field(default_factory=list)
+    frame_times: list[float] = field(default_factory=list)
+    deadline_misses: int = 0
+    velocity_clipped: int = 0
+    position_clamped: int = 0
+    collision: tuple[str, str] | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class ControllerFault(Exception):
+    """The controller raised or returned something that is not a joint velocity."""
+
+
+def run_scenario(
+    scenario: Scenario,
+    controller: Controller,
+    *,
+    seed: int = 0,
+    settings: RunSettings | None = None,
+    replay: np.ndarray | None = None,
+    name: str | None = None,
+    sensor: Any = None,
+) -> RunRecord:
+    """Run ``controller`` on ``scenario`` (module docstring). ``replay``: the ``compute`` array of an
+    earlier run, for ``timing="replay"``. ``sensor``: anything with the ``capture`` method of
+    :class:`~planbench.reactive.sensing.Sensor` (default: the scenario's sensing model). The
+    controller's ``setup`` is called here (untimed)."""
+    settings = settings or RunSettings()
+    if settings.timing == "replay" and replay is None:
+        raise ValueError('timing="replay" needs the compute times of an earlier run (replay=record.compute)')
+    problem = scenario.problem
+    robot = problem.robot
+    T = scenario.period
+    n_ticks = max(1, int(round(scenario.horizon * scenario.control_rate)))
+    sensor_rng, control_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    task = ControlTask(robot, problem.start, problem.goal, problem.tolerances, T, scenario.name)
+    controller.setup(task)
+    controller.reset(np.array(problem.start), control_rng)
+    if sensor is None:
+        from planbench.reactive.sensing import Sensor
+
+        sensor = Sensor(scenario.sensing, robot)
+    checker = TickChecker(scenario) if settings.check_collisions else None
+    lower, upper = np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float)
+    vmax = np.asarray(robot.velocity_limit, dtype=float)
+    tol_p, tol_r = problem.tolerances.position, problem.tolerances.orientation
+
+    times = np.arange(n_ticks + 1) * T
+    path = np.full((n_ticks + 1, robot.nq), np.nan)
+    commands = np.full((n_ticks, robot.nq), np.nan)
+    compute = np.full(n_ticks, np.nan)
+    measured = np.full(n_ticks, np.nan)
+    q = np.array(problem.start, dtype=float)
+    path[0] = q
+    held = np.zeros(robot.nq)
+    rec = RunRecord(
+        scenario.name, name or getattr(controller, "name", ""), "timeout", "", times, path, commands, compute, measured
+    )
+    pending: list[Observation] = []  # captured, not yet delivered
+    latest: Observation | None = None
+    fresh = False  # a frame delivered since the controller last took one in
+    next_frame, free_at = 0, 0
+    late: tuple[int, np.ndarray] | None = None  # (tick it takes effect, command)
+    n_done = n_ticks
+    status, message = "timeout", f"goal not reached within the horizon of {scenario.horizon:g} s"
+    for k in range(n_ticks):
+        t = times[k]
+        while next_frame / scenario.sensing.rate <= t + _EPS:
+            obs = sensor.capture(scenario.scene_at(t), q, t, next_frame, sensor_rng)
+            pending.append(obs)
+            rec.frame_times.append(t)
+            next_frame += 1
+        while pending and pending[0].time + scenario.sensing.latency <= t + _EPS:
+            latest, fresh = pending.pop(0), True
+        if k >= free_at:
+            try:
+                qd, c = _compute(controller, t, q, latest if fresh else None, latest, problem.goal, robot.nq, rec)
+            except ControllerFault as exc:
+                status, message, n_done = "error", f"tick {k} (t = {t:.3f} s): {exc}", k
+                break
+            fresh = False
+            measured[k] = c
+            if settings.timing == "ideal":
+                c = 0.0
+            elif settings.timing == "replay":
+                c = float(replay[k]) if k < len(replay) and np.isfinite(replay[k]) else 0.0  # type: ignore[index]
+            compute[k] = c
+            missed = max(0, math.ceil(c / T - _EPS) - 1)
+            rec.deadline_misses += missed
+            free_at = k + missed + 1
+            if missed == 0:
+                held = qd
+            else:
+                late = (k + missed, qd)
+        if late is not None and late[0] == k:
+            held, late = late[1], None
+        command = np.clip(held, -vmax, vmax)
+        rec.velocity_clipped += int(not np.array_equal(command, held))
+        q_next = q + T * command
+        clamped = np.clip(q_next, lower, upper)
+        rec.position_clamped += int(not np.array_equal(clamped, q_next))
+        commands[k] = (clamped - q) / T
+        if checker is not None:
+            verdict = checker.check_tick(q, clamped, t, times[k + 1])
+            if not verdict.free:
+                when = t + verdict.fraction * T
+                path[k + 1] = clamped
+                rec.collision = verdict.pair
+                status = "collision"
+                message = f"collision at t = {when:.3f} s: {verdict.pair[0]} with {verdict.pair[1]}"
+                n_done = k + 1
+                break
+        q = clamped
+        path[k + 1] = q
+        err_p, err_r = pose_error(robot, q, problem.goal.pose)
+        if err_p <= tol_p and err_r <= tol_r:
+            status, message, n_done = "success", f"goal reached at t = {times[k + 1]:.3f} s", k + 1
+            break
+    rec.status, rec.message = status, message
+    rec.times, rec.path = times[: n_done + 1], path[: n_done + 1]
+    rec.commands, rec.compute, rec.measured = commands[:n_done], compute[:n_done], measured[:n_done]
+    try:
+        rec.info = dict(controller.info())
+    except Exception as exc:  # diagnostics must not lose the run
+        rec.info = {"info_error": f"{type(exc).__name__}: {exc}"}
+    return rec
+
+
+def _compute(
+    controller: Controller,
+    t: float,
+    q: np.ndarray,
+    new: Observation | None,
+    latest: Observation | None,
+    goal: Any,
+    nq: int,
+    rec: RunRecord,
+) -> tuple[np.ndarray, float]:
+    """One controller turn: ``update`` for a new frame, then ``step``; the command and its time [s]."""
+    spent = 0.0
+    try:
+        if new is not None:
+            t0 = time.perf_counter()
+            controller.update(new)
+            u = time.perf_counter() - t0
+            rec.field_update_times.append(u)
+            spent += u
+        t0 = time.perf_counter()
+        qd = controller.step(t, q.copy(), latest, goal)
+        spent += time.perf_counter() - t0
+    except Exception as exc:
+        raise ControllerFault(f"the controller raised {type(exc).__name__}: {exc}") from exc
+    try:
+        qd = np.array(qd, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ControllerFault(f"step returned {type(qd).__name__}, not joint velocities") from exc
+    if qd.shape != (nq,):
+        raise ControllerFault(f"step returned shape {qd.shape}, expected ({nq},) joint velocities")
+    if not np.isfinite(qd).all():
+        raise ControllerFault(f"step returned non-finite joint velocities {qd.tolist()}")
+    return qd, spent
+
+
+@dataclass(frozen=True)
+class RunMetrics:
+    """The metrics of one run, named as in the results file. Times in s, lengths in m or rad."""
+
+    success: bool
+    failure: str
+    time_to_goal: float
+    min_clearance: float
+    tick_time_median: float
+    tick_time_p99: float
+    deadline_misses: int
+    field_update_time: float
+    stalled_time: float
+    path_length: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | None = None) -> RunMetrics:
+    """Verdict and metrics of a run from its trajectory alone: every tick certified again against
+    the true moving geometry, the goal checked at the last state, the clearance measured at every
+    tick (never trusting the runner's or the controller's own account)."""
+    settings = settings or RunSettings()
+    problem = scenario.problem
+    times, path = np.asarray(record.times, dtype=float), np.asarray(record.path, dtype=float)
+    checker = TickChecker(scenario)
+    failure = ""
+    n = len(path)
+    if n < 1 or not np.isfinite(path).all() or len(times) != n:
+        raise ValueError(f"run record of {record.scenario!r}: trajectory must be finite with one time per state")
+    if np.any(np.diff(times) <= 0) or abs(times[0]) > _EPS:
+        raise ValueError(f"run record of {record.scenario!r}: times must start at 0 and increase")
+    if times[-1] > scenario.horizon + _EPS:
+        failure = "trajectory runs past the horizon"
+    violations = problem.robot.limit_violations(path.max(axis=0)) + problem.robot.limit_violations(path.min(axis=0))
+    if violations and not failure:
+        failure = "joint limits violated: " + "; ".join(violations)
+    clearance = checker.clearance(path[0], times[0])
+    for k in range(n - 1):
+        verdict = checker.check_tick(path[k], path[k + 1], times[k], times[k + 1])
+        if not verdict.free:
+            failure = failure or f"collision with {verdict.pair[1]} ({verdict.pair[0]}) at t = {times[k]:.3f} s"
+            break
+        clearance = min(clearance, checker.clearance(path[k + 1], times[k + 1]))
+    err_p, err_r = pose_error(problem.robot, path[-1], problem.goal.pose)
+    reached = err_p <= problem.tolerances.position and err_r <= problem.tolerances.orientation
+    if not failure and not reached:
+        if record.status == "error":
+            failure = f"error: {record.message}"
+        else:
+            failure = f"goal not reached (position error {err_p * 1000:.1f} mm, orientation {err_r:.3f} rad)"
+    compute = np.asarray(record.measured, dtype=float)
+    compute = compute[np.isfinite(compute)]
+    speed = np.linalg.norm(np.asarray(record.commands, dtype=float), axis=1) if len(record.commands) else np.zeros(0)
+    dt = np.diff(times)
+    updates = np.asarray(record.field_update_times, dtype=float)
+    return RunMetrics(
+        success=not failure,
+        failure=failure,
+        time_to_goal=float(times[-1]) if not failure else math.nan,
+        min_clearance=float(clearance),
+        tick_time_median=float(np.median(compute)) if len(compute) else math.nan,
+        tick_time_p99=float(np.percentile(compute, 99)) if len(compute) else math.nan,
+        deadline_misses=int(record.deadline_misses),
+        field_update_time=float(np.median(updates)) if len(updates) else math.nan,
+        stalled_time=float(np.sum(dt[: len(speed)][speed < settings.stall_speed])),
+        path_length=float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))),
+    )
