@@ -1,0 +1,88 @@
+"""Per-frame cost of the sensing models (planbench.reactive.sensing) on a MotionBenchMaker scene.
+
+    python benchmarks/sensing.py               # 20 frames per row (a few seconds)
+    python benchmarks/sensing.py --frames 50
+
+Scene ``mbm:box/0001`` (7 primitives) plus a ball that moves every frame; the Panda moves from its
+start towards its goal configuration over the frames, in view of the camera; grid resolution
+0.02 m over the default bounds (the cube of half side reach + 0.1 m, 142^3 cells). Rows (medians
+over the frames, after one untimed warm-up frame) [ms]:
+
+- truth, fresh: ``OccupancyGrid.from_scene`` of the whole scene each frame (what caching saves);
+- truth: ``Sensor.capture`` (unmoved obstacles cached, the ball voxelised each frame);
+- depth WxH: ``Sensor.capture`` with one camera (ray casting, noise, dropout, robot removal and
+  ``OccupancyGrid.from_points``), and of that the point cloud alone (``Sensor.point_cloud``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+import planbench
+from planbench.occupancy import OccupancyGrid
+from planbench.reactive.scenario import CameraSettings, SensingSettings
+from planbench.reactive.sensing import Sensor, camera_rays
+from planbench.scene import Obstacle, Scene
+
+CAMERA = CameraSettings(position=(1.5, 0.3, 0.9), look_at=(0.4, 0.0, 0.3), noise_std=0.005, dropout=0.05)
+
+
+def _median_ms(frames: int, body: Callable[[int], object]) -> float:
+    body(0)  # warm-up: caches, first allocation
+    times = []
+    for k in range(1, frames + 1):
+        t0 = time.perf_counter()
+        body(k)
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20)
+    args = parser.parse_args(argv)
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    robot, start = problem.robot, np.asarray(problem.start)
+    goal = problem.goal.q if problem.goal.q is not None else start
+    n = args.frames + 1
+
+    def scene(k: int) -> Scene:
+        ball = Obstacle("ball", "sphere", position=(0.6, -0.4 + 0.8 * k / n, 0.6), radius=0.05)
+        return problem.scene.with_obstacles([ball])
+
+    def q(k: int) -> np.ndarray:
+        return start + (goal - start) * k / n
+
+    origin, dirs = camera_rays(CAMERA)
+    hand = robot.frame_pose(start).translation
+    in_view = (dirs @ ((hand - origin) / np.linalg.norm(hand - origin))).max() > 0.9999
+    rng = np.random.default_rng(0)
+    res = 0.02
+    print(f"mbm:box/0001 + a moving ball, Panda ({'hand in view' if in_view else 'hand NOT in view'}), ", end="")
+    print(f"resolution {res} m, median of {args.frames} frames [ms]")
+
+    truth = Sensor(SensingSettings(model="truth", resolution=res), robot)
+    bounds = truth.bounds
+    print(f"  grid {OccupancyGrid.empty(bounds[0], bounds[1], res).shape}")
+    fresh = _median_ms(args.frames, lambda k: OccupancyGrid.from_scene(scene(k), res, bounds=bounds))
+    print(f"  truth, fresh from_scene     {fresh:7.1f}")
+    cached = _median_ms(args.frames, lambda k: truth.capture(scene(k), q(k), 0.0, k, rng))
+    print(f"  truth (cached)              {cached:7.1f}")
+    for width, height in ((160, 120), (320, 240)):
+        cam = replace(CAMERA, width=width, height=height)
+        sensor = Sensor(SensingSettings(model="depth", resolution=res, cameras=(cam,)), robot)
+        total = _median_ms(args.frames, lambda k, s=sensor: s.capture(scene(k), q(k), 0.0, k, rng))
+        cloud = _median_ms(args.frames, lambda k, s=sensor: s.point_cloud(scene(k), q(k), rng))
+        points = len(sensor.point_cloud(scene(0), q(0), rng))
+        print(f"  depth {width}x{height:<4}  capture {total:7.1f}   point cloud {cloud:6.1f}   ({points} points)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
