@@ -14,7 +14,7 @@ from planbench.harness import plan
 from planbench.occupancy import OccupancyGrid
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Goal, Pose, Problem, Tolerances
-from planbench.registry import REGISTRY, Registry, make_planner, register_planner
+from planbench.registry import CONTROLLERS, REGISTRY, Registry, make_controller, make_planner, register_planner
 from planbench.robot import Robot, RobotSettings, load_robot
 from planbench.scene import Obstacle, Scene
 from planbench.validate import Evaluation, ValidationSettings, evaluate
@@ -23,6 +23,10 @@ __version__ = "0.1.0"
 
 
 def __getattr__(name: str) -> object:
+    if name == "load_scenarios":  # imported on use, like the benchmark
+        from planbench.reactive.sets import load_scenarios
+
+        return load_scenarios
     if name == "benchmark":  # imported on use: the benchmark pulls in sqlite, plotting, workers
         from planbench.bench import benchmark
 
@@ -32,6 +36,7 @@ def __getattr__(name: str) -> object:
 
 __all__ = [
     "benchmark",
+    "CONTROLLERS",
     "Evaluation",
     "Goal",
     "Obstacle",
@@ -51,7 +56,9 @@ __all__ = [
     "ValidationSettings",
     "evaluate",
     "load_problems",
+    "load_scenarios",
     "load_robot",
+    "make_controller",
     "make_planner",
     "plan",
     "register_planner",

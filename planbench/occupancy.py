@@ -30,7 +30,7 @@ import numpy as np
 
 from planbench.scene import Scene
 
-__all__ = ["OccupancyGrid", "scene_grid"]
+__all__ = ["OccupancyGrid", "merge_cells", "scene_grid"]
 
 RULES = ("any", "center", "fraction")
 
@@ -266,3 +266,38 @@ def _mesh_cover(obstacle, origin, resolution, i0, n) -> np.ndarray:  # type: ign
         if coal.collide(cell, coal.Transform3s(np.eye(3), centre), mesh, tf, req, res):
             out[idx] = 1.0
     return out
+
+
+def merge_cells(occupied: np.ndarray) -> list[tuple[tuple[int, int, int], tuple[int, int, int]]]:
+    """Disjoint boxes of cells whose union is exactly the ``True`` cells of a 3D boolean array, as
+    (lower index, upper index exclusive) per box. Greedy: maximal runs along z in each (x, y) column;
+    runs with the same z extent in neighbouring y columns of one x slice join into rectangles;
+    rectangles with the same y and z extent in neighbouring x slices join into boxes. A voxelized
+    box scene gives about one box per obstacle: what grid-based collision checkers hand to coal."""
+    occupied = np.asarray(occupied, dtype=bool)
+    nx, ny, _ = occupied.shape
+    # rectangles per x slice: (j0, j1, k0, k1)
+    open_boxes: dict[tuple[int, int, int, int], int] = {}  # rectangle -> first x index
+    boxes: list[tuple[tuple[int, int, int], tuple[int, int, int]]] = []
+    for i in range(nx + 1):
+        rects: set[tuple[int, int, int, int]] = set()
+        if i < nx:
+            active: dict[tuple[int, int], int] = {}  # z run -> first y index
+            for j in range(ny + 1):
+                runs: set[tuple[int, int]] = set()
+                if j < ny and occupied[i, j].any():
+                    padded = np.concatenate([[False], occupied[i, j], [False]])
+                    edges = np.flatnonzero(padded[1:] != padded[:-1])
+                    runs = {(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)}
+                for run in list(active):
+                    if run not in runs:
+                        rects.add((active.pop(run), j, *run))
+                for run in runs:
+                    active.setdefault(run, j)
+        for rect in list(open_boxes):
+            if rect not in rects:
+                j0, j1, k0, k1 = rect
+                boxes.append(((open_boxes.pop(rect), j0, k0), (i, j1, k1)))
+        for rect in rects:
+            open_boxes.setdefault(rect, i)
+    return boxes

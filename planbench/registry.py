@@ -1,13 +1,19 @@
-"""The planner registry: entry points found lazily, plus a decorator for scripts and tests.
+"""The plugin registries: entry points found lazily, plus decorators for scripts and tests.
 
-A separate package adds a planner with one line in its ``pyproject.toml``::
+One :class:`Registry` class serves each kind of plugin: planners (:data:`REGISTRY`, entry-point group
+``planbench.planners``) and closed-loop controllers (:data:`CONTROLLERS`, group
+``planbench.controllers``). A separate package adds one with one line in its ``pyproject.toml``::
 
     [project.entry-points."planbench.planners"]
     my-planner = "my_package.module:MyPlanner"
 
-The registry reads entry-point *names* only; a plugin module is imported when its planner is first
-used, and a plugin that fails to import is reported with the reason and an install hint instead of
-vanishing. Each spec records the distribution and version it came from.
+    [project.entry-points."planbench.controllers"]
+    my-controller = "my_package.module:MyController"
+
+A registry reads entry-point *names* only; a plugin module is imported when it is first used, and a
+plugin that fails to import is reported with the reason and an install hint instead of vanishing.
+Each spec records the distribution and version it came from. Settings, presets
+(``family:variant``) and their errors work the same for every kind; messages name the kind.
 """
 
 from __future__ import annotations
@@ -38,18 +44,26 @@ from planbench.errors import (
 )
 
 __all__ = [
+    "CONTROLLERS",
     "PlannerSetup",
     "PlannerSpec",
+    "PluginSetup",
+    "PluginSpec",
+    "PluginUnavailableError",
     "Registry",
     "REGISTRY",
     "coerce_settings",
     "config_types",
     "register_planner",
+    "register_controller",
     "make_planner",
+    "make_controller",
     "get_planner",
+    "get_controller",
 ]
 
 ENTRY_POINT_GROUP = "planbench.planners"
+CONTROLLER_GROUP = "planbench.controllers"
 NAME_PATTERN = re.compile(r"^[a-z0-9]+(-[a-z0-9]+)*$")
 
 # What to install when a plugin's import fails on a missing module.
@@ -62,9 +76,28 @@ INSTALL_HINTS = {
 }
 
 
+class PluginUnavailableError(PlannerUnavailableError):
+    """A registered plugin of another kind than a planner (a controller) whose module cannot be
+    imported; a :class:`~planbench.errors.PlannerUnavailableError`, so one ``except`` catches both,
+    whose message names its kind."""
+
+    def __init__(self, kind: str, name: str, reason: str, hint: str = "") -> None:
+        super().__init__(name, reason, hint)
+        self.kind = kind
+        msg = f"{kind} {name!r} is registered but cannot be loaded: {reason}"
+        self.args = (msg + (f" ({hint})" if hint else ""),)
+
+
+def _unavailable(kind: str, name: str, reason: str, hint: str) -> PlannerUnavailableError:
+    if kind == "planner":
+        return PlannerUnavailableError(name, reason, hint)
+    return PluginUnavailableError(kind, name, reason, hint)
+
+
 @dataclass
 class PlannerSpec:
-    """A registered planner: its name, where its class lives, and where it came from."""
+    """A registered plugin (a planner, or the registry's ``kind``): its name, where its class
+    lives, and where it came from."""
 
     name: str
     entry_point: str  # "module:Attr"
@@ -75,6 +108,7 @@ class PlannerSpec:
     error: str = ""  # why it could not be imported
     hint: str = ""  # what to install
     traceback: str = ""  # of an import that raised something else than a missing module
+    kind: str = "planner"  # the registry's kind, for messages
 
     def load(self) -> type:
         if self.loaded is not None:
@@ -88,12 +122,12 @@ class PlannerSpec:
             self.error = f"{type(exc).__name__}: {exc}"
             top = (exc.name or "").split(".")[0]
             self.hint = INSTALL_HINTS.get(top, f"pip install {top}" if top else "")
-            raise PlannerUnavailableError(self.name, self.error, self.hint) from exc
+            raise _unavailable(self.kind, self.name, self.error, self.hint) from exc
         except Exception as exc:  # a broken plugin must not take the registry down
             self.error = f"{type(exc).__name__}: {exc}"
             self.hint = "the plugin raised while importing; see the traceback with --verbose"
             self.traceback = traceback.format_exc()
-            raise PlannerUnavailableError(self.name, self.error, self.hint) from exc
+            raise _unavailable(self.kind, self.name, self.error, self.hint) from exc
         self.loaded = obj
         return obj  # type: ignore[no-any-return]
 
@@ -106,20 +140,33 @@ class PlannerSpec:
         return True
 
 
-class Registry:
-    """Planner names to specs. ``Registry()`` gives an isolated one (tests); ``REGISTRY`` is the
-    process-wide one the CLI and ``planbench.plan`` use."""
+PluginSpec = PlannerSpec
+"""A registered plugin of any kind (the planner registry's historical name is kept)."""
 
-    def __init__(self, discover: bool = True) -> None:
+
+class Registry:
+    """Plugin names to specs, for one kind of plugin. ``Registry()`` gives an isolated planner
+    registry (tests); :data:`REGISTRY` is the process-wide one the CLI and ``planbench.plan`` use,
+    :data:`CONTROLLERS` the closed-loop controllers'.
+
+    ``group``: the entry-point group discovered; ``kind``: the word for one plugin in messages and
+    in :class:`~planbench.errors.UnknownNameError` (``"planner"``, ``"controller"``).
+    """
+
+    def __init__(self, discover: bool = True, *, group: str = ENTRY_POINT_GROUP, kind: str = "planner") -> None:
+        if not kind or not isinstance(kind, str):
+            raise ValueError(f"a registry's kind must be a word such as 'planner', got {kind!r}")
         self._specs: dict[str, PlannerSpec] = {}
         self._discover = discover
         self._discovered = False
+        self.group = group
+        self.kind = kind
 
     def _ensure_discovered(self) -> None:
         if self._discovered or not self._discover:
             return
         self._discovered = True
-        for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        for ep in importlib.metadata.entry_points(group=self.group):
             if ep.name in self._specs:
                 continue  # a decorator registration wins over an entry point of the same name
             dist = getattr(ep, "dist", None)
@@ -129,23 +176,25 @@ class Registry:
                 "entry point",
                 distribution=dist.metadata["Name"] if dist else "",
                 version=dist.version if dist else "",
+                kind=self.kind,
             )
 
     def register(self, cls: type | str, name: str | None = None) -> PlannerSpec:
-        """Register a planner class (or a ``"module:Attr"`` string) under ``name``."""
+        """Register a class (or a ``"module:Attr"`` string) under ``name``."""
+        kind = self.kind
         if isinstance(cls, str):
             if name is None:
                 raise ValueError("registering by entry-point string needs a name")
-            spec = PlannerSpec(name, cls, "decorator")
+            spec = PlannerSpec(name, cls, "decorator", kind=kind)
         else:
             name = name or getattr(cls, "name", "")
             if not name:
-                raise ValueError(f"{cls.__qualname__} has no 'name'; set name = 'my-planner' on the class")
+                raise ValueError(f"{cls.__qualname__} has no 'name'; set name = 'my-{kind}' on the class")
             module = getattr(cls, "__module__", "")
             dist, version = _distribution_of(module)
-            spec = PlannerSpec(name, f"{module}:{cls.__qualname__}", "decorator", dist, version, loaded=cls)
+            spec = PlannerSpec(name, f"{module}:{cls.__qualname__}", "decorator", dist, version, loaded=cls, kind=kind)
         if not NAME_PATTERN.match(name):
-            raise ValueError(f"planner name {name!r} must be kebab-case (lowercase words joined by '-')")
+            raise ValueError(f"{kind} name {name!r} must be kebab-case (lowercase words joined by '-')")
         self._specs[name] = spec
         return spec
 
@@ -159,11 +208,11 @@ class Registry:
     def spec(self, name: str) -> PlannerSpec:
         self._ensure_discovered()
         if name not in self._specs:
-            raise UnknownNameError("planner", name, list(self._specs))
+            raise UnknownNameError(self.kind, name, list(self._specs))
         return self._specs[name]
 
     def get(self, name: str) -> type:
-        """The planner class registered as ``name`` (imports its module on first use)."""
+        """The class registered as ``name`` (imports its module on first use)."""
         return self.spec(name).load()
 
     def resolve(self, planner: str | type) -> tuple[str, type, dict[str, Any]]:
@@ -186,7 +235,7 @@ class Registry:
             if variant in presets:
                 return planner, cls, dict(presets[variant])
             return planner, cls, {"planner": variant}
-        return planner, _load_entry_point(planner), {}
+        return planner, _load_entry_point(planner, self.kind), {}
 
     def configure(
         self,
@@ -210,14 +259,18 @@ class Registry:
         given = {**(settings or {}), **(text or {})}
         if Config is None:
             values = {k: _json_or_text(v) if k in (text or {}) else v for k, v in given.items()}
-            return PlannerSetup(name, cls, None, {**implied, **values}, values)
-        values = coerce_settings(name, Config, {**implied, **(settings or {})}, text=text)
+            return PlannerSetup(name, cls, None, {**implied, **values}, values, kind=self.kind)
         try:
-            config = Config(**values)
-        except (TypeError, ValueError) as exc:
-            raise _refused(name, exc, values, Config) from exc
+            values = coerce_settings(name, Config, {**implied, **(settings or {})}, text=text, kind=self.kind)
+            try:
+                config = Config(**values)
+            except (TypeError, ValueError) as exc:
+                raise _refused(name, exc, values, Config) from exc
+        except InvalidSettingError as exc:
+            _name_kind(exc, self.kind)
+            raise
         given_values = {k: v for k, v in values.items() if k in given}
-        return PlannerSetup(name, cls, config, values, given_values)
+        return PlannerSetup(name, cls, config, values, given_values, kind=self.kind)
 
     def make(self, planner: str | type, /, **settings: Any) -> Any:
         """An instance of ``planner`` (see :meth:`resolve`) with its ``Config`` built from ``settings``
@@ -227,9 +280,10 @@ class Registry:
 
 @dataclass(frozen=True)
 class PlannerSetup:
-    """A planner class with checked settings, ready to build (what :meth:`Registry.configure` gives).
+    """A plugin class (a planner, or the registry's ``kind``) with checked settings, ready to build
+    (what :meth:`Registry.configure` gives).
 
-    ``config`` is the planner's ``Config`` instance (None for a planner without a dataclass
+    ``config`` is the class's ``Config`` instance (None for a class without a dataclass
     ``Config``: ``kwargs`` then go to the class as they are); ``settings`` are the settings given,
     parsed to their fields' types (what a benchmark stores and hands to its workers).
     """
@@ -239,16 +293,35 @@ class PlannerSetup:
     config: Any
     kwargs: dict[str, Any]
     settings: dict[str, Any]
+    kind: str = "planner"
 
     def build(self) -> Any:
-        """The planner instance; a ``TypeError`` or ``ValueError`` of its ``__init__`` is an
+        """The instance; a ``TypeError`` or ``ValueError`` of its ``__init__`` is an
         :class:`InvalidSettingError`."""
         try:
             return self.cls(self.config) if self.config is not None else self.cls(**self.kwargs)
         except (TypeError, ValueError) as exc:
             if isinstance(exc, InvalidSettingError):
+                _name_kind(exc, self.kind)
                 raise
-            raise _refused(self.name, exc, self.kwargs, config_class(self.cls)) from exc
+            refused = _refused(self.name, exc, self.kwargs, config_class(self.cls))
+            raise _name_kind(refused, self.kind) from exc
+
+
+PluginSetup = PlannerSetup
+"""A plugin class with checked settings (the planner registry's historical name is kept)."""
+
+
+def _name_kind(exc: InvalidSettingError, kind: str) -> InvalidSettingError:
+    """``exc`` with its message naming ``kind`` instead of "planner" (``InvalidSettingError``
+    words its message for planners; the fields are unchanged)."""
+    if kind != "planner":
+        text = str(exc)
+        lead = f"planner {exc.planner!r}: "
+        at = text.find(lead)
+        if at >= 0:
+            exc.args = (text[:at] + f"{kind} {exc.planner!r}: " + text[at + len(lead) :],)
+    return exc
 
 
 # -- settings parsed to the types of a Config's fields -----------------------------------------------
@@ -283,7 +356,12 @@ def config_types(Config: type) -> dict[str, Any]:
 
 
 def coerce_settings(
-    planner: str, Config: type, settings: Mapping[str, Any], *, text: Mapping[str, str] | None = None
+    planner: str,
+    Config: type,
+    settings: Mapping[str, Any],
+    *,
+    text: Mapping[str, str] | None = None,
+    kind: str = "planner",
 ) -> dict[str, Any]:
     """``settings`` and command-line ``text`` (which wins) parsed to the types of ``Config``'s fields.
 
@@ -292,7 +370,7 @@ def coerce_settings(
     ``list[X]`` (a list, ``[...]`` JSON or ``a,b,c`` text), ``dict`` / ``Mapping`` (JSON text),
     enums; a value of another type (``Any`` included) is taken as given, and command-line text for
     it is read as JSON when it is JSON. Raises :class:`InvalidSettingError` for an unknown setting
-    or a value its type cannot take.
+    or a value its type cannot take (``kind``: what ``planner`` is, for the message).
     """
     types = config_types(Config)
     out: dict[str, Any] = {}
@@ -300,7 +378,7 @@ def coerce_settings(
     for key, value, is_text in given:
         shown = _json_or_text(value) if is_text else value  # errors show '0.3' typed as 0.3, like Python's 0.3
         if key not in types:
-            raise InvalidSettingError(planner, key, shown, _no_such_setting(key, list(types)))
+            raise InvalidSettingError(planner, key, shown, _no_such_setting(key, list(types), kind))
         try:
             out[key] = _coerce(types[key], value, is_text)
         except _Refused as refused:
@@ -308,11 +386,11 @@ def coerce_settings(
     return out
 
 
-def _no_such_setting(key: str, known: list[str]) -> str:
+def _no_such_setting(key: str, known: list[str], kind: str = "planner") -> str:
     close = difflib.get_close_matches(key, known, n=3, cutoff=0.6)
     hint = f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
     listing = ", ".join(sorted(known)) if known else "none"
-    return f"the planner has no such setting{hint} (its settings: {listing})"
+    return f"the {kind} has no such setting{hint} (its settings: {listing})"
 
 
 def _coerce(hint: Any, value: Any, is_text: bool) -> Any:
@@ -509,7 +587,7 @@ def _default(Config: Any, name: str) -> Any:
     return None
 
 
-def _load_entry_point(planner: str) -> type:
+def _load_entry_point(planner: str, kind: str = "planner") -> type:
     """The class named by a ``"module:Attr"`` entry point (imports the module)."""
     module_name, _, attr = planner.partition(":")
     try:
@@ -517,9 +595,9 @@ def _load_entry_point(planner: str) -> type:
         for part in attr.split("."):
             obj = getattr(obj, part)
     except (ImportError, AttributeError) as exc:
-        raise PlanbenchError(f"cannot load planner entry point {planner!r}: {type(exc).__name__}: {exc}") from exc
+        raise PlanbenchError(f"cannot load {kind} entry point {planner!r}: {type(exc).__name__}: {exc}") from exc
     if not isinstance(obj, type):
-        raise PlanbenchError(f"planner entry point {planner!r} is a {type(obj).__name__}, not a class")
+        raise PlanbenchError(f"{kind} entry point {planner!r} is a {type(obj).__name__}, not a class")
     return obj
 
 
@@ -534,6 +612,10 @@ def _distribution_of(module: str) -> tuple[str, str]:
 
 
 REGISTRY = Registry()
+"""The planners (entry-point group ``planbench.planners``)."""
+CONTROLLERS = Registry(group=CONTROLLER_GROUP, kind="controller")
+"""The closed-loop controllers (entry-point group ``planbench.controllers``;
+:mod:`planbench.reactive.controller`)."""
 
 
 def register_planner(cls: type | None = None, *, name: str | None = None, registry: Registry | None = None) -> Any:
@@ -546,10 +628,26 @@ def register_planner(cls: type | None = None, *, name: str | None = None, regist
     return wrap(cls) if cls is not None else wrap
 
 
+def register_controller(cls: type | None = None, *, name: str | None = None, registry: Registry | None = None) -> Any:
+    """Class decorator: ``@register_controller`` or ``@register_controller(name="x", registry=r)``
+    (default registry: :data:`CONTROLLERS`)."""
+    return register_planner(cls, name=name, registry=registry or CONTROLLERS)
+
+
 def get_planner(name: str) -> type:
     return REGISTRY.get(name)
+
+
+def get_controller(name: str) -> type:
+    return CONTROLLERS.get(name)
 
 
 def make_planner(planner: str | type, /, **settings: Any) -> Any:
     """An instance of ``planner`` with ``settings`` (see :meth:`Registry.configure`)."""
     return REGISTRY.make(planner, **settings)
+
+
+def make_controller(controller: str | type, /, **settings: Any) -> Any:
+    """An instance of ``controller`` (a registered name, ``name:preset``, a class or a
+    ``"module:Attr"`` entry point) with ``settings`` (see :meth:`Registry.configure`)."""
+    return CONTROLLERS.make(controller, **settings)

@@ -364,7 +364,7 @@ def test_grid_mode_plans_a_valid_path(blocked):
 
 
 def test_merged_boxes_cover_exactly_the_occupied_cells():
-    from planbench_plugins.ompl_planners.grid import merge_cells
+    from planbench.occupancy import merge_cells
 
     rng = np.random.default_rng(0)
     for density in (0.1, 0.5, 0.9):

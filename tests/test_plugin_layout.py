@@ -2,7 +2,9 @@
 
 A baseline that imported the matrix-field plugin's internals would make the comparison depend on
 the method it is compared against; this test reads every plugin module's imports (ast, nothing
-is imported) and names the offending line.
+is imported) and names the offending line. ``controllers`` is a layer above the planners (it runs
+their steps closed-loop): it may import a planner family's public package, never its modules, and
+no planner family imports it.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ def test_a_family_imports_no_other_plugin_and_only_the_loops_public_api(family: 
                 continue
             if parts[1] == family or module == "planbench_plugins.ik_loop":
                 continue
+            if family == "controllers" and len(parts) == 2 and parts[1] != "controllers":
+                continue  # a planner family's public package
             bad.append(f"{path.relative_to(PLUGINS)}:{line} imports {module}")
     assert not bad, "\n".join(bad)
 

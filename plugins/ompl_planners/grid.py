@@ -29,7 +29,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.collision import CollisionChecker
-from planbench.occupancy import OccupancyGrid, scene_grid
+from planbench.occupancy import OccupancyGrid, merge_cells, scene_grid
 from planbench.robot import Robot
 from planbench.scene import Scene
 
@@ -74,40 +74,6 @@ def occupied_centres(grid: OccupancyGrid, threshold: float = 0.5) -> np.ndarray:
     """(N, 3) centres [m] of the cells whose occupancy is ``>= threshold``."""
     idx = np.argwhere(grid.data >= threshold)
     return grid.origin + (idx + 0.5) * grid.resolution
-
-
-def merge_cells(occupied: np.ndarray) -> list[tuple[tuple[int, int, int], tuple[int, int, int]]]:
-    """Disjoint boxes of cells whose union is exactly the ``True`` cells of a 3D boolean array, as
-    (lower index, upper index exclusive) per box. Greedy: maximal runs along z in each (x, y) column;
-    runs with the same z extent in neighbouring y columns of one x slice join into rectangles;
-    rectangles with the same y and z extent in neighbouring x slices join into boxes."""
-    occupied = np.asarray(occupied, dtype=bool)
-    nx, ny, _ = occupied.shape
-    # rectangles per x slice: (j0, j1, k0, k1)
-    open_boxes: dict[tuple[int, int, int, int], int] = {}  # rectangle -> first x index
-    boxes: list[tuple[tuple[int, int, int], tuple[int, int, int]]] = []
-    for i in range(nx + 1):
-        rects: set[tuple[int, int, int, int]] = set()
-        if i < nx:
-            active: dict[tuple[int, int], int] = {}  # z run -> first y index
-            for j in range(ny + 1):
-                runs: set[tuple[int, int]] = set()
-                if j < ny and occupied[i, j].any():
-                    padded = np.concatenate([[False], occupied[i, j], [False]])
-                    edges = np.flatnonzero(padded[1:] != padded[:-1])
-                    runs = {(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)}
-                for run in list(active):
-                    if run not in runs:
-                        rects.add((active.pop(run), j, *run))
-                for run in runs:
-                    active.setdefault(run, j)
-        for rect in list(open_boxes):
-            if rect not in rects:
-                j0, j1, k0, k1 = rect
-                boxes.append(((open_boxes.pop(rect), j0, k0), (i, j1, k1)))
-        for rect in rects:
-            open_boxes.setdefault(rect, i)
-    return boxes
 
 
 def grid_checker(

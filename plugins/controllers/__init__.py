@@ -1,0 +1,32 @@
+"""Closed-loop controllers (entry-point group ``planbench.controllers``): the field planners'
+steps run at the control rate on observed occupancy grids (docs/writing-a-controller.md).
+
+Modules: ``adapter`` (:class:`IKLoopController`: an IK-loop planner's step as a controller),
+``live`` (the repulsion whose source each frame replaces), ``hooks`` (the one place that reads the
+loop's private step state), ``crop`` (the block of a grid that holds its occupied cells), ``cells``
+(occupied cells as box obstacles), and one module per controller: ``matrix_field``,
+``matrix_field_qp``, ``edt_field``, ``distance_field``.
+"""
+
+from planbench_plugins.controllers.adapter import PLANNING_ONLY, IKLoopController
+from planbench_plugins.controllers.cells import cell_scene, observed_scene
+from planbench_plugins.controllers.distance_field import DistanceFieldController
+from planbench_plugins.controllers.edt_field import EDTFieldController
+from planbench_plugins.controllers.live import LiveRepulsion
+from planbench_plugins.controllers.matrix_field import GridField, MatrixFieldController, MatrixFieldControllerConfig
+from planbench_plugins.controllers.matrix_field_qp import MatrixFieldQPController, MatrixFieldQPControllerConfig
+
+__all__ = [
+    "PLANNING_ONLY",
+    "DistanceFieldController",
+    "EDTFieldController",
+    "GridField",
+    "IKLoopController",
+    "LiveRepulsion",
+    "MatrixFieldController",
+    "MatrixFieldControllerConfig",
+    "MatrixFieldQPController",
+    "MatrixFieldQPControllerConfig",
+    "cell_scene",
+    "observed_scene",
+]

@@ -1,0 +1,51 @@
+"""``distance-field`` as a controller: Khatib repulsion from coal's distances to the observed geometry.
+
+Per frame (``update``), :class:`~planbench_plugins.potential_fields.DistanceFieldRepulsion` between
+the robot's links (convex hulls) and the observed geometry: the observation's exact ``scene`` with
+truth sensing, else the grid's occupied cells merged into boxes (:mod:`.cells`). Each step asks
+coal for every link's nearest obstacle, as the planner does with the true scene. The gain is the
+planner's (:func:`~planbench_plugins.potential_fields.khatib_gain` from the stand-off).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from planbench.reactive.controller import Observation
+from planbench_plugins.controllers.adapter import IKLoopController
+from planbench_plugins.controllers.cells import observed_scene
+from planbench_plugins.ik_loop import Repulsion
+from planbench_plugins.potential_fields import (
+    DistanceFieldConfig,
+    DistanceFieldPlanner,
+    DistanceFieldRepulsion,
+    khatib_gain,
+)
+
+__all__ = ["DistanceFieldController"]
+
+
+class DistanceFieldController(IKLoopController):
+    """``distance-field`` as a controller (module docstring). Settings: the planner's,
+    :class:`~planbench_plugins.potential_fields.DistanceFieldConfig`."""
+
+    name = "distance-field"
+    Config = DistanceFieldConfig
+    planner_class = DistanceFieldPlanner
+
+    def __init__(self, config: Any = None, **settings: Any) -> None:
+        super().__init__(config, **settings)
+        self.geometry = ""
+        """Where the last frame's geometry came from: ``"scene"`` or ``"grid cells"``."""
+
+    def make_source(self, observation: Observation) -> Repulsion | None:
+        c = self.config
+        assert self.task is not None
+        scene, self.geometry = observed_scene(observation)
+        gain = c.repulsion_gain * khatib_gain(c.speed_max, c.standoff, c.influence_distance)
+        if len(scene) == 0 or gain <= 0:
+            return None
+        return DistanceFieldRepulsion(self.task.robot, scene, gain, c.influence_distance, c.distance_floor)
+
+    def extra_info(self) -> dict[str, Any]:
+        return {"geometry": self.geometry}

@@ -1,0 +1,165 @@
+"""``ompl-replan``: a global sampling planner on the latest observation, a path follower, and a
+replan whenever the path it follows becomes invalid.
+
+This is how a sampling planner is deployed in a changing scene, and the comparator the reactive
+methods must beat: RRT-Connect (any registered static planner, ``planner``) plans from the arm's
+configuration to the goal in the observed scene: the exact geometry with ``truth`` sensing, the
+occupied cells as boxes with ``depth`` sensing (each box inset by ``cell_inset`` of a cell per
+side: an ``"any"``-rule cell is occupied when the surface passes anywhere through it, so the full
+cell would make a start a few millimetres from a table look in collision). The follower moves along
+the path at ``speed_scale`` of every joint's velocity limit. On every new frame the rest of the path
+(from the arm's configuration) is checked against the new observation every ``check_resolution``
+rad; when it collides, or when there is no path yet, the controller replans in that tick, so the
+planning time is charged by the runner like any compute time (the previous command is held
+meanwhile, as on a robot). A failed plan leaves the arm still until the next frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from planbench.collision import CollisionChecker
+from planbench.errors import InvalidConfigError
+from planbench.planner import PlanStatus
+from planbench.problem import Goal, Problem
+from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.registry import REGISTRY
+from planbench.scene import Scene
+from planbench_plugins.controllers.cells import cell_scene
+
+__all__ = ["OMPLReplanConfig", "OMPLReplanController"]
+
+
+@dataclass(frozen=True)
+class OMPLReplanConfig:
+    """Settings of ``ompl-replan``."""
+
+    planner: str = "ompl-rrtconnect"
+    """The registered static planner that (re)plans."""
+    plan_time: float = 1.0
+    """Time limit of one (re)plan [s]."""
+    speed_scale: float = 0.5
+    """Speed along the path, as a fraction of each joint's velocity limit (0, 1]."""
+    check_resolution: float = 0.02
+    """Spacing of the configurations at which the rest of the path is checked on a new frame [rad]."""
+    cell_inset: float = 0.25
+    """How far each box of observed cells is shrunk on each side, in cells [0, 0.5)."""
+
+    def __post_init__(self) -> None:
+        for name in ("plan_time", "check_resolution"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
+        if not 0 < self.speed_scale <= 1:
+            raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
+        if not 0 <= self.cell_inset < 0.5:
+            raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
+
+
+class OMPLReplanController(Controller):
+    """``ompl-replan`` (module docstring)."""
+
+    name = "ompl-replan"
+    Config = OMPLReplanConfig
+
+    def setup(self, task: ControlTask) -> None:
+        self.task = task
+        self.planner = REGISTRY.make(self.config.planner)
+        self.vmax = self.config.speed_scale * np.asarray(task.robot.velocity_limit, dtype=float)
+
+    def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.path: np.ndarray | None = None  # the path being followed, its first row where the arm was
+        self.s = 0.0  # position along it: segment index + fraction
+        self.checker: CollisionChecker | None = None
+        self.scene: Scene | None = None
+        self.fresh = False
+        self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0}
+
+    def update(self, observation: Observation) -> None:
+        self.scene = observation.scene if observation.scene is not None else self._cells(observation)
+        self.checker = None  # built when first needed (in the step: it is part of checking)
+        self.fresh = True
+
+    def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
+        if self.scene is None:
+            return np.zeros_like(q)
+        if self.fresh:
+            self.fresh = False
+            if self.path is not None and not self._rest_free(q):
+                self.stats["invalidated"] += 1
+                self.path = None
+            if self.path is None:
+                self._plan(q)
+        if self.path is None:
+            return np.zeros_like(q)
+        return self._follow(q)
+
+    def info(self) -> dict[str, Any]:
+        return dict(self.stats)
+
+    # --- planning ---------------------------------------------------------------------------
+    def _cells(self, observation: Observation) -> Scene:
+        scene = cell_scene(observation.grid)
+        inset = self.config.cell_inset * observation.grid.resolution
+        if inset <= 0:
+            return scene
+        shrunk = tuple(dataclasses.replace(o, size=tuple(s - 2 * inset for s in o.size)) for o in scene.obstacles)
+        return Scene(shrunk, scene.name)
+
+    def _plan(self, q: np.ndarray) -> None:
+        task = self.task
+        problem = Problem.create(
+            task.robot, self.scene, q, goal_q=task.goal.q, goal_pose=task.goal.pose, tolerances=task.tolerances
+        )
+        t0 = time.perf_counter()
+        self.planner.setup(problem)
+        result = self.planner.plan(problem, time_limit=self.config.plan_time, rng=self.rng)
+        self.stats["plans"] += 1
+        self.stats["plan_times"].append(time.perf_counter() - t0)
+        if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
+            self.stats["failed_plans"] += 1
+            return
+        self.path, self.s = np.array(result.path, dtype=float), 0.0
+
+    def _rest_free(self, q: np.ndarray) -> bool:
+        """Whether the arm's way from ``q`` along the rest of the path is free in the observation."""
+        assert self.path is not None and self.scene is not None
+        if self.checker is None:
+            self.checker = CollisionChecker(self.task.robot, self.scene)
+        i = min(int(self.s) + 1, len(self.path) - 1)
+        rest = np.vstack([q, self.path[i:]])
+        for a, b in zip(rest[:-1], rest[1:], strict=True):
+            n = max(1, int(math.ceil(np.max(np.abs(b - a)) / self.config.check_resolution)))
+            for u in np.linspace(0.0, 1.0, n + 1)[1:]:
+                if self.checker.in_collision(a + u * (b - a)):
+                    return False
+        return True
+
+    # --- following --------------------------------------------------------------------------
+    def _follow(self, q: np.ndarray) -> np.ndarray:
+        """Advance along the path by one control period at the scaled velocity limits and steer
+        toward that point (which also pulls the arm back onto the path after a held command)."""
+        path, T = self.path, self.task.period
+        assert path is not None
+        budget = T  # [s] of motion left in this tick
+        i, f = int(self.s), self.s - int(self.s)
+        while i < len(path) - 1 and budget > 0:
+            seg = path[i + 1] - path[i]
+            duration = float(np.max(np.abs(seg) / self.vmax))  # [s] for the whole segment
+            left = (1.0 - f) * duration
+            if left <= budget:
+                budget -= left
+                i, f = i + 1, 0.0
+            else:
+                f += budget / duration
+                budget = 0.0
+        self.s = i + f
+        target = path[i] if i >= len(path) - 1 else path[i] + f * (path[i + 1] - path[i])
+        return np.clip((target - q) / T, -self.vmax / self.config.speed_scale, self.vmax / self.config.speed_scale)
