@@ -115,6 +115,14 @@ class Evaluation:
     collision_pair: str = ""  # "<robot link> / <link or obstacle:name>"
     penetration_depth: float = math.nan  # [m] deepest found for that pair (0: too close, not provably free)
     checks: dict[str, bool] = field(default_factory=dict)
+    # closed-loop runs only (planbench.reactive.runner.RunMetrics; NaN / None for a static plan)
+    time_to_goal: float = math.nan  # [s] when the goal tolerance was met
+    tick_time_median: float = math.nan  # [s] the controller's compute time per control tick
+    tick_time_p99: float = math.nan  # [s]
+    deadline_misses: int | None = None  # control ticks on which no new command was ready
+    field_update_time: float = math.nan  # [s] median per sensor frame taken in
+    stalled_time: float = math.nan  # [s] the arm commanded slower than the stall speed, goal not reached
+    path_length: float = math.nan  # [rad] joint-space length of the executed trajectory
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

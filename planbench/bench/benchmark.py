@@ -14,10 +14,10 @@ from typing import Any
 from planbench.bench.db import ResultsDB
 from planbench.bench.probe import probe_planners
 from planbench.bench.runner import Record, Runner, failure_record
-from planbench.bench.suite import PlannerEntry, Suite, expand_problems, load_suite, parse_seeds
+from planbench.bench.suite import PlannerEntry, Suite, expand_problems, expand_scenarios, load_suite, parse_seeds
 from planbench.bench.task import RunTask
 from planbench.errors import InvalidSettingError, PlanbenchError, UnstorableValueError
-from planbench.registry import REGISTRY
+from planbench.registry import CONTROLLERS, REGISTRY
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,8 @@ def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[s
     cannot be used raises (an :class:`InvalidSettingError` for a bad setting), unless it is optional:
     then it is skipped, with the reason.
     """
-    answers = probe_planners([(e.planner, dict(e.settings), dict(e.text_settings)) for e in suite.planners])
+    kind = "controller" if suite.kind == "dynamic" else "planner"
+    answers = probe_planners([(e.planner, dict(e.settings), dict(e.text_settings)) for e in suite.planners], kind=kind)
     usable, skipped, versions = [], [], {}
     for entry, answer in zip(suite.planners, answers, strict=True):
         where = suite.source + (f", planner label {entry.label!r}" if entry.label != entry.planner else "")
@@ -103,8 +104,8 @@ def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[s
                 skipped.append(f"{entry.label}: {answer.get('error')}")
                 continue
             bad = _setting_error(answer, where)
-            raise bad or PlanbenchError(f"{suite.source}: planner {entry.label!r}: {answer.get('error')}")
-        versions[entry.label] = _version(entry.planner, answer)
+            raise bad or PlanbenchError(f"{suite.source}: {kind} {entry.label!r}: {answer.get('error')}")
+        versions[entry.label] = _version(entry.planner, answer, suite.kind)
         fresh = entry.fresh_process or answer.get("fresh_process") is True
         settings = answer.get("settings")
         given = {**entry.settings, **entry.text_settings}
@@ -123,12 +124,13 @@ def _setting_error(answer: dict[str, Any], where: str) -> InvalidSettingError | 
         return None
 
 
-def _version(planner: str, answer: dict[str, Any]) -> str:
-    """The distribution and version a registered planner comes from (entry-point metadata, read
-    without importing it), else the module the probe found it in."""
+def _version(planner: str, answer: dict[str, Any], kind: str = "static") -> str:
+    """The distribution and version a registered planner (or controller) comes from (entry-point
+    metadata, read without importing it), else the module the probe found it in."""
     family = planner.partition(":")[0]
-    if family in REGISTRY.names():
-        spec = REGISTRY.spec(family)
+    registry = CONTROLLERS if kind == "dynamic" else REGISTRY
+    if family in registry.names():
+        spec = registry.spec(family)
         return f"{spec.distribution} {spec.version}".strip()
     module = answer.get("module")
     return module if isinstance(module, str) else ""
@@ -157,7 +159,7 @@ def prepare(
         raise PlanbenchError(f"{suite.source}: no planner of the suite can be loaded: " + "; ".join(skipped))
     checked = {p.label: p for p in planners}  # settings parsed: what is stored and compared
     suite = suite.with_changes(planners=tuple(checked.get(p.label, p) for p in suite.planners))
-    refs = expand_problems(suite.problems)
+    refs = expand_scenarios(suite.problems) if suite.kind == "dynamic" else expand_problems(suite.problems)
     stored = db.suite_settings(suite.name)
     n_before = db.count(suite.name)
     if n_before and overwrite:
@@ -211,6 +213,8 @@ def prepare(
             validation=suite.validation,
             fresh_process=entry.fresh_process,
             run_settings=run_settings,
+            kind=suite.kind,
+            timing=suite.timing,
         )
         for entry in planners
         for ref in refs

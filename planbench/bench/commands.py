@@ -22,7 +22,7 @@ from planbench.bench.benchmark import run_benchmark, select
 from planbench.bench.db import ResultsDB
 from planbench.bench.html import write_html
 from planbench.bench.plots import write_plots
-from planbench.bench.report import failures, summarize, to_csv, to_markdown, to_rich
+from planbench.bench.report import failures, metrics_for, summarize, to_csv, to_markdown, to_rich
 from planbench.bench.runner import default_jobs
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
@@ -179,9 +179,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     console.print(f"{outcome.ran} runs in {outcome.wall_time:.1f} s (wall), results in {escape(args.out)}")
     with ResultsDB(args.out, read_only=True) as db:
         rows = db.rows(suite.name)
-    console.print(
-        to_rich(summarize(rows, _by(args.by)), _by(args.by), title=f"suite {suite.name}", width=console.width)
-    )
+    metrics = metrics_for(rows, terminal=True)
+    summary = summarize(rows, _by(args.by), metrics)
+    console.print(to_rich(summary, _by(args.by), title=f"suite {suite.name}", metrics=metrics, width=console.width))
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     console.print(f"more: planbench report {escape(args.out)} --by family --html report.html")
@@ -283,12 +283,21 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 1
     by = _by(args.by)
     summary = summarize(rows, by)
-    console.print(to_rich(summary, by, title=f"{args.db}: {len(rows)} runs", width=console.width))
+    terminal = metrics_for(rows, terminal=True)
+    console.print(
+        to_rich(
+            summarize(rows, by, terminal),
+            by,
+            title=f"{args.db}: {len(rows)} runs",
+            metrics=terminal,
+            width=console.width,
+        )
+    )
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     if args.markdown:
         with _writing(args.markdown):
-            Path(args.markdown).write_text(to_markdown(summary, by))
+            Path(args.markdown).write_text(to_markdown(summary, by, metrics_for(rows)))
         console.print(f"Markdown table written to {escape(args.markdown)}")
     if args.csv:
         with _writing(args.csv):

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from planbench.bench.plots import write_plots
-from planbench.bench.report import FAILURE_STATUSES, METRICS, _cells, _headers, summarize
+from planbench.bench.report import FAILURE_STATUSES, METRICS, Metric, _cells, _headers, metrics_for, summarize
 
 __all__ = ["write_html", "render_html"]
 
@@ -26,12 +26,12 @@ pre { background: #f8f8f8; padding: 0.5em; overflow-x: auto; font-size: 0.8em; }
 """
 
 
-def _table(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in _headers(by, METRICS))
+def _table(summary: Sequence[dict[str, Any]], by: Sequence[str], metrics: Sequence[Metric] = METRICS) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in _headers(by, metrics))
     body = []
     for s in summary:
         keys = "".join(f'<td class="key">{html.escape(str(s[c]))}</td>' for c in by)
-        cells = "".join(f"<td>{html.escape(c)}</td>" for c in _cells(s, METRICS))
+        cells = "".join(f"<td>{html.escape(c)}</td>" for c in _cells(s, metrics))
         body.append(f"<tr>{keys}{cells}</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
@@ -54,9 +54,11 @@ def render_html(
         "<p>Success is planbench's own validation of every path. Metric cells: median [q1, q3] over "
         "validated successes; success rates with 95% Wilson intervals.</p>"
     )
-    parts.append("<h2>Per planner</h2>" + _table(summarize(rows, ("planner",)), ("planner",)))
+    metrics = metrics_for(rows)
+    parts.append("<h2>Per planner</h2>" + _table(summarize(rows, ("planner",)), ("planner",), metrics))
     parts.append(
-        "<h2>Per planner and family</h2>" + _table(summarize(rows, ("planner", "family")), ("planner", "family"))
+        "<h2>Per planner and family</h2>"
+        + _table(summarize(rows, ("planner", "family")), ("planner", "family"), metrics)
     )
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(plots_dir) if plots_dir else Path(tmp)

@@ -21,7 +21,7 @@ from typing import Any
 from planbench.bench.procs import detach, kill_group, limit_threads
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadMessage, decode, encode
 from planbench.errors import InvalidSettingError, PlanbenchError
-from planbench.registry import REGISTRY
+from planbench.registry import CONTROLLERS, REGISTRY
 
 __all__ = ["ProbeEntry", "probe_planners"]
 
@@ -32,9 +32,10 @@ ProbeEntry = tuple[str, dict[str, Any], dict[str, str]]
 """(planner, settings, command-line text settings) of one planner to check."""
 
 
-def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str]) -> dict[str, Any]:
+def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str], kind: str = "planner") -> dict[str, Any]:
     try:
-        setup = REGISTRY.configure(planner, settings, text=text)
+        registry = CONTROLLERS if kind == "controller" else REGISTRY
+        setup = registry.configure(planner, settings, text=text)
         for key, value in setup.settings.items():
             try:
                 json.dumps(value, allow_nan=True)
@@ -57,14 +58,16 @@ def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str]) -> 
     }
 
 
-def _probe_main(conn: Any, entries: list[ProbeEntry], parent_pid: int) -> None:
+def _probe_main(conn: Any, entries: list[ProbeEntry], parent_pid: int, kind: str = "planner") -> None:
     detach(parent_pid)
     limit_threads(1)
-    answers = [_probe_one(planner, settings, text) for planner, settings, text in entries]
+    answers = [_probe_one(planner, settings, text, kind) for planner, settings, text in entries]
     conn.send_bytes(encode({"type": "probe", "answers": answers}))
 
 
-def probe_planners(entries: list[ProbeEntry], timeout: float = PROBE_TIMEOUT) -> list[dict[str, Any]]:
+def probe_planners(
+    entries: list[ProbeEntry], timeout: float = PROBE_TIMEOUT, kind: str = "planner"
+) -> list[dict[str, Any]]:
     """For each ``(planner, settings, text settings)``, what :func:`_probe_one` found, in a spawned
     process: ``ok`` and, when true, the ``settings`` parsed to their fields' types (see
     :meth:`~planbench.registry.Registry.configure`), the planner's ``module`` and ``fresh_process``;
@@ -73,11 +76,13 @@ def probe_planners(entries: list[ProbeEntry], timeout: float = PROBE_TIMEOUT) ->
     The answers are the word of a process that ran plugin code: the caller checks what it uses.
 
     Raises :class:`PlanbenchError` when the probe dies, answers garbage, or takes over ``timeout`` s
-    (a plugin whose import hangs).
+    (a plugin whose import hangs). ``kind="controller"``: the entries are controllers.
     """
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=True)
-    proc = ctx.Process(target=_probe_main, args=(child, entries, os.getpid()), daemon=True, name="planbench-probe")
+    proc = ctx.Process(
+        target=_probe_main, args=(child, entries, os.getpid(), kind), daemon=True, name="planbench-probe"
+    )
     proc.start()
     child.close()
     try:

@@ -19,7 +19,17 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-__all__ = ["METRICS", "Metric", "wilson_interval", "summarize", "to_markdown", "to_csv", "to_rich"]
+__all__ = [
+    "DYNAMIC_METRICS",
+    "METRICS",
+    "Metric",
+    "metrics_for",
+    "wilson_interval",
+    "summarize",
+    "to_markdown",
+    "to_csv",
+    "to_rich",
+]
 
 
 @dataclass(frozen=True)
@@ -31,6 +41,8 @@ class Metric:
     scale: float = 1.0
     short: str = ""
     lower_is_better: bool = True
+    over_all_runs: bool = False
+    """Summarised over every run (compute times) rather than over validated successes only."""
 
 
 METRICS: tuple[Metric, ...] = (
@@ -42,6 +54,27 @@ METRICS: tuple[Metric, ...] = (
     Metric("duration", "duration at velocity limits [s]", 1.0, "duration [s]"),
 )
 TERMINAL_METRICS = tuple(m for m in METRICS if m.name != "setup_time")
+DYNAMIC_METRICS: tuple[Metric, ...] = (
+    Metric("time_to_goal", "time to goal [s]", 1.0, "to goal [s]"),
+    Metric("min_clearance", "min clearance [mm]", 1e3, "clearance [mm]", lower_is_better=False),
+    Metric("path_length", "path length [rad]", 1.0, "length [rad]"),
+    Metric("stalled_time", "stalled time [s]", 1.0, "stalled [s]", over_all_runs=True),
+    Metric("tick_time_median", "tick time, median [ms]", 1e3, "tick [ms]", over_all_runs=True),
+    Metric("tick_time_p99", "tick time, p99 [ms]", 1e3, "tick p99 [ms]", over_all_runs=True),
+    Metric("deadline_misses", "deadline misses", 1.0, "misses", over_all_runs=True),
+    Metric("field_update_time", "field update per frame [ms]", 1e3, "update [ms]", over_all_runs=True),
+)
+"""The columns of closed-loop runs (planbench.reactive): compute times over every run, the rest
+over validated successes."""
+
+
+def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple[Metric, ...]:
+    """:data:`DYNAMIC_METRICS` for closed-loop runs, else the static ones (terminal: no setup time)."""
+    if rows and all(r.get("deadline_misses") is not None for r in rows):
+        return DYNAMIC_METRICS
+    return TERMINAL_METRICS if terminal else METRICS
+
+
 FAILURE_STATUSES = ("error", "timeout", "crash")
 
 
@@ -67,13 +100,17 @@ def _quartiles(values: Sequence[float]) -> tuple[float, float, float]:
     return (float(med), float(q1), float(q3))
 
 
-def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",)) -> list[dict[str, Any]]:
+def summarize(
+    rows: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",), metrics: Sequence[Metric] | None = None
+) -> list[dict[str, Any]]:
     """One summary dict per group of ``rows`` (grouped by the columns ``by``), in first-seen order.
 
     Keys: the ``by`` columns, ``runs``, ``solved``, ``success_rate``, ``success_ci_low``,
     ``success_ci_high``, a count per failure status (``error``, ``timeout``, ``crash``), and for
-    each metric ``<name>_median``, ``<name>_q1``, ``<name>_q3`` in SI units over solved runs.
+    each metric ``<name>_median``, ``<name>_q1``, ``<name>_q3`` in SI units over solved runs (over
+    every run for a metric ``over_all_runs``). ``metrics``: by default :func:`metrics_for` the rows.
     """
+    metrics = metrics_for(rows) if metrics is None else metrics
     groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault(tuple(r.get(c, "") for c in by), []).append(r)
@@ -86,8 +123,8 @@ def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",)) 
         s.update(runs=n, solved=len(solved), success_rate=len(solved) / n, success_ci_low=lo, success_ci_high=hi)
         for status in FAILURE_STATUSES:
             s[status] = sum(1 for r in members if r["status"] == status)
-        for m in METRICS:
-            med, q1, q3 = _quartiles([r.get(m.name, math.nan) for r in solved])
+        for m in metrics:
+            med, q1, q3 = _quartiles([r.get(m.name, math.nan) for r in (members if m.over_all_runs else solved)])
             s[f"{m.name}_median"], s[f"{m.name}_q1"], s[f"{m.name}_q3"] = med, q1, q3
         out.append(s)
     return out
@@ -156,9 +193,10 @@ def to_rich(
         title=escape(title) if title else None,
         title_justify="left",
         caption=escape(
-            "metrics: median [q1, q3] over validated successes"
+            "metrics: median [q1, q3] over validated successes" + _all_runs_note(metrics)
             if quartiles
             else "metrics: median over validated successes (quartiles: a wider terminal, or --markdown)"
+            + _all_runs_note(metrics)
         ),
         caption_justify="left",
     )
@@ -167,6 +205,11 @@ def to_rich(
     for s in summary:
         table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics, quartiles))
     return table
+
+
+def _all_runs_note(metrics: Sequence[Metric]) -> str:
+    names = [m.short or m.label for m in metrics if m.over_all_runs]
+    return f"; {', '.join(names)}: over every run" if names else ""
 
 
 def failures(rows: Sequence[dict[str, Any]], limit: int = 20) -> list[str]:

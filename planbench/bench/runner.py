@@ -477,6 +477,7 @@ class Runner:
             "run": slot.run,
             "problem_ref": slot.task.problem_ref,
             "validation": slot.task.validation,
+            "kind": slot.task.kind,
             "result": {k: v for k, v in fields.items() if k not in ("path", "times")},
         }
         try:

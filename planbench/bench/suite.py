@@ -23,6 +23,22 @@ A suite is a small TOML file (``planbench-suite/1``)::
     optional = false                  # true: skip (with a warning) when it cannot be loaded
     fresh_process = false             # true: every run in a new process (process-wide RNGs, e.g. OMPL)
 
+A **closed-loop** suite (``planbench.reactive``) names scenarios and controllers instead::
+
+    [suite]
+    name = "my-dynamic"
+    scenarios = ["dynamic:panda_*_fast_*", "my_scenarios/"]   # see planbench.load_scenarios
+    timing = "measured"               # compute time charged: "measured", "ideal" (none)
+    time_limit = 300.0                # [s] wall-clock limit of one whole run (the horizon is the scenario's)
+
+    [[controllers]]
+    controller = "matrix-field"       # a registered controller (entry-point group planbench.controllers)
+    settings = { field_mode = "lazy" }
+
+Inside, a closed-loop suite is the same :class:`Suite` with ``kind = "dynamic"``: ``problems``
+holds the scenario selectors and ``planners`` the controller entries, so runs, isolation, the
+results file, reports and exports are those of static runs.
+
 The limits shown are examples; a suite that leaves one out gets :data:`DEFAULT_TIME_LIMIT`,
 :data:`DEFAULT_MEMORY_LIMIT`, :data:`DEFAULT_SETUP_TIMEOUT`, :data:`DEFAULT_GRACE` or
 :data:`DEFAULT_VALIDATION_TIMEOUT`. The same planner may appear several times under different labels
@@ -149,7 +165,9 @@ class ProblemRef:
 
 @dataclass(frozen=True)
 class Suite:
-    """A benchmark definition (see the module docstring for the file format and units)."""
+    """A benchmark definition (see the module docstring for the file format and units).
+    ``kind``: ``"static"`` (problems and planners) or ``"dynamic"`` (scenarios and controllers, in
+    ``problems`` and ``planners``); ``timing``: what a closed-loop run charges for compute time."""
 
     name: str
     problems: tuple[str, ...]
@@ -163,17 +181,27 @@ class Suite:
     validation: dict[str, Any] = field(default_factory=dict)
     description: str = ""
     source: str = "<python>"
+    kind: str = "static"
+    timing: str = "measured"
 
     def __post_init__(self) -> None:
         def bad(problem: str) -> SuiteFileError:
             return SuiteFileError(self.source, problem)
 
+        if self.kind not in KINDS:
+            raise bad(f"suite kind must be one of {KINDS}, got {self.kind!r}")
+        if self.timing not in TIMINGS:
+            raise bad(f"[suite] timing must be one of {TIMINGS}, got {self.timing!r}")
+
         if not self.name or not isinstance(self.name, str):
             raise bad("[suite] name must be a non-empty string")
+        dynamic = self.kind == "dynamic"
         if not self.problems:
+            if dynamic:
+                raise bad("[suite] scenarios is empty: give at least one selector, e.g. 'dynamic-smoke'")
             raise bad("[suite] problems is empty: give at least one selector, e.g. 'mbm:box/0001'")
         if not self.planners:
-            raise bad("no [[planners]] given")
+            raise bad("no [[controllers]] given" if dynamic else "no [[planners]] given")
         if not self.seeds:
             raise bad("[suite] seeds is empty")
         for name in ("time_limit", "setup_timeout", "grace", "validation_timeout"):
@@ -210,7 +238,8 @@ class Suite:
         """The settings that change results (limits, validation and the validator's version), as
         canonical JSON."""
         keys = ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout", "validation")
-        return json.dumps({"validator": VALIDATOR, **{k: getattr(self, k) for k in keys}}, sort_keys=True)
+        more = {"kind": self.kind, "timing": self.timing} if self.kind == "dynamic" else {}
+        return json.dumps({"validator": VALIDATOR, **{k: getattr(self, k) for k in keys}, **more}, sort_keys=True)
 
     def entry(self, label: str) -> PlannerEntry:
         for p in self.planners:
@@ -230,8 +259,15 @@ _SUITE_KEYS = {
     "grace",
     "validation_timeout",
     "format",
+    "scenarios",
+    "timing",
 }
 _PLANNER_KEYS = {"label", "planner", "settings", "optional", "fresh_process"}
+KINDS = ("static", "dynamic")
+TIMINGS = ("measured", "ideal")
+DEFAULT_DYNAMIC_TIME_LIMIT = 300.0
+"""[s] wall-clock limit of one closed-loop run when the suite gives none (a 10 s scenario at
+100 Hz with depth sensing and certified ticks takes seconds to a minute)."""
 
 
 def builtin_suites() -> dict[str, Path]:
@@ -264,10 +300,11 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
         data = tomllib.loads(content)
     except tomllib.TOMLDecodeError as exc:
         raise SuiteFileError(source, f"not valid TOML: {exc}") from exc
-    unknown_tables = set(data) - {"suite", "planners", "validation"}
+    unknown_tables = set(data) - {"suite", "planners", "controllers", "validation"}
     if unknown_tables:
         raise SuiteFileError(
-            source, f"unknown table(s) {sorted(unknown_tables)}; use [suite], [[planners]], [validation]"
+            source,
+            f"unknown table(s) {sorted(unknown_tables)}; use [suite], [[planners]] (or [[controllers]]), [validation]",
         )
     head = data.get("suite")
     if not isinstance(head, dict):
@@ -277,27 +314,34 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
         raise SuiteFileError(source, f"[suite] has unknown key(s) {sorted(unknown)}; known: {sorted(_SUITE_KEYS)}")
     if head.get("format", SUITE_FORMAT) != SUITE_FORMAT:
         raise SuiteFileError(source, f"[suite] format {head['format']!r} is not {SUITE_FORMAT!r}")
-    problems = head.get("problems", [])
+    dynamic = "scenarios" in head or "controllers" in data
+    if dynamic and ("problems" in head or "planners" in data):
+        raise SuiteFileError(
+            source, "a suite has either problems and [[planners]] or scenarios and [[controllers]], not both"
+        )
+    what, table, word = ("scenarios", "controllers", "controller") if dynamic else ("problems", "planners", "planner")
+    problems = head.get(what, [])
     if isinstance(problems, str):
         problems = [problems]
     if not isinstance(problems, list) or not all(isinstance(p, str) for p in problems):
-        raise SuiteFileError(source, "[suite] problems must be a list of selector strings")
+        raise SuiteFileError(source, f"[suite] {what} must be a list of selector strings")
     seeds = parse_seeds(head.get("seeds", [0]), source)
-    planners_raw = data.get("planners", [])
+    planners_raw = data.get(table, [])
     if not isinstance(planners_raw, list):
-        raise SuiteFileError(source, "planners must be an array of tables: [[planners]]")
+        raise SuiteFileError(source, f"{table} must be an array of tables: [[{table}]]")
+    known_keys = _PLANNER_KEYS - {"planner"} | {word} if dynamic else _PLANNER_KEYS
     planners = []
     for i, entry in enumerate(planners_raw, start=1):
-        where = f"[[planners]] entry {i}"
+        where = f"[[{table}]] entry {i}"
         if not isinstance(entry, dict):
             raise SuiteFileError(source, f"{where} is not a table")
-        unknown = set(entry) - _PLANNER_KEYS
+        unknown = set(entry) - known_keys
         if unknown:
-            raise SuiteFileError(
-                source, f"{where} has unknown key(s) {sorted(unknown)}; known: {sorted(_PLANNER_KEYS)}"
-            )
+            raise SuiteFileError(source, f"{where} has unknown key(s) {sorted(unknown)}; known: {sorted(known_keys)}")
+        if dynamic and word in entry:
+            entry = {("planner" if k == word else k): v for k, v in entry.items()}
         if not isinstance(entry.get("planner"), str) or not entry["planner"]:
-            raise SuiteFileError(source, f'{where} needs planner = "<registered name or module:Attr>"')
+            raise SuiteFileError(source, f'{where} needs {word} = "<registered name or module:Attr>"')
         settings = entry.get("settings", {})
         if not isinstance(settings, dict):
             raise SuiteFileError(source, f"{where}: settings must be a table")
@@ -315,6 +359,11 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
     if not isinstance(validation, dict):
         raise SuiteFileError(source, "[validation] must be a table")
     kwargs = {k: head[k] for k in ("time_limit", "setup_timeout", "grace", "validation_timeout") if k in head}
+    if dynamic:
+        kwargs.update(kind="dynamic", timing=head.get("timing", "measured"))
+        kwargs.setdefault("time_limit", DEFAULT_DYNAMIC_TIME_LIMIT)
+    elif "timing" in head:
+        raise SuiteFileError(source, "[suite] timing is for closed-loop suites (scenarios and [[controllers]])")
     if "memory_limit" in head:
         kwargs["memory_limit"] = parse_memory_limit(head["memory_limit"], f"{source}: [suite] memory_limit")
     return Suite(
@@ -416,6 +465,27 @@ def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
         else:
             for p in load_problems(sel):
                 _add_ref(out, ProblemRef(p.id, p.id, str(p.metadata.get("family", ""))))
+    return list(out.values())
+
+
+def expand_scenarios(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
+    """The scenarios named by ``selectors`` (see :func:`planbench.reactive.sets.load_scenarios`), in
+    order, without repeats, as references a worker loads them by (a shipped name or a file)."""
+    from planbench.reactive.sets import load_scenarios
+
+    out: dict[str, ProblemRef] = {}
+    for sel in selectors:
+        path = Path(sel)
+        if path.is_dir() or path.is_file():
+            files = sorted(path.glob("*.json")) if path.is_dir() else [path]
+            if not files:
+                raise PlanbenchError(f"{path}: folder holds no scenario .json files")
+            for f in files:
+                s = load_scenarios(f)[0]
+                _add_ref(out, ProblemRef(str(f.resolve()), s.name, str(s.metadata.get("family", ""))))
+        else:
+            for s in load_scenarios(sel):
+                _add_ref(out, ProblemRef(s.name, s.name, str(s.metadata.get("family", ""))))
     return list(out.values())
 
 

@@ -54,6 +54,11 @@ class RunTask:
     validation: dict[str, Any] = field(default_factory=dict)
     fresh_process: bool = False
     run_settings: dict[str, Any] = field(default_factory=dict)
+    kind: str = "static"
+    """``"static"``: ``planner`` plans ``problem_ref``; ``"dynamic"``: controller ``planner`` runs
+    closed-loop on scenario ``problem_ref`` (:mod:`planbench.reactive.runner`)."""
+    timing: str = "measured"
+    """Closed-loop runs: the compute time charged (:class:`planbench.reactive.runner.RunSettings`)."""
 
     @property
     def key(self) -> RunKey:

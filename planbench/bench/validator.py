@@ -8,7 +8,8 @@ verdict or a later run's. The runner kills it (and starts another) when a valida
 
 Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
-- in: ``{"type": "validate", "run": id, "problem_ref": ..., "validation": {...}, "result": {...}}``
+- in: ``{"type": "validate", "run": id, "problem_ref": ..., "validation": {...}, "kind": "static"
+  or "dynamic", "result": {...}}``
   with the result's ``path`` and ``times`` arrays; already checked by the parent;
 - out: ``{"type": "ready"}`` once imports are done, then per run
   ``{"type": "verdict", "run": id, "evaluation": {...}, "validation_time": s}``, or ``"error"``
@@ -36,8 +37,19 @@ def _problem(ref: str) -> Any:
     return load_problem(ref)
 
 
-def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, Any]) -> dict[str, Any]:
-    """``planbench.evaluate`` of a checked raw result (see :func:`planbench.bench.wire.clean_result`)."""
+def validate_fields(
+    problem: Any, fields: dict[str, Any], validation: dict[str, Any], kind: str = "static"
+) -> dict[str, Any]:
+    """``planbench.evaluate`` of a checked raw result (see :func:`planbench.bench.wire.clean_result`);
+    ``problem`` is a problem or its reference. ``kind="dynamic"``: ``problem`` is a scenario's
+    reference and the result a closed-loop run's (:func:`planbench.reactive.bench.validate_run_fields`)."""
+    if kind == "dynamic":
+        from planbench.reactive.bench import validate_run_fields
+        from planbench.reactive.sets import load_scenario
+
+        return validate_run_fields(load_scenario(problem), fields)
+    if isinstance(problem, str):
+        problem = _problem(problem)
     result = PlanResult(
         PlanStatus(fields["status"]),
         path=fields["path"],
@@ -56,7 +68,7 @@ def _answer(msg: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     try:
         fields = clean_result({**msg["result"], "path": arrays.get("path"), "times": arrays.get("times")})
-        evaluation = validate_fields(_problem(msg["problem_ref"]), fields, msg["validation"])
+        evaluation = validate_fields(msg["problem_ref"], fields, msg["validation"], msg.get("kind", "static"))
     except Exception:
         return {"type": "verdict", "run": run, "error": traceback.format_exc()[-8000:]}
     return {"type": "verdict", "run": run, "evaluation": evaluation, "validation_time": time.perf_counter() - t0}

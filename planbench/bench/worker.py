@@ -145,6 +145,8 @@ def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) 
     The planner is built from ``task.planner`` and ``task.settings`` by
     :meth:`~planbench.registry.Registry.make`, as everywhere else.
     """
+    if task.kind == "dynamic":
+        return _checked_control(task, notify)
     t0 = time.perf_counter()
     base = {"pid": os.getpid(), "host": socket.gethostname()}
     try:
@@ -171,6 +173,25 @@ def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) 
         return error_fields(message, traceback.format_exc(), wall_time=wall, **_timing(timing))
 
 
+def _checked_control(task: RunTask, notify: Callable[[str], None]) -> dict[str, Any]:
+    """A closed-loop run (:func:`planbench.reactive.bench.control_one`), checked as a plan is."""
+    from planbench.reactive.bench import control_one
+
+    t0 = time.perf_counter()
+    try:
+        fields = control_one(task, notify)
+    except Exception as exc:  # planbench's loop itself failed: still a row
+        return error_fields(
+            f"the closed-loop run failed: {type(exc).__name__}: {exc}",
+            traceback.format_exc(),
+            wall_time=time.perf_counter() - t0,
+        )
+    try:
+        return clean_result(fields)
+    except BadField as bad:
+        return error_fields(f"the run's result is unusable: {bad}", "", wall_time=time.perf_counter() - t0)
+
+
 def _timing(timing: dict[str, Any]) -> dict[str, float]:
     """The measured times that are plain numbers (the harness's own, unless a planner patched it)."""
     return {k: float(v) for k, v in timing.items() if type(v) in (float, int)}
@@ -186,7 +207,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
     evaluation, validation_time = None, math.nan
     if fields["prepared"]:
         t0 = time.perf_counter()
-        evaluation = validate_fields(_problem(task.problem_ref), fields, task.validation)
+        evaluation = validate_fields(task.problem_ref, fields, task.validation, task.kind)
         validation_time = time.perf_counter() - t0
     return record_from(fields, evaluation, validation_time)
 

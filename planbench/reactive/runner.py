@@ -90,6 +90,8 @@ class RunRecord:
     position_clamped: int = 0
     collision: tuple[str, str] | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    setup_time: float = math.nan
+    """[s] the controller's ``setup`` and ``reset`` (untimed by the loop)."""
 
 
 class ControllerFault(Exception):
@@ -119,8 +121,10 @@ def run_scenario(
     n_ticks = max(1, int(round(scenario.horizon * scenario.control_rate)))
     sensor_rng, control_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     task = ControlTask(robot, problem.start, problem.goal, problem.tolerances, T, scenario.name)
+    t_setup = time.perf_counter()
     controller.setup(task)
     controller.reset(np.array(problem.start), control_rng)
+    setup_time = time.perf_counter() - t_setup
     if sensor is None:
         from planbench.reactive.sensing import Sensor
 
@@ -139,7 +143,16 @@ def run_scenario(
     path[0] = q
     held = np.zeros(robot.nq)
     rec = RunRecord(
-        scenario.name, name or getattr(controller, "name", ""), "timeout", "", times, path, commands, compute, measured
+        scenario.name,
+        name or getattr(controller, "name", ""),
+        "timeout",
+        "",
+        times,
+        path,
+        commands,
+        compute,
+        measured,
+        setup_time=setup_time,
     )
     pending: list[Observation] = []  # captured, not yet delivered
     latest: Observation | None = None
@@ -288,7 +301,8 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
     for k in range(n - 1):
         verdict = checker.check_tick(path[k], path[k + 1], times[k], times[k + 1])
         if not verdict.free:
-            failure = failure or f"collision with {verdict.pair[1]} ({verdict.pair[0]}) at t = {times[k]:.3f} s"
+            when = times[k] + verdict.fraction * (times[k + 1] - times[k])
+            failure = failure or f"collision with {verdict.pair[1]} ({verdict.pair[0]}) at t = {when:.3f} s"
             break
         clearance = min(clearance, checker.clearance(path[k + 1], times[k + 1]))
     err_p, err_r = pose_error(problem.robot, path[-1], problem.goal.pose)
@@ -300,8 +314,8 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
             failure = f"goal not reached (position error {err_p * 1000:.1f} mm, orientation {err_r:.3f} rad)"
     compute = np.asarray(record.measured, dtype=float)
     compute = compute[np.isfinite(compute)]
-    speed = np.linalg.norm(np.asarray(record.commands, dtype=float), axis=1) if len(record.commands) else np.zeros(0)
     dt = np.diff(times)
+    speed = np.linalg.norm(np.diff(path, axis=0), axis=1) / dt  # the applied command: the path is its integral
     updates = np.asarray(record.field_update_times, dtype=float)
     return RunMetrics(
         success=not failure,
@@ -312,6 +326,6 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
         tick_time_p99=float(np.percentile(compute, 99)) if len(compute) else math.nan,
         deadline_misses=int(record.deadline_misses),
         field_update_time=float(np.median(updates)) if len(updates) else math.nan,
-        stalled_time=float(np.sum(dt[: len(speed)][speed < settings.stall_speed])),
+        stalled_time=float(np.sum(dt[speed < settings.stall_speed])),
         path_length=float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))),
     )

@@ -4,6 +4,7 @@ JSON format (``planbench-scenario/1``)::
 
     {"format": "planbench-scenario/1", "name": "crossing-box-fast",
      "problem": {... a planbench-problem/1 object: robot, static scene, start, goal ...},
+                                          # or a reference to one: "gen:panda_pillars/0001", a .json
      "moving_obstacles": [
        {"name": "box", "type": "box", "size": [0.1, 0.1, 0.1],       # any scene obstacle shape
         "position": [0.5, -0.6, 0.4], "orientation_xyzw": [0, 0, 0, 1], # its pose at rest
@@ -30,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from planbench.errors import ProblemFileError, ScenarioFileError
+from planbench.datasets import load_problem
+from planbench.errors import PlanbenchError, ProblemFileError, ScenarioFileError
 from planbench.problem import Problem
 from planbench.reactive.motion import Motion
 from planbench.scene import Obstacle, Scene
@@ -209,6 +211,9 @@ class Scenario:
     horizon: float = 10.0
     name: str = "scenario"
     metadata: dict[str, Any] = field(default_factory=dict)
+    problem_ref: str | None = None
+    """Where ``problem`` came from (``"gen:ur5_pillars/0002"``), written instead of the problem
+    itself when the scenario is saved; None: the problem is written out whole."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.control_rate) and self.control_rate > 0):
@@ -243,7 +248,7 @@ class Scenario:
         return {
             "format": SCENARIO_FORMAT,
             "name": self.name,
-            "problem": self.problem.to_dict(),
+            "problem": self.problem_ref if self.problem_ref is not None else self.problem.to_dict(),
             "moving_obstacles": [m.to_dict() for m in self.moving],
             "sensing": self.sensing.to_dict(),
             "control_rate": self.control_rate,
@@ -266,10 +271,16 @@ class Scenario:
             raise ScenarioFileError(source, str(exc)) from None
         if "problem" not in d:
             raise ScenarioFileError(source, "missing required key 'problem' (a planbench-problem/1 object)")
+        ref = d["problem"] if isinstance(d["problem"], str) else None
         try:
-            problem = Problem.from_dict(d["problem"], f"{source}: problem", base_dir)
+            if ref is not None:
+                problem = load_problem(ref if base_dir is None or ":" in ref else str(base_dir / ref))
+            else:
+                problem = Problem.from_dict(d["problem"], f"{source}: problem", base_dir)
         except ProblemFileError as exc:
             raise ScenarioFileError(source, f"problem: {exc.problem}") from None
+        except PlanbenchError as exc:
+            raise ScenarioFileError(source, f"problem {ref!r}: {exc}") from None
         items = d.get("moving_obstacles", [])
         if not isinstance(items, list):
             raise ScenarioFileError(source, "'moving_obstacles' must be a list")
@@ -295,6 +306,7 @@ class Scenario:
                 float(d.get("horizon", 10.0)),
                 str(d.get("name", Path(source).stem)),
                 dict(metadata),
+                ref,
             )
         except (ValueError, TypeError) as exc:
             raise ScenarioFileError(source, str(exc)) from None

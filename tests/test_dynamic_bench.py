@@ -1,0 +1,133 @@
+"""Scenario sets, the scenario generator, and closed-loop suites through the benchmark (workers,
+validator, results file)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench.bench.benchmark import run_benchmark
+from planbench.bench.db import ResultsDB
+from planbench.bench.suite import SuiteFileError, load_suite, parse_suite
+from planbench.errors import UnknownNameError
+from planbench.problem import Problem
+from planbench.reactive import Scenario
+from planbench.reactive.checker import TickChecker
+from planbench.reactive.generator import BEHAVIOURS, SPEEDS, scenario
+from planbench.reactive.sets import load_scenarios, scenario_names
+from planbench.scene import Scene
+
+
+def test_the_dynamic_set_loads_by_name_like_problem_sets():
+    everything = planbench.load_scenarios("dynamic")
+    assert len(everything) == 108 and len(set(scenario_names())) == 108
+    assert {s.problem.robot.name for s in everything} == {"panda", "ur5"}
+    for key, values in (("behaviour", BEHAVIOURS), ("speed", tuple(SPEEDS)), ("sensing", ("truth", "depth"))):
+        assert {s.metadata[key] for s in everything} == set(values)
+    smoke = load_scenarios("dynamic-smoke")
+    assert len(smoke) == 4 and {s.sensing.model for s in smoke} == {"truth", "depth"}
+    fast_ur5 = load_scenarios("dynamic:ur5_*_fast_*")
+    assert len(fast_ur5) == 18 and all(s.metadata["speed"] == "fast" for s in fast_ur5)
+    assert [s.name for s in load_scenarios("dynamic:panda_crossing_slow_truth/0002")] == [
+        "dynamic:panda_crossing_slow_truth/0002"
+    ]
+    with pytest.raises(UnknownNameError, match="scenario set"):
+        load_scenarios("dynamic:tiger_*")
+
+
+def test_a_saved_scenario_names_its_problem_and_loads_back(tmp_path):
+    s = load_scenarios("dynamic:ur5_swinging_fast_depth/0005")[0]
+    s.save(tmp_path / "s.json")
+    assert json.loads((tmp_path / "s.json").read_text())["problem"] == "gen:ur5_pillars/0001"
+    back = load_scenarios(tmp_path / "s.json")[0]
+    assert back.to_dict() == s.to_dict()
+
+
+def test_the_generator_gives_the_shipped_scenarios_and_keeps_its_promises():
+    shipped = {s.name: s for s in load_scenarios("dynamic:panda_*/0001")}
+    problem = planbench.load_problems("gen:panda_table_clutter/0001")[0]
+    for behaviour in BEHAVIOURS:
+        made = {speed: scenario(problem, "gen:panda_table_clutter/0001", behaviour, speed, "truth") for speed in SPEEDS}
+        for speed, s in made.items():
+            assert s.to_dict() == shipped[s.name].to_dict()  # lengths are rounded: round-off cannot move them
+            alone = TickChecker(
+                Scenario(Problem.create(problem.robot, Scene(), problem.start, problem.goal.q), s.moving)
+            )
+            # the start is clear of the moving obstacle at first, the goal over the second half
+            assert min(alone.clearance(np.asarray(problem.start), t) for t in np.arange(0, 0.5, 0.05)) >= 0.05
+            assert min(alone.clearance(np.asarray(problem.goal.q), t) for t in np.arange(5.0, 10.0, 0.05)) >= 0.02
+            assert s.moving[0].speed_bound() == pytest.approx(SPEEDS[speed], rel=0.15)
+        # the speeds are paired: one draw, the same shape
+        assert len({s.metadata["draw"] for s in made.values()}) == 1
+        assert len({s.moving[0].obstacle.type for s in made.values()}) == 1
+
+
+def test_dynamic_suites_parse_and_refuse_mixed_or_wrong_keys():
+    s = load_suite("dynamic-smoke")
+    assert (
+        s.kind == "dynamic"
+        and s.problems == ("dynamic-smoke",)
+        and [p.planner for p in s.planners]
+        == [
+            "matrix-field",
+            "edt-field",
+        ]
+    )
+    assert json.loads(s.settings_json())["timing"] == "measured"
+    mixed = '[suite]\nname = "x"\nscenarios = ["dynamic-smoke"]\nproblems = ["mbm:box/0001"]\n'
+    mixed += '[[controllers]]\ncontroller = "a"\n'
+    with pytest.raises(SuiteFileError, match="not both"):
+        parse_suite(mixed, "mixed.toml")
+    wrong_key = '[suite]\nname = "x"\nscenarios = ["dynamic-smoke"]\n[[controllers]]\nplanner = "a"\n'
+    with pytest.raises(SuiteFileError, match="unknown key"):
+        parse_suite(wrong_key, "wrong.toml")
+    static_timing = (
+        '[suite]\nname = "x"\nproblems = ["mbm:box/0001"]\ntiming = "ideal"\n[[planners]]\nplanner = "straight-line"\n'
+    )
+    with pytest.raises(SuiteFileError, match="timing is for closed-loop suites"):
+        parse_suite(static_timing, "t.toml")
+
+
+DYNAMIC = """
+[suite]
+name = "dyn"
+scenarios = ["dynamic:ur5_sliding_slow_truth/0004", "dynamic:panda_crossing_fast_truth/0001"]
+timing = "ideal"
+time_limit = 120.0
+
+[[controllers]]
+label = "to-goal"
+controller = "bench_controllers:ToGoalController"
+
+[[controllers]]
+label = "raises"
+controller = "bench_controllers:RaisingController"
+"""
+
+
+@pytest.mark.slow
+def test_a_closed_loop_suite_runs_in_workers_and_is_validated_from_its_trajectory(tmp_path):
+    db_path = tmp_path / "d.db"
+    outcome = run_benchmark(parse_suite(DYNAMIC, "dyn.toml"), db_path, jobs=2)
+    assert (outcome.total, outcome.ran) == (4, 4)
+    with ResultsDB(db_path) as db:
+        rows = {(r["planner"], r["problem"]): r for r in db.rows(with_arrays=True)}
+    ok = rows["to-goal", "dynamic:ur5_sliding_slow_truth/0004"]
+    s = load_scenarios("dynamic:ur5_sliding_slow_truth/0004")[0]
+    # the worker's trajectory, the validator's verdict: what the runner measured agrees with them
+    assert ok["status"] in ("success", "collision", "timeout")
+    assert ok["success"] == (ok["failure"] == "")
+    assert ok["path"].shape[1] == 6 and ok["times"][0] == 0.0 and np.all(np.diff(ok["times"]) > 0)
+    assert ok["deadline_misses"] == 0 and math.isfinite(ok["tick_time_median"]) and ok["tick_time_p99"] >= 0
+    assert math.isfinite(ok["min_clearance"]) and ok["path_length"] > 0
+    if ok["success"]:
+        assert ok["time_to_goal"] == pytest.approx(ok["times"][-1])
+    assert s.problem.robot.nq == 6
+    err = rows["raises", "dynamic:panda_crossing_fast_truth/0001"]
+    assert err["status"] == "error" and not err["success"] and "fails on purpose" in err["message"]
+    assert err["path"] is not None and len(err["path"]) == 3  # the 2 ticks run before it raised: kept
+    assert err["failure"].startswith("error:")
