@@ -300,3 +300,25 @@ def test_surface_on_probabilistic_grid_scales_by_the_freest_neighbour():
     data[1, 1, 0] = 0.2
     surf = surface_grid(OccupancyGrid(data, [0, 0, 0], RES, outside=1.0)).data
     assert surf[1, 1, 1] == pytest.approx(0.8 * (1 - 0.2))
+
+
+@pytest.mark.parametrize("outside", [0.0, 1.0])
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_the_lazy_surface_pass_gives_the_field_of_the_surface_grid(outside, backend):
+    """``lazy_field(..., surface=True)`` reads each cell through the surface pass: the same field
+    as the pass over the whole grid, for binary and probabilistic grids, walled in or not."""
+    from planbench.field.surface import surface_grid
+
+    if backend == "numba":
+        pytest.importorskip("numba")
+    rng = np.random.default_rng(3)
+    solid = np.zeros((14, 12, 10))
+    solid[3:10, 2:9, 4:8] = 1.0  # a solid block: its inside is no surface
+    for data in (solid, solid * rng.uniform(0.2, 1.0, solid.shape)):
+        grid = OccupancyGrid(data, np.array([0.1, -0.2, 0.0]), 0.02, outside)
+        kernels = KernelSpec(reach=0.08).build(0.02)
+        points = rng.uniform(grid.origin - 0.05, grid.upper + 0.05, (200, 3))
+        want = lazy_field(surface_grid(grid), kernels, points, backend=backend)
+        got = lazy_field(grid, kernels, points, backend=backend, surface=True)
+        assert np.abs(want).max() > 0 and np.allclose(got, want, atol=1e-9)
+        assert not np.allclose(lazy_field(grid, kernels, points, backend=backend), want)  # the pass matters

@@ -188,9 +188,25 @@ def _effective(k, w, out):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True, fastmath=True)
-def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p):  # type: ignore
+def _surface_value(grid, ix, iy, iz, o):  # type: ignore[no-untyped-def]
+    """The surface pass (:mod:`planbench.field.surface`) at one cell: ``G (1 - min of its 6 face
+    neighbours)``, neighbours beyond the grid holding ``o`` (``outside``)."""
+    g = grid[ix, iy, iz]
+    nx, ny, nz = grid.shape
+    freest = grid[ix - 1, iy, iz] if ix > 0 else o
+    freest = min(freest, grid[ix + 1, iy, iz] if ix + 1 < nx else o)
+    freest = min(freest, grid[ix, iy - 1, iz] if iy > 0 else o)
+    freest = min(freest, grid[ix, iy + 1, iz] if iy + 1 < ny else o)
+    freest = min(freest, grid[ix, iy, iz - 1] if iz > 0 else o)
+    freest = min(freest, grid[ix, iy, iz + 1] if iz + 1 < nz else o)
+    return g * (1 - freest)
+
+
+@njit(cache=True, fastmath=True)
+def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p, surface):  # type: ignore
     """The field at ``points[p]`` into ``out[p]``: the body of :func:`lazy_points` (shared by its
-    parallel and serial drivers, so both compute the same numbers)."""
+    parallel and serial drivers, so both compute the same numbers). ``surface``: each cell read
+    through the surface pass (:func:`_surface_value`), so no pass over the whole grid is needed."""
     nx, ny, nz = grid.shape
     m = max(along.shape[0], across.shape[0]) // 2
     size = 2 * m + 2
@@ -231,7 +247,10 @@ def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p
             py = P[1, iy - oy]
             row = grid[ix, iy, z0:z1]
             for j in range(nzb):
-                v = row[j] - o
+                g = row[j]
+                if surface and g > 0:
+                    g = _surface_value(grid, ix, iy, z0 + j, o)
+                v = g - o
                 at_s[j] += ty * v
                 ap_s[j] += py * v
         tt = 0.0
@@ -250,7 +269,7 @@ def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def lazy_points(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
+def lazy_points(grid, outside, origin, resolution, along, across, points, out, surface=False):  # type: ignore
     """Interpolated field at each point from the occupancy grid directly (see ``lazy.py``), the
     points shared out over numba's threads (:mod:`planbench.field.threads` decides when).
 
@@ -259,15 +278,15 @@ def lazy_points(grid, outside, origin, resolution, along, across, points, out): 
     and x by dot products. ``out`` (N, 3) float64 receives (F_x, F_y, F_z).
     """
     for p in prange(points.shape[0]):
-        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p)
+        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p, surface)
 
 
 @njit(cache=True, fastmath=True)
-def lazy_points_serial(grid, outside, origin, resolution, along, across, points, out):  # type: ignore
+def lazy_points_serial(grid, outside, origin, resolution, along, across, points, out, surface=False):  # type: ignore
     """:func:`lazy_points` on the calling thread only: no parallel region is entered, so a small
     call never waits for (or wakes) numba's thread pool."""
     for p in range(points.shape[0]):
-        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p)
+        _lazy_point(grid, outside, origin, resolution, along, across, points, out, p, surface)
 
 
 @njit(cache=True)

@@ -32,10 +32,15 @@ __all__ = ["lazy_field"]
 _CHUNK = 64  # points per numpy block gather (memory: _CHUNK * S^3 values)
 
 
-def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray, backend: str = "auto") -> np.ndarray:
+def lazy_field(
+    grid: OccupancyGrid, kernels: Kernels, points: np.ndarray, backend: str = "auto", surface: bool = False
+) -> np.ndarray:
     """Field (N, 3) float64 at points (N, 3) [m], computed from ``grid`` without a full pass.
 
-    Works in the grid's dtype (float32 grids are summed in float32).
+    Works in the grid's dtype (float32 grids are summed in float32). ``surface``: the field of
+    :func:`~planbench.field.surface.surface_grid` of ``grid``, each cell read through the surface
+    pass (its 6 neighbours looked at only where it is occupied): no pass over the grid either, for
+    grids that change every frame.
     """
     kernels.check_resolution(grid.resolution)
     pts = as_points(points)
@@ -47,8 +52,13 @@ def lazy_field(grid: OccupancyGrid, kernels: Kernels, points: np.ndarray, backen
         kernel = (
             compiled.lazy_points_serial if serial_lazy(len(pts), kernels.support) else compiled.lazy_points
         )  # small calls stay on this thread (see .threads)
-        kernel(data, grid.outside, grid.origin, grid.resolution, along, across, pts, out)
+        kernel(data, grid.outside, grid.origin, grid.resolution, along, across, pts, out, surface)
         return out
+    if surface:  # numpy: the whole pass once (the compiled kernel reads surfaces cell by cell)
+        from planbench.field.surface import surface_grid
+
+        grid = surface_grid(grid)
+        data = np.ascontiguousarray(grid.data)
     for start in range(0, len(pts), _CHUNK):
         sl = slice(start, start + _CHUNK)
         out[sl] = _lazy_numpy(data, grid, kernels, pts[sl])

@@ -132,8 +132,11 @@ class FieldRepulsion:
     """``f_i = gain * F(p_i)`` [m/s] at points on the arm: the full field sampled, or (lazy) window
     sums over the grid. ``forces(kin)`` is the IK loop's repulsion interface."""
 
-    def __init__(self, grid: OccupancyGrid, kernels: Kernels, field: MatrixField | None, gain: float) -> None:
+    def __init__(
+        self, grid: OccupancyGrid, kernels: Kernels, field: MatrixField | None, gain: float, surface: bool = False
+    ) -> None:
         self.grid, self.kernels, self.field, self.gain = grid, kernels, field, gain
+        self.surface = surface  # lazy: read the grid through the surface pass (lazy_field's surface)
         self._points: np.ndarray | None = None  # the control points the buffers below are for
         self._F = np.empty((0, 3))
         self._fill: Callable[[], None] = lambda: None
@@ -142,7 +145,7 @@ class FieldRepulsion:
         """The field (N, 3) at world points [m], in field units (before the gain)."""
         if self.field is not None:
             return self.field.sample(points)
-        return lazy_field(self.grid, self.kernels, points)  # type: ignore[no-any-return]
+        return lazy_field(self.grid, self.kernels, points, surface=self.surface)  # type: ignore[no-any-return]
 
     def forces(self, kin: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(points, F, support, joint)`` at the control points ``kin.points``. ``F`` is a buffer,
@@ -159,10 +162,10 @@ class FieldRepulsion:
         if self.field is not None:
             self._fill = field_sampler(self.field, points, F, self.gain)
         else:
-            grid, kernels, gain = self.grid, self.kernels, self.gain
+            grid, kernels, gain, surface = self.grid, self.kernels, self.gain, self.surface
 
             def fill() -> None:
-                np.multiply(lazy_field(grid, kernels, points), gain, out=F)
+                np.multiply(lazy_field(grid, kernels, points, surface=surface), gain, out=F)
 
             self._fill = fill
         self._points, self._F = points, F

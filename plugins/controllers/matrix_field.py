@@ -6,7 +6,9 @@ grid's own resolution, and the gain from the stand-off on those kernels
 (:func:`~planbench.field.scene_field.standoff_gain`, as the planner derives it). ``field_mode``:
 
 - ``"lazy"`` (the controller's default): nothing more per frame; each step takes window sums of
-  the grid at the control points only.
+  the grid at the control points only, each occupied cell read through the surface pass
+  (``lazy_field(..., surface=True)``; a depth sensor's grid, whose observation has ``points``,
+  holds surfaces already and is read as it is). Nothing is done per frame.
 - ``"full"``: the whole field is recomputed per frame and sampled per step.
 
 Both work on the block of the grid that holds occupied cells (:mod:`.crop`: the same field).
@@ -71,15 +73,25 @@ class GridField:
             self._kernels[resolution] = kernels, c.repulsion_gain * standoff_gain(kernels, c.speed_max, c.standoff)
         return self._kernels[resolution]
 
-    def repulsion(self, grid: OccupancyGrid) -> FieldRepulsion | None:
+    def repulsion(self, grid: OccupancyGrid, surfaces: bool = False) -> FieldRepulsion | None:
         """The push of ``grid`` (None when nothing is occupied, or the gain is zero), computed on
-        the part of it that holds occupied cells (:func:`.crop.occupied_part`: the same field)."""
+        the part of it that holds occupied cells (:func:`.crop.occupied_part`: the same field).
+
+        ``surfaces``: the grid holds surfaces already (a depth sensor's: the surface pass would
+        only erase noisy inner cells, :mod:`planbench.field.surface`). In lazy mode the grid is
+        used as it is: the per-frame work is nothing, every step reads its windows, through the
+        surface pass cell by cell where one is due (``lazy_field(..., surface=True)``); the cut
+        to the occupied part would save a lazy step nothing and cost a pass over the grid."""
         kernels, gain = self.kernels(grid.resolution)
-        part = occupied_part(grid) if gain > 0 else None
+        if gain <= 0:
+            return None
+        if self.config.field_mode == "lazy":  # the grid as it is; the surface pass cell by cell
+            return FieldRepulsion(grid, kernels, None, gain, surface=self.config.surface_only and not surfaces)
+        part = occupied_part(grid)
         if part is None:
             return None
         grid = part
-        if self.config.surface_only:
+        if self.config.surface_only and not surfaces:
             grid = surface_grid(grid)
         field = full_field(grid, kernels, dtype=np.float64) if self.config.field_mode == "full" else None
         return FieldRepulsion(grid, kernels, field, gain)
@@ -100,7 +112,7 @@ class MatrixFieldController(IKLoopController):
         self.field = GridField(self.config)
 
     def make_source(self, observation: Observation) -> Repulsion | None:
-        return self.field.repulsion(observation.grid)
+        return self.field.repulsion(observation.grid, surfaces=observation.points is not None)
 
     def extra_info(self) -> dict[str, Any]:
         return {"field_mode": self.config.field_mode}

@@ -1,0 +1,59 @@
+"""ompl-replan: RRT-Connect on the latest observation, a path follower, a replan when a frame
+invalidates the rest of the path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench.collision import CollisionChecker
+from planbench.errors import InvalidSettingError
+from planbench.occupancy import OccupancyGrid
+from planbench.reactive.conformance import check_controller
+from planbench.reactive.controller import ControlTask, Observation
+from planbench.registry import make_controller
+from planbench.scene import Obstacle, Scene
+
+
+@pytest.fixture(scope="module")
+def free_task() -> ControlTask:
+    p = planbench.load_problems("mbm:table_pick/0001")[0]
+    return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
+
+
+def _seen(scene: Scene, t: float, frame: int) -> Observation:
+    """A truth observation: the controller plans on its scene."""
+    return Observation(t, OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.0), 0.1), frame, None, scene)
+
+
+def test_ompl_replan_conforms_and_refuses_bad_settings():
+    assert check_controller("ompl-replan") == []
+    with pytest.raises(InvalidSettingError, match="speed_scale"):
+        make_controller("ompl-replan", speed_scale=2.0)
+
+
+def test_it_follows_its_path_and_replans_around_an_obstacle_that_appears_on_it(free_task):
+    c = make_controller("ompl-replan")
+    c.setup(free_task)
+    c.reset(np.array(free_task.start), np.random.default_rng(0))
+    q = np.array(free_task.start)
+    assert np.allclose(c.step(0.0, q, None, free_task.goal), 0.0)  # nothing observed yet: no motion
+    c.update(_seen(Scene(), 0.0, 0))
+    for k in range(20):  # follow the first plan for 0.2 s
+        q = q + 0.01 * c.step(0.01 * k, q, None, free_task.goal)
+    assert c.info()["plans"] == 1 and not np.allclose(q, free_task.start)
+    first = c.path.copy()
+    # a box appears on the rest of that path, where the hand will be half way along it
+    mid = first[len(first) // 2] if len(first) > 2 else 0.5 * (q + first[-1])
+    hand = free_task.robot.frame_pose(mid).translation
+    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.12, 0.12, 0.12)),))
+    checker = CollisionChecker(free_task.robot, box)
+    assert not checker.in_collision(np.asarray(free_task.goal.q)) and not checker.in_collision(q)
+    c.update(_seen(box, 0.2, 1))
+    c.step(0.2, q, None, free_task.goal)
+    info = c.info()
+    assert info["invalidated"] == 1 and info["plans"] == 2 and info["failed_plans"] == 0
+    new = np.vstack([q, c.path])
+    dense = [a + u * (b - a) for a, b in zip(new[:-1], new[1:], strict=True) for u in np.linspace(0, 1, 20)]
+    assert not any(checker.in_collision(x) for x in dense)  # the new path goes around the box
