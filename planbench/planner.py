@@ -89,6 +89,14 @@ class EmptyConfig:
     """A planner without settings."""
 
 
+def build_config(Config: type, config: Any, settings: dict[str, Any]) -> Any:
+    """A plugin's config: ``config`` with ``settings`` replaced, or ``Config(**settings)``
+    (planners and controllers take their settings the same way)."""
+    if config is None:
+        return Config(**settings)
+    return dataclasses.replace(config, **settings) if settings else config
+
+
 class Planner:
     """Base class of planners (subclassing is optional: the protocol is what matters).
 
@@ -100,11 +108,7 @@ class Planner:
     Config: ClassVar[type] = EmptyConfig
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
-        if config is None:
-            config = self.Config(**settings)
-        elif settings:
-            config = dataclasses.replace(config, **settings)
-        self.config = config
+        self.config = build_config(self.Config, config, settings)
 
     def setup(self, problem: Problem) -> None:
         """Untimed preparation for ``problem`` (timed apart by the harness as setup time)."""

@@ -22,7 +22,7 @@ from planbench.bench.benchmark import run_benchmark, select
 from planbench.bench.db import ResultsDB
 from planbench.bench.html import write_html
 from planbench.bench.plots import write_plots
-from planbench.bench.report import failures, metrics_for, summarize, to_csv, to_markdown, to_rich
+from planbench.bench.report import DYNAMIC_METRICS, failures, metrics_for, summarize, to_csv, to_markdown, to_rich
 from planbench.bench.runner import default_jobs
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
@@ -271,6 +271,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         _output(out, args.db)
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
+        if (args.plots or args.html) and rows and metrics_for(rows) is DYNAMIC_METRICS:
+            rows = db.rows(args.suite, with_arrays=True)  # trajectories for the clearance plot
     if args.problems:
         wanted = {ref.id for ref in expand_problems(args.problems)}
         rows = [row for row in rows if row["problem"] in wanted]

@@ -5,6 +5,10 @@
 - ``success_by_family.png``: success rate per family and planner, with Wilson 95 % intervals;
 - ``time_to_success.png``: fraction of all runs solved (validated) within a planning-time budget,
   per planner, against the budget [s] on a log axis.
+
+Closed-loop runs get the closed-loop metrics' ECDFs and box plots and the plots of
+:mod:`planbench.reactive.plots` (tick-time ECDF, success by speed and by sensing, clearance over
+time).
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.bench.report import METRICS, Metric, wilson_interval
+from planbench.bench.report import DYNAMIC_METRICS, Metric, metrics_for, wilson_interval
 
 __all__ = ["write_plots", "time_to_success"]
 
@@ -37,7 +41,7 @@ def _planners(rows: Sequence[dict[str, Any]]) -> list[str]:
 
 
 def _values(rows: Sequence[dict[str, Any]], planner: str, m: Metric) -> np.ndarray:
-    v = [r[m.name] * m.scale for r in rows if r["planner"] == planner and r["success"]]
+    v = [r[m.name] * m.scale for r in rows if r["planner"] == planner and (r["success"] or m.over_all_runs)]
     a = np.asarray(v, dtype=float)
     return a[np.isfinite(a)]
 
@@ -60,9 +64,10 @@ def ecdf_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path) -> None:
             ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=f"{planner} (n={v.size})")
     ax.set_xlabel(m.label)
     ax.set_ylabel("fraction of successful runs")
-    ax.set_title(f"{m.label}: ECDF over validated successes")
+    ax.set_title(f"{m.label}: ECDF over " + ("every run" if m.over_all_runs else "validated successes"))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize="small")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -77,7 +82,7 @@ def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path) -> None:
     if keep:
         ax.boxplot([d for _, d in keep], tick_labels=[f"{p}\n(n={d.size})" for p, d in keep])
     ax.set_ylabel(m.label)
-    ax.set_title(f"{m.label} over validated successes")
+    ax.set_title(f"{m.label} over " + ("every run" if m.over_all_runs else "validated successes"))
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -139,7 +144,12 @@ def write_plots(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     files = []
-    for m in METRICS:
+    metrics = metrics_for(rows)
+    if metrics is DYNAMIC_METRICS:  # closed-loop runs: their own plots besides the metrics'
+        from planbench.reactive.plots import write_dynamic_plots
+
+        files += write_dynamic_plots(rows, out)
+    for m in metrics:
         for kind, fn in (("ecdf", ecdf_plot), ("box", box_plot)):
             p = out / f"{kind}_{m.name}.png"
             fn(rows, m, p)

@@ -20,13 +20,12 @@ A controller that raises, or returns velocities of the wrong shape or with NaN, 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from planbench.planner import EmptyConfig
+from planbench.planner import EmptyConfig, build_config
 
 if TYPE_CHECKING:
     from planbench.occupancy import OccupancyGrid
@@ -75,11 +74,7 @@ class Controller:
     Config: ClassVar[type] = EmptyConfig
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
-        if config is None:
-            config = self.Config(**settings)
-        elif settings:
-            config = dataclasses.replace(config, **settings)
-        self.config = config
+        self.config = build_config(self.Config, config, settings)
 
     def setup(self, task: ControlTask) -> None:
         """Untimed preparation for ``task`` (kinematics, compiled code)."""
