@@ -149,3 +149,18 @@ def test_a_closed_loop_suite_runs_in_workers_and_is_validated_from_its_trajector
     assert err["status"] == "error" and not err["success"] and "fails on purpose" in err["message"]
     assert err["path"] is not None and len(err["path"]) == 3  # the 2 ticks run before it raised: kept
     assert err["failure"].startswith("error:")
+
+
+def test_the_command_line_refuses_bad_scenarios_and_controllers_with_exit_code_2(tmp_path, capsys):
+    from planbench.cli import main
+
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "planbench-scenario/1", "problem": "mbm:box/0001", "horizon": -1}')
+    suite = tmp_path / "s.toml"
+    suite.write_text(f'[suite]\nname = "bad"\nscenarios = ["{bad}"]\n[[controllers]]\ncontroller = "matrix-field"\n')
+    assert main(["bench", "--suite", str(suite), "--out", str(tmp_path / "r.db")]) == 2
+    assert "horizon must be > 0" in capsys.readouterr().err
+    suite.write_text('[suite]\nname = "bad"\nscenarios = ["dynamic-smoke"]\n[[controllers]]\ncontroller = "matrix-feld"\n')
+    assert main(["bench", "--suite", str(suite), "--out", str(tmp_path / "r.db")]) == 2
+    assert "unknown controller 'matrix-feld'" in capsys.readouterr().err
+    assert not (tmp_path / "r.db").exists()  # refused before any run: no results file left behind

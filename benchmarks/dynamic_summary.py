@@ -1,0 +1,108 @@
+"""Tables of a closed-loop results file: success per controller by robot, speed, sensing and
+behaviour (95 % Wilson intervals), failure reasons, and compute times.
+
+    planbench bench --suite dynamic --out dynamic.db --jobs 2
+    python benchmarks/dynamic_summary.py dynamic.db            # Markdown, as in docs/reactive.md
+
+Keys come from the shipped scenario names (``dynamic:<robot>_<behaviour>_<speed>_<sensing>/N``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from planbench.bench.db import ResultsDB
+from planbench.bench.report import wilson_interval
+from planbench.reactive.plots import scenario_keys
+
+ORDER = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
+
+
+def rate(rows: Sequence[dict[str, Any]]) -> str:
+    n, k = len(rows), sum(1 for r in rows if r["success"])
+    if not n:
+        return "-"
+    lo, hi = wilson_interval(k, n)
+    return f"{100 * k / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] ({k}/{n})"
+
+
+def by(rows: Sequence[dict[str, Any]], key: str) -> str:
+    controllers = sorted({r["planner"] for r in rows})
+    values = sorted({scenario_keys(r["problem"]).get(key, "?") for r in rows}, key=lambda v: (ORDER.get(v, 9), v))
+    lines = [f"| controller | {' | '.join(values)} | all |", "|---" * (len(values) + 2) + "|"]
+    for c in controllers:
+        mine = [r for r in rows if r["planner"] == c]
+        cells = [rate([r for r in mine if scenario_keys(r["problem"]).get(key) == v]) for v in values]
+        lines.append(f"| `{c}` | {' | '.join(cells)} | {rate(mine)} |")
+    return "\n".join(lines)
+
+
+def reasons(rows: Sequence[dict[str, Any]]) -> str:
+    lines = ["| controller | failures |", "|---|---|"]
+    for c in sorted({r["planner"] for r in rows}):
+        counts: collections.Counter[str] = collections.Counter()
+        for r in rows:
+            if r["planner"] == c and not r["success"]:
+                f = r["failure"] or r["status"]
+                if f.startswith("collision with "):
+                    what = f.removeprefix("collision with ").split(" at t")[0]
+                    obstacle, _, link = what.partition(" (")
+                    moving = any(
+                        obstacle.endswith(m) for m in ("crossing_ball", "crossing_box", "forearm", "sliding_box")
+                    )
+                    f = "collision with the moving obstacle" if moving else "collision with the static scene"
+                elif f.startswith("goal not reached"):
+                    f = "goal not reached in the horizon"
+                elif f.startswith("error"):
+                    f = "error"
+                counts[f] += 1
+        lines.append(f"| `{c}` | {', '.join(f'{n} {k}' for k, n in counts.most_common()) or '-'} |")
+    return "\n".join(lines)
+
+
+def compute(rows: Sequence[dict[str, Any]]) -> str:
+    lines = [
+        "| controller | tick median [ms] | tick p99 [ms] | field update per frame [ms] | deadline misses per run | "
+        "time to goal [s] | min clearance [mm] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def med(values: list[float], scale: float = 1.0) -> str:
+        a = np.array([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+        return f"{np.median(a) * scale:.3g}" if a.size else "-"
+
+    for c in sorted({r["planner"] for r in rows}):
+        mine = [r for r in rows if r["planner"] == c]
+        ok = [r for r in mine if r["success"]]
+        ticks = f"{med([r['tick_time_median'] for r in mine], 1e3)} | {med([r['tick_time_p99'] for r in mine], 1e3)}"
+        lines.append(
+            f"| `{c}` | {ticks} "
+            f"| {med([r['field_update_time'] for r in mine], 1e3)} | {med([r['deadline_misses'] for r in mine])} "
+            f"| {med([r['time_to_goal'] for r in ok])} | {med([r['min_clearance'] for r in ok], 1e3)} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("db", nargs="+", help="results files (their closed-loop runs are pooled)")
+    args = parser.parse_args()
+    rows: list[dict[str, Any]] = []
+    for path in args.db:
+        with ResultsDB(path, read_only=True) as db:
+            rows += [r for r in db.rows() if r.get("deadline_misses") is not None]
+    print(f"{len(rows)} closed-loop runs\n")
+    for key in ("robot", "speed", "sensing", "behaviour"):
+        print(f"### Success by {key}\n\n{by(rows, key)}\n")
+    print(f"### Failure reasons\n\n{reasons(rows)}\n")
+    print(f"### Compute and motion (medians; compute over every run, the rest over successes)\n\n{compute(rows)}")
+
+
+if __name__ == "__main__":
+    main()
