@@ -20,7 +20,7 @@ from planbench.bench.suite import check_seconds, check_seed
 from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
 from planbench.harness import DEFAULT_TIME_LIMIT
-from planbench.registry import REGISTRY
+from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
 
 log = logging.getLogger("planbench")
@@ -51,16 +51,17 @@ def settings_text(pairs: Sequence[tuple[str, str]] | None) -> dict[str, str]:
 
 def cmd_list(args: argparse.Namespace) -> int:
     console = Console()
-    table = Table(title="Planners", title_justify="left")
-    for col in ("name", "origin", "distribution", "available"):
-        table.add_column(col)
-    for name in REGISTRY.names():
-        spec = REGISTRY.spec(name)
-        ok = spec.available
-        status = "yes" if ok else f"no: {spec.error}" + (f" ({spec.hint})" if spec.hint else "")
-        dist = f"{spec.distribution} {spec.version}".strip() or "-"
-        table.add_row(name, f"{spec.origin}: {spec.entry_point}", dist, status)
-    console.print(table)
+    for title, registry in (("Planners", REGISTRY), ("Controllers (closed loop)", CONTROLLERS)):
+        table = Table(title=title, title_justify="left")
+        for col in ("name", "origin", "distribution", "available"):
+            table.add_column(col)
+        for name in registry.names():
+            spec = registry.spec(name)
+            ok = spec.available
+            status = "yes" if ok else f"no: {spec.error}" + (f" ({spec.hint})" if spec.hint else "")
+            dist = f"{spec.distribution} {spec.version}".strip() or "-"
+            table.add_row(name, f"{spec.origin}: {spec.entry_point}", dist, status)
+        console.print(table)
     robots = Table(title="Robots", title_justify="left")
     for col in ("name", "planned joints", "end effector", "description"):
         robots.add_column(col)
@@ -76,6 +77,8 @@ def cmd_list(args: argparse.Namespace) -> int:
     sets.add_column("content")
     for name, what in problem_sets().items():
         sets.add_row(name, what)
+    sets.add_row("dynamic", "108 closed-loop scenarios (Panda, UR5; moving obstacles; truth and depth sensing)")
+    sets.add_row("dynamic-smoke", "4 of them, for the dynamic-smoke suite")
     console.print(sets)
     return 0
 
