@@ -51,7 +51,9 @@ def test_it_follows_its_path_and_replans_around_an_obstacle_that_appears_on_it(f
     checker = CollisionChecker(free_task.robot, box)
     assert not checker.in_collision(np.asarray(free_task.goal.q)) and not checker.in_collision(q)
     c.update(_seen(box, 0.2, 1))
-    c.step(0.2, q, None, free_task.goal)
+    # the path is invalid: first a stop (the command held while it plans), then the plan
+    assert np.allclose(c.step(0.2, q, None, free_task.goal), 0.0) and c.info()["plans"] == 1
+    c.step(0.21, q, None, free_task.goal)
     info = c.info()
     assert info["invalidated"] == 1 and info["plans"] == 2 and info["failed_plans"] == 0
     new = np.vstack([q, c.path])
