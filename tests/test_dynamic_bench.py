@@ -160,7 +160,7 @@ def test_the_command_line_refuses_bad_scenarios_and_controllers_with_exit_code_2
     suite.write_text(f'[suite]\nname = "bad"\nscenarios = ["{bad}"]\n[[controllers]]\ncontroller = "matrix-field"\n')
     assert main(["bench", "--suite", str(suite), "--out", str(tmp_path / "r.db")]) == 2
     assert "horizon must be > 0" in capsys.readouterr().err
-    suite.write_text('[suite]\nname = "bad"\nscenarios = ["dynamic-smoke"]\n[[controllers]]\ncontroller = "matrix-feld"\n')
+    suite.write_text('[suite]\nname = "bad"\nscenarios = ["dynamic-smoke"]\n[[controllers]]\ncontroller = "x-field"')
     assert main(["bench", "--suite", str(suite), "--out", str(tmp_path / "r.db")]) == 2
-    assert "unknown controller 'matrix-feld'" in capsys.readouterr().err
+    assert "unknown controller 'x-field'" in capsys.readouterr().err
     assert not (tmp_path / "r.db").exists()  # refused before any run: no results file left behind
