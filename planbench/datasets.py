@@ -118,16 +118,23 @@ def load_problem(ref: str) -> Problem:
     """The one problem a reference names (``"mbm:box/0001"``, a .json file), loaded once while it
     is among the :data:`LOADED_PROBLEMS_KEPT` last used: benchmark workers and validators load each
     run's problem by reference."""
-    problem = _ONE.get(ref)
-    if problem is None:
-        found = load_problems(ref)
+    return load_one(_ONE, ref, load_problems, "problem")
+
+
+def load_one(kept: collections.OrderedDict[str, Any], ref: str, load: Any, what: str) -> Any:
+    """The one item ``load(ref)`` gives, from ``kept`` (the :data:`LOADED_PROBLEMS_KEPT` last
+    used, least recent first) or loaded into it; :class:`PlanbenchError` when ``ref`` names
+    another number of items."""
+    item = kept.get(ref)
+    if item is None:
+        found = load(ref)
         if len(found) != 1:
-            raise PlanbenchError(f"problem reference {ref!r} names {len(found)} problems, not one")
-        problem = _ONE[ref] = found[0]
-        while len(_ONE) > LOADED_PROBLEMS_KEPT:
-            _ONE.popitem(last=False)
-    _ONE.move_to_end(ref)
-    return problem
+            raise PlanbenchError(f"{what} reference {ref!r} names {len(found)} {what}s, not one")
+        item = kept[ref] = found[0]
+        while len(kept) > LOADED_PROBLEMS_KEPT:
+            kept.popitem(last=False)
+    kept.move_to_end(ref)
+    return item
 
 
 def _unique_ids(loaded: list[tuple[Problem, str]]) -> list[Problem]:

@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from planbench.datasets import load_one
 from planbench.errors import PlanbenchError, ScenarioFileError, UnknownNameError
 from planbench.reactive.scenario import Scenario
 
@@ -75,18 +76,9 @@ _ONE: collections.OrderedDict[str, Scenario] = collections.OrderedDict()
 
 
 def load_scenario(ref: str) -> Scenario:
-    """The one scenario ``ref`` names (a shipped name or a file), kept while among the 8 last used
+    """The one scenario ``ref`` names (a shipped name or a file), kept while among the last used
     (benchmark workers and validators load each run's scenario by reference)."""
-    scenario = _ONE.get(ref)
-    if scenario is None:
-        found = load_scenarios(ref)
-        if len(found) != 1:
-            raise PlanbenchError(f"scenario reference {ref!r} names {len(found)} scenarios, not one")
-        scenario = _ONE[ref] = found[0]
-        while len(_ONE) > 8:
-            _ONE.popitem(last=False)
-    _ONE.move_to_end(ref)
-    return scenario
+    return load_one(_ONE, ref, load_scenarios, "scenario")  # type: ignore[no-any-return]
 
 
 def _build(d: dict[str, Any]) -> Scenario:
