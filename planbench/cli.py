@@ -11,6 +11,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -127,12 +128,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise PlanbenchError(f"--plot needs {why}")
     console = Console()
     rows = []
+    paths = []  # (path, times, the planner's message) per problem, for --json
     for problem in problems:
         result = planbench.plan(problem, planner, seed=args.seed, time_limit=args.time_limit)
         if result.status is planbench.PlanStatus.ERROR:
             log.debug("%s", result.info.get("traceback", ""))
         ev = planbench.evaluate(problem, result)
         rows.append({"problem": problem.id, "planner": args.planner, "seed": args.seed, **ev.as_dict()})
+        paths.append((result.path, result.times, result.message))
     title = f"{args.planner} on {args.problem}, seed {args.seed} (every path checked by planbench)"
     units = {key: (label, unit) for key, label, unit in METRICS}
     if len(rows) == 1:
@@ -158,30 +161,79 @@ def cmd_plan(args: argparse.Namespace) -> int:
         planner.plot_result(problems[0], result, args.plot)
         console.print(f"figure written to {args.plot}")
     if args.json:
+        out = [
+            {**row, "message": message, "path": _array(path), "times": _array(times)}
+            for row, (path, times, message) in zip(rows, paths, strict=True)
+        ]
         try:
             with open(args.json, "w") as f:
-                json.dump(rows, f, indent=1, default=_json_default)
+                json.dump(json_safe(out), f, indent=1, allow_nan=False)
         except OSError as exc:
             raise PlanbenchError(f"cannot write {args.json}: {exc.strerror}") from exc
-        console.print(f"metrics written to {escape(args.json)}")
-    return 0
+        console.print(f"metrics and paths written to {escape(args.json)}")
+    return 0 if any(r["success"] for r in rows) else 1
 
 
-def _json_default(x: Any) -> Any:
+def _array(a: Any) -> Any:
+    return None if a is None else np.asarray(a, dtype=float).tolist()
+
+
+def json_safe(x: Any) -> Any:
+    """``x`` as strict JSON data: NaN and infinities become null (JSON has no NaN), numpy scalars
+    and arrays plain numbers and lists, anything else its text."""
+    if isinstance(x, dict):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_safe(v) for v in x]
     if hasattr(x, "tolist"):
-        return x.tolist()
+        return json_safe(x.tolist())
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if x is None or isinstance(x, (bool, int, str)):
+        return x
     return str(x)
 
 
+class _DefaultsShown(argparse.HelpFormatter):
+    """Help that ends each option with its default, where it has one (not for None or flags)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        unset = default is None or default is False or default is argparse.SUPPRESS
+        if "%(default)" in text or "default" in text or unset or not action.option_strings:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class _CommandParser(argparse.ArgumentParser):
+    """The parser of each command: its help shows the defaults."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _DefaultsShown)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="planbench", description="Plan robot-arm paths and compare planners fairly.")
+    parser = argparse.ArgumentParser(
+        prog="planbench",
+        description="Plan robot-arm paths and compare planners fairly.",
+        epilog="exit codes: 0 done (plan: at least one problem solved), 1 plan: no problem solved, "
+        "2 bad input (a named error, no traceback), 130 interrupted",
+    )
+    parser.add_argument("--version", action="version", version=f"planbench {planbench.__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging (tracebacks of planner errors)")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_CommandParser)
 
     p = sub.add_parser("list", help="planners (with origin and availability), robots, problem sets")
     p.set_defaults(func=cmd_list)
 
-    p = sub.add_parser("plan", help="plan problems with one planner and print the validated metrics")
+    p = sub.add_parser(
+        "plan",
+        help="plan problems with one planner and print the validated metrics",
+        description="Plan problems with one planner and print the metrics planbench validated. Exit code 0 when "
+        "at least one problem is solved, 1 when none is, 2 on bad input.",
+    )
     p.add_argument("--problem", required=True, help="mbm:box/0001, mbm:box/0001-0010, mbm:*, or a problem .json")
     p.add_argument("--planner", default="straight-line", help="a registered planner name (see `planbench list`)")
     p.add_argument("--seed", type=int, default=0, help="0 <= seed < 2**63")
@@ -189,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-limit",
         type=float,
         default=DEFAULT_TIME_LIMIT,
-        help=f"[s] per problem, a finite number > 0 (default {DEFAULT_TIME_LIMIT:g})",
+        help="[s] per problem, a finite number > 0",
     )
     p.add_argument(
         "--set",
@@ -198,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="a planner setting (repeatable), e.g. --set timed=false; read as the type of the planner's setting",
     )
-    p.add_argument("--json", metavar="FILE", help="also write the metrics as JSON")
+    p.add_argument("--json", metavar="FILE", help="also write each problem's metrics, path, times (JSON, NaN: null)")
     p.add_argument("--plot", metavar="PNG", help="write the planner's figure of the result (one problem only)")
     p.set_defaults(func=cmd_plan)
 

@@ -1,5 +1,8 @@
 import json
 
+import pytest
+
+import planbench
 from planbench.cli import main
 
 
@@ -11,12 +14,33 @@ def test_plan_prints_validated_metrics_and_writes_json(tmp_path, capsys):
     rows = json.loads(out.read_text())
     assert rows[0]["problem"] == "mbm:table_pick/0001" and rows[0]["success"] is True
     assert rows[0]["min_clearance"] > 0
+    path = rows[0]["path"]
+    assert len(path) >= 2 and len(path[0]) == 7
+    assert rows[0]["times"] is None or len(rows[0]["times"]) == len(path)
 
 
-def test_plan_reports_failures_with_their_reason(capsys):
-    assert main(["plan", "--problem", "mbm:box/0001-0002", "--set", "timed=false"]) == 0
+def test_plan_reports_failures_with_their_reason_and_exits_1_when_nothing_is_solved(tmp_path, capsys):
+    out = tmp_path / "m.json"
+    assert main(["plan", "--problem", "mbm:box/0001-0002", "--set", "timed=false", "--json", str(out)]) == 1
     text = capsys.readouterr().out
     assert "mbm:box/0001 failed: collision" in text and "0/2 solved" in text
+    # strict JSON: the metrics a failed run has not (NaN in Python) are null, never the token NaN
+    raw = out.read_text()
+    assert "NaN" not in raw and "Infinity" not in raw
+    rows = json.loads(raw, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+    assert rows[0]["success"] is False and rows[0]["joint_path_length"] is None and rows[0]["message"]
+    # one solved problem among failed ones: exit 0
+    assert main(["plan", "--problem", "mbm:table_pick/0001", "--set", "timed=false"]) == 0
+
+
+def test_version_and_defaults_in_help(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out.strip() == f"planbench {planbench.__version__}"
+    with pytest.raises(SystemExit):
+        main(["plan", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: straight-line)" in text and "(default: 10.0)" in text and "(default: None)" not in text
 
 
 def test_user_errors_exit_2_with_a_message(capsys):

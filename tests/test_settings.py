@@ -184,7 +184,7 @@ def test_plan_set_values_reach_the_planner_as_their_types(monkeypatch, capsys):
     monkeypatch.setattr(planbench, "load_problems", lambda selector: [])
     sets = ["verify_path=false", "repulsion_gain=2", "speed_max=0.3", "max_steps=50", "field_mode=lazy"]
     argv = ["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field"]
-    assert main([*argv, *(x for s in sets for x in ("--set", s))]) == 0
+    assert main([*argv, *(x for s in sets for x in ("--set", s))]) == 1  # no problem loaded: none solved
     (config,) = seen
     assert config.verify_path is False and config.repulsion_gain == 2.0 and config.field_mode == "lazy"
     assert config.speed_max == 0.3 and type(config.speed_max) is float and type(config.max_steps) is int
