@@ -62,3 +62,74 @@ def test_markdown_and_csv():
     csv_text = to_csv(summary).splitlines()
     assert csv_text[0].startswith("planner,runs,solved,success_rate,success_ci_low,success_ci_high,error,timeout,crash")
     assert csv_text[1].startswith("a,2,1,0.5,")
+
+
+def _run(planner, success, status="success", pair="", **more):
+    base = {"planner": planner, "success": success, "status": status, "collision_pair": pair}
+    return {**base, **more}
+
+
+def test_failure_reasons_name_the_link_the_stall_and_the_limits():
+    from planbench.bench.report import failure_reason, failure_text
+
+    rows = [
+        _run("p", False, "success", "panda_hand / obstacle:table"),  # a claimed success the harness refused
+        _run("p", False, "collision", "panda_hand / obstacle:shelf"),
+        _run("p", False, "collision", "panda_link5 / obstacle:shelf"),
+        _run("p", False, "collision", "panda_link7 / panda_link2"),
+        _run("p", False, "local_minimum"),
+        _run("p", False, "timeout"),
+        _run("p", False, "timeout", deadline_misses=3),
+        _run("p", False, "crash"),
+        _run("p", True),
+    ]
+    assert [failure_reason(r) for r in rows] == [
+        "collision panda_hand",
+        "collision panda_hand",
+        "collision panda_link5",
+        "self-collision panda_link7/panda_link2",
+        "stall",
+        "time limit",
+        "horizon",
+        "crash",
+        "",
+    ]
+    assert failure_text(rows) == (
+        "collision 3 (panda_hand 2, panda_link5 1), self-collision 1 (panda_link7/panda_link2 1), "
+        "stall 1, time limit 1, horizon 1, crash 1"
+    )
+
+
+def test_the_terminal_table_is_whole_in_80_columns():
+    from rich.console import Console
+
+    from planbench.bench.report import TERMINAL_METRICS, summarize, to_rich
+
+    rows = []
+    for planner in ("matrix-field-guided", "ompl-rrtconnect", "straight-line"):
+        for k in range(6):
+            ok = k % 2 == 0
+            rows.append(
+                _run(
+                    planner,
+                    ok,
+                    "success" if ok else "collision",
+                    "" if ok else "panda_hand / obstacle:box",
+                    planning_time=0.1234 * (k + 1),
+                    setup_time=0.01,
+                    joint_path_length=3.21,
+                    ee_path_length=1.234,
+                    min_clearance=0.0123,
+                    duration=2.5,
+                )
+            )
+    console = Console(width=80, record=True, color_system=None)
+    console.print(to_rich(summarize(rows), ("planner",), title="t", metrics=TERMINAL_METRICS, width=80))
+    text = console.export_text()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert "…" not in text  # no cell cut
+    for cell in ("matrix-field-guided", "50% [19, 81]", "collision 3 (panda_hand 3)", "370", "12.3", "2.5"):
+        assert cell in text
+    wide = Console(width=80, record=True, color_system=None)
+    wide.print(to_rich(summarize(rows), ("planner",), metrics=TERMINAL_METRICS, width=80, wide=True))
+    assert "…" in wide.export_text()  # one table, cut to the terminal: what --wide asks for

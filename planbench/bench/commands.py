@@ -71,6 +71,7 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
     p.add_argument("--overwrite", action="store_true", help="delete this suite's runs in --out first")
     p.add_argument("--by", choices=("planner", "family"), default="planner", help="summary grouping")
+    p.add_argument("--wide", action="store_true", help="one table with every column, whatever the terminal's width")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_bench)
 
@@ -89,6 +90,7 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument(
         "--by", choices=("planner", "family"), default="planner", help="group by planner, or planner and family"
     )
+    p.add_argument("--wide", action="store_true", help="one table with every column, whatever the terminal's width")
     p.add_argument("--markdown", metavar="FILE", help="write the table as Markdown")
     p.add_argument("--csv", metavar="FILE", help="write the table as CSV (SI units)")
     p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")
@@ -181,7 +183,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
         rows = db.rows(suite.name)
     metrics = metrics_for(rows, terminal=True)
     summary = summarize(rows, _by(args.by), metrics)
-    console.print(to_rich(summary, _by(args.by), title=f"suite {suite.name}", metrics=metrics, width=console.width))
+    console.print(
+        to_rich(
+            summary, _by(args.by), title=f"suite {suite.name}", metrics=metrics, width=console.width, wide=args.wide
+        )
+    )
     for line in failures(rows, limit=10):
         console.print(escape(line), highlight=False)
     console.print(f"more: planbench report {escape(args.out)} --by family --html report.html")
@@ -293,6 +299,7 @@ def cmd_report(args: argparse.Namespace) -> int:
             title=f"{args.db}: {len(rows)} runs",
             metrics=terminal,
             width=console.width,
+            wide=args.wide,
         )
     )
     for line in failures(rows, limit=10):

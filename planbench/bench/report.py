@@ -8,6 +8,7 @@ the status counts say how runs failed.
 
 from __future__ import annotations
 
+import collections
 import csv
 import io
 import math
@@ -16,8 +17,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 __all__ = [
     "DYNAMIC_METRICS",
@@ -123,11 +126,51 @@ def summarize(
         s.update(runs=n, solved=len(solved), success_rate=len(solved) / n, success_ci_low=lo, success_ci_high=hi)
         for status in FAILURE_STATUSES:
             s[status] = sum(1 for r in members if r["status"] == status)
+        s["failures"] = failure_text(members)
         for m in metrics:
             med, q1, q3 = _quartiles([r.get(m.name, math.nan) for r in (members if m.over_all_runs else solved)])
             s[f"{m.name}_median"], s[f"{m.name}_q1"], s[f"{m.name}_q3"] = med, q1, q3
         out.append(s)
     return out
+
+
+def failure_reason(row: dict[str, Any]) -> str:
+    """Why a run failed, in a few words ("" for a success): ``collision <robot link>``,
+    ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``horizon`` (a
+    closed-loop run that did not reach its goal in time), ``error``, ``crash``, or the planner's
+    own status (``step limit``, ``infeasible``, ...)."""
+    if row.get("success"):
+        return ""
+    status = str(row.get("status") or "")
+    if status in ("error", "crash"):
+        return status
+    pair = str(row.get("collision_pair") or "")
+    if pair:
+        a, _, b = pair.partition(" / ")
+        return f"collision {a}" if not b or b.startswith("obstacle:") else f"self-collision {a}/{b}"
+    if status == "timeout":
+        return "horizon" if row.get("deadline_misses") is not None else "time limit"
+    return {"local_minimum": "stall"}.get(status, status.replace("_", " ") or "failed")
+
+
+def failure_text(rows: Sequence[dict[str, Any]], links: int = 2) -> str:
+    """The failure reasons of ``rows`` counted, most frequent first; collisions summed with their
+    most frequent robot links: ``collision 37 (panda_hand 20, panda_link5 10), stall 10``."""
+    reasons = collections.Counter(failure_reason(r) for r in rows if not r.get("success"))
+    grouped: collections.Counter[str] = collections.Counter()
+    detail: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    for reason, n in reasons.items():
+        located = reason.startswith(("collision ", "self-collision "))
+        kind, _, where = reason.partition(" ") if located else (reason, "", "")
+        grouped[kind] += n
+        if where:
+            detail[kind][where] += n
+    parts = []
+    for kind, n in grouped.most_common():
+        top = ", ".join(f"{w} {k}" for w, k in detail[kind].most_common(links))
+        more = " ..." if len(detail[kind]) > links else ""
+        parts.append(f"{kind} {n}" + (f" ({top}{more})" if top else ""))
+    return ", ".join(parts)
 
 
 def _num(v: float, scale: float = 1.0) -> str:
@@ -137,10 +180,12 @@ def _num(v: float, scale: float = 1.0) -> str:
     return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
 
 
+def _rate(s: dict[str, Any]) -> str:
+    return f"{100 * s['success_rate']:.0f}% [{100 * s['success_ci_low']:.0f}, {100 * s['success_ci_high']:.0f}]"
+
+
 def _cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True) -> list[str]:
-    rate = f"{100 * s['success_rate']:.0f}% [{100 * s['success_ci_low']:.0f}, {100 * s['success_ci_high']:.0f}]"
-    fails = ", ".join(f"{s[k]} {k}" for k in FAILURE_STATUSES if s[k]) or "-"
-    cells = [f"{s['solved']}/{s['runs']}", rate, fails]
+    cells = [f"{s['solved']}/{s['runs']}", _rate(s), s.get("failures") or "-"]
     for m in metrics:
         med = s[f"{m.name}_median"]
         if math.isnan(med) or not quartiles:
@@ -153,7 +198,7 @@ def _cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True)
 
 def _headers(by: Sequence[str], metrics: Sequence[Metric], short: bool = False) -> list[str]:
     labels = [(m.short or m.label) if short else m.label for m in metrics]
-    return [*by, "solved", "success [95% CI]", "error/timeout/crash" if short else "errors, timeouts, crashes", *labels]
+    return [*by, "solved", "success [95% CI]", "failures", *labels]
 
 
 def to_markdown(
@@ -185,9 +230,15 @@ def to_rich(
     title: str = "",
     metrics: Sequence[Metric] = TERMINAL_METRICS,
     width: int | None = None,
+    wide: bool = False,
 ) -> Any:
     """A rich Table for the terminal (short headers, no setup time). In a terminal narrower than
-    140 columns the metric cells show medians only, so that the rows stay short."""
+    140 columns the metric cells show medians only, so that the rows stay short; narrower than
+    :data:`WIDE` (an 80-column terminal) the table is stacked: the outcomes (solved, success,
+    failure reasons), then the metric medians in as many tables as the width needs, every cell
+    whole (``wide=True`` or ``width=None``: one table)."""
+    if width is not None and width < WIDE and not wide:
+        return _stacked(summary, by, title, metrics, width)
     quartiles = width is None or width >= 140
     table = Table(
         title=escape(title) if title else None,
@@ -205,6 +256,46 @@ def to_rich(
     for s in summary:
         table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics, quartiles))
     return table
+
+
+WIDE = 160
+"""Terminal width [columns] from which the whole table is one (below it: :func:`_stacked`)."""
+
+
+def _stacked(
+    summary: Sequence[dict[str, Any]], by: Sequence[str], title: str, metrics: Sequence[Metric], width: int
+) -> Any:
+    """The outcome table, then the metric medians split into tables that fit ``width``."""
+    keys = [" / ".join(str(s[c]) for c in by) for s in summary]
+    key_width = max([len(k) for k in keys] + [len(" / ".join(by))])
+    outcome = Table(title=escape(title) if title else None, title_justify="left", expand=False)
+    outcome.add_column(escape(" / ".join(by)), no_wrap=True)
+    outcome.add_column("solved", justify="right", no_wrap=True)
+    outcome.add_column("success [95% CI]", justify="right", no_wrap=True)
+    outcome.add_column("failures", overflow="fold")
+    for k, s in zip(keys, summary, strict=True):
+        outcome.add_row(escape(k), f"{s['solved']}/{s['runs']}", _rate(s), escape(s.get("failures") or "-"))
+    tables: list[Any] = [outcome]
+    cells = {m.name: [_num(s[f"{m.name}_median"], m.scale) for s in summary] for m in metrics}
+    room = width - key_width - 4  # the key column and the table's borders
+    chunk: list[Metric] = []
+    used = 0
+    for m in [*metrics, None]:
+        need = 0 if m is None else max(len(m.short or m.label), *(len(c) for c in cells[m.name])) + 3
+        if m is None or (chunk and used + need > room):
+            table = Table(title_justify="left")
+            table.add_column(escape(" / ".join(by)), no_wrap=True)
+            for c in chunk:
+                table.add_column(escape(c.short or c.label), justify="right", no_wrap=True)
+            for i, k in enumerate(keys):
+                table.add_row(escape(k), *(cells[c.name][i] for c in chunk))
+            tables.append(table)
+            chunk, used = [], 0
+        if m is not None:
+            chunk.append(m)
+            used += need
+    note = "metrics: medians over validated successes" + _all_runs_note(metrics) + " (all columns: --wide)"
+    return Group(*tables, Text(note))
 
 
 def _all_runs_note(metrics: Sequence[Metric]) -> str:

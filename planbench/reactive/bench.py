@@ -115,7 +115,10 @@ def validate_run_fields(scenario: Scenario, fields: dict[str, Any]) -> dict[str,
     )
     m = evaluate_run(scenario, record)
     err_p, err_r = pose_error(scenario.problem.robot, record.path[-1], scenario.problem.goal.pose)
-    pair = m.failure.partition("collision with ")[2].partition(" at t")[0] if "collision with" in m.failure else ""
+    pair = ""
+    if m.failure.startswith("collision with "):  # "collision with <body> (<robot link>) at t = ..."
+        body, _, link = m.failure.removeprefix("collision with ").partition(" at t")[0].rpartition(" (")
+        pair = f"{link.rstrip(')')} / {body}"  # as a static run's: "<robot link> / <link or obstacle:name>"
     return {
         **base.as_dict(),
         "success": m.success,
