@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from rich import box
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -101,7 +102,13 @@ METRICS = (  # (Evaluation field, label, display unit)
     ("collision_checks", "collision checks (planner's count)", ""),
     ("validation_checks", "collision checks (validation)", ""),
 )
-COMPACT = ("success", "planning_time", "joint_path_length", "ee_path_length", "min_clearance")
+COMPACT = {  # the several-problem table: short headers, so that it stays whole in 80 columns
+    "success": "solved",
+    "planning_time": "time [ms]",
+    "joint_path_length": "joint len [rad]",
+    "ee_path_length": "EE len [m]",
+    "min_clearance": "clearance [mm]",
+}
 
 
 def _fmt(value: Any, unit: str) -> str:
@@ -146,13 +153,21 @@ def cmd_plan(args: argparse.Namespace) -> int:
             table.add_row(escape(label), _fmt(rows[0][key], unit))
         console.print(table)
     else:
-        table = Table(title=title, title_justify="left")
-        table.add_column("problem", no_wrap=True)
-        for key in COMPACT:
-            table.add_column(escape(units[key][0]), justify="right")
-        for row in rows:
-            table.add_row(row["problem"], *(_fmt(row[key], units[key][1]) for key in COMPACT))
-        console.print(table)
+        cells = [[row["problem"], *(_fmt(row[key], units[key][1]) for key in COMPACT)] for row in rows]
+        heads = ["problem", *COMPACT.values()]
+        need = sum(max(len(h), *(len(c[i]) for c in cells)) + 3 for i, h in enumerate(heads))
+        if need <= console.width:  # one row per problem
+            table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
+            for i, h in enumerate(heads):
+                table.add_column(escape(h), justify="left" if i == 0 else "right", no_wrap=True)
+            for c in cells:
+                table.add_row(*(escape(x) for x in c))
+            console.print(table)
+        else:  # too narrow for the table: one line per problem, every value whole
+            console.print(escape(title), highlight=False)
+            for c in cells:
+                values = ", ".join(f"{h} {x}" for h, x in zip(heads[1:], c[1:], strict=True))
+                console.print(f"[bold]{escape(c[0])}[/bold]: {escape(values)}", highlight=False)
     for row in rows:
         if row["failure"]:
             console.print(f"[bold]{escape(row['problem'])}[/bold] failed: {escape(row['failure'])}", highlight=False)

@@ -60,3 +60,12 @@ def test_list_shows_planners_robots_and_sets(capsys):
 def test_plot_needs_a_planner_with_a_figure(capsys):
     assert main(["plan", "--problem", "mbm:box/0001", "--plot", "x.png"]) == 2
     assert "'straight-line' has none" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("columns", [80, 120])
+def test_plan_output_is_whole_in_narrow_terminals(monkeypatch, capsys, columns):
+    monkeypatch.setenv("COLUMNS", str(columns))
+    assert main(["plan", "--problem", "mbm:bookshelf_small/0001-0002", "--set", "timed=false"]) == 1
+    text = capsys.readouterr().out
+    assert "…" not in text and max(len(line) for line in text.splitlines()) <= columns
+    assert "mbm:bookshelf_small/0001" in text and "mbm:bookshelf_small/0002" in text
