@@ -4,8 +4,10 @@ Arena database (loaded with the plannerarena package's reader when installed), C
 Records are made in-process with the worker's own ``run_one`` (no worker processes needed here)."""
 
 import csv
+import json
 import sqlite3
 
+import numpy as np
 import pytest
 
 from planbench.bench.db import ResultsDB
@@ -57,7 +59,12 @@ def rows(tmp_path_factory):
             settings={"time_limit": 1.0},
         )
         db.add_run(fields, failure_record("crash", "worker process died with signal SIGSEGV (11) during plan"))
-        return db.rows()
+        rows = db.rows()
+    rows_db[0] = db_path
+    return rows
+
+
+rows_db: dict[int, object] = {}
 
 
 def _runs(path):
@@ -110,3 +117,36 @@ def test_runs_csv_has_every_run_and_no_path_blobs(rows, tmp_path):
     assert len(table) == 9
     assert "path" not in table[0] and {"planning_time", "status", "traceback", "seed"} <= set(table[0])
     assert [r["status"] for r in table if r["planner"] == "crashy"] == ["crash"]
+
+
+def test_results_load_as_a_dataframe_with_paths_and_decoded_json(rows):
+    import planbench.results
+
+    df = planbench.results.load(rows_db[0])
+    assert len(df) == len(rows) == 9 and set(df.planner) == {"straight-line", "noisy", "crashy"}
+    ok = df[df.success]
+    assert len(ok) >= 1 and all(p.ndim == 2 and p.shape[1] == 7 for p in ok.path)
+    assert df.loc[df.planner == "crashy", "path"].iloc[0] is None
+    assert isinstance(df.settings.iloc[0], dict) and df.settings.iloc[0]["time_limit"] == 1.0
+    rate = df.groupby("planner")["success"].mean()
+    assert rate["crashy"] == 0.0
+    assert "path" not in planbench.results.load(rows_db[0], paths=False).columns
+
+
+def test_parquet_and_csv_with_paths_round_trip_the_paths(rows, tmp_path):
+    import pandas
+
+    import planbench.results
+    from planbench.cli import main
+
+    assert main(["export", str(rows_db[0]), "--format", "parquet", "--out", str(tmp_path / "r.parquet")]) == 0
+    back = pandas.read_parquet(tmp_path / "r.parquet")
+    df = planbench.results.load(rows_db[0])
+    assert len(back) == len(df)
+    for a, b in zip(df.path, back.path, strict=True):
+        assert (a is None and b is None) or np.allclose(a, np.array([list(x) for x in b]))
+    assert main(["export", str(rows_db[0]), "--format", "csv", "--paths", "--out", str(tmp_path / "r.csv")]) == 0
+    with open(tmp_path / "r.csv", newline="") as f:
+        runs = list(csv.DictReader(f))
+    first = next(r for r in runs if r["path"])
+    assert np.array(json.loads(first["path"])).shape[1] == 7

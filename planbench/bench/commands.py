@@ -28,6 +28,7 @@ from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_pr
 from planbench.bench.task import RunTask
 from planbench.cli import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError, ResultsFileError
+from planbench.results import write_parquet
 
 log = logging.getLogger(__name__)
 
@@ -99,14 +100,17 @@ def add_commands(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "export",
-        help="export a results database: OMPL benchmark logs, a Planner Arena database, or CSV of every run",
+        help="export a results database: OMPL benchmark logs, a Planner Arena database, CSV or Parquet of every run",
     )
     p.add_argument("db", help="results database written by `planbench bench`")
-    p.add_argument("--format", required=True, choices=("ompl-log", "planner-arena", "csv"))
+    p.add_argument("--format", required=True, choices=("ompl-log", "planner-arena", "csv", "parquet"))
     p.add_argument(
         "--out",
-        help="output: a folder of .log files (ompl-log), a .db file (planner-arena), a .csv file "
+        help="output: a folder of .log files (ompl-log), a .db file (planner-arena), a .csv or .parquet file "
         "(default: next to the database)",
+    )
+    p.add_argument(
+        "--paths", action="store_true", help="csv: add each run's path and time stamps (JSON lists) as columns"
     )
     p.add_argument("--suite", help="only this suite")
     p.set_defaults(func=cmd_export)
@@ -329,10 +333,12 @@ def cmd_export(args: argparse.Namespace) -> int:
         "ompl-log": db_path.with_suffix("").as_posix() + "-ompl-logs",
         "planner-arena": db_path.with_suffix("").as_posix() + "-plannerarena.db",
         "csv": db_path.with_suffix(".csv").as_posix(),
+        "parquet": db_path.with_suffix(".parquet").as_posix(),
     }[args.format]
     out = _output(args.out or default, db_path)
+    arrays = args.format == "parquet" or (args.format == "csv" and args.paths)
     with ResultsDB(db_path, read_only=True) as db:
-        rows = db.rows(args.suite)
+        rows = db.rows(args.suite, with_arrays=arrays)
     if not rows:
         print(f"{db_path} holds no runs" + (f" of suite {args.suite!r}" if args.suite else "") + "; nothing exported")
         return 1
@@ -342,8 +348,11 @@ def cmd_export(args: argparse.Namespace) -> int:
             print(f"{len(files)} OMPL benchmark logs written to {out} (one per problem)")
         elif args.format == "planner-arena":
             export.write_planner_arena(rows, out)
-            print(f"Planner Arena database written to {out} (open it with `plannerarena {out}`)")
+            print(f"Planner Arena database written to {out} (open it with `DATABASE={out} plannerarena`)")
+        elif args.format == "parquet":
+            write_parquet(rows, out)
+            print(f"{len(rows)} runs written to {out} (paths as nested lists; pandas.read_parquet reads it)")
         else:
-            export.write_runs_csv(rows, out)
-            print(f"{len(rows)} runs written to {out}")
+            export.write_runs_csv(rows, out, paths=args.paths)
+            print(f"{len(rows)} runs written to {out}" + (" with their paths" if args.paths else ""))
     return 0

@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from planbench.planner import PlanStatus
 
 __all__ = ["RUN_PROPERTIES", "write_ompl_logs", "write_planner_arena", "write_runs_csv", "experiments"]
@@ -248,13 +250,19 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Pat
     return out
 
 
-def write_runs_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
-    """Every run as a CSV row: all database columns but the path arrays (SI units, empty for NaN)."""
+def write_runs_csv(rows: Sequence[dict[str, Any]], path: str | Path, paths: bool = False) -> Path:
+    """Every run as a CSV row: all database columns (SI units, empty for NaN); ``paths``: with the
+    ``path`` and ``times`` arrays as JSON lists (rows read ``with_arrays``), else without them."""
     out = Path(path)
-    fields = [k for k in (rows[0] if rows else {}) if k not in ("path", "times")]
+    fields = [k for k in (rows[0] if rows else {}) if paths or k not in ("path", "times")]
     with out.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         for r in rows:
-            writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()})
+            d = {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
+            if paths:
+                for name in ("path", "times"):
+                    a = r.get(name)
+                    d[name] = "" if a is None else json.dumps(np.asarray(a, dtype=float).tolist())
+            writer.writerow(d)
     return out
