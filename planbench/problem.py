@@ -20,6 +20,7 @@ effector at it, so every problem has a goal pose that pose-driven planners can u
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +31,14 @@ import pinocchio as pin
 
 from planbench.collision import CollisionChecker
 from planbench.errors import PlanbenchError, ProblemFileError
-from planbench.robot import Robot, load_robot
+from planbench.robot import (
+    Robot,
+    RobotSettings,
+    load_robot,
+    robot_from_settings,
+    settings_from_dict,
+    shipped_settings_dir,
+)
 from planbench.scene import Scene, _read_json
 
 __all__ = ["Pose", "Goal", "Tolerances", "Problem", "ProblemCheck"]
@@ -211,7 +219,7 @@ class Problem:
         return {
             "format": PROBLEM_FORMAT,
             "id": self.id,
-            "robot": s.name if Path(s.source).parent.name in ("robots", "planbench_robots") else s.source,
+            "robot": _robot_ref(s),
             "robot_overrides": overrides,
             "scene": self.scene.to_dict(),
             "start": self.start.tolist(),
@@ -237,7 +245,7 @@ class Problem:
             if key not in d:
                 raise ProblemFileError(source, f"missing required key {key!r}")
         _check_fields(d, source)
-        robot = _load_problem_robot(d["robot"], dict(d.get("robot_overrides", {})), source)
+        robot = _load_problem_robot(d["robot"], dict(d.get("robot_overrides", {})), source, base_dir)
         scene_d = d["scene"]
         if isinstance(scene_d, str):
             scene = Scene.load((base_dir or Path.cwd()) / scene_d)
@@ -264,7 +272,13 @@ class Problem:
             raise ProblemFileError(source, str(exc)) from exc
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        """Write the problem as JSON; a robot settings file outside planbench's own is written
+        relative to the problem file, so that the two can move together."""
+        out = Path(path)
+        d = self.to_dict()
+        if isinstance(d["robot"], str) and d["robot"].endswith(".toml") and Path(d["robot"]).is_absolute():
+            d["robot"] = os.path.relpath(d["robot"], out.resolve().parent)
+        out.write_text(json.dumps(d, indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> Problem:
@@ -279,7 +293,7 @@ _OBJECT, _TEXT = "a JSON object", "a string"
 _FIELD_TYPES: dict[str, tuple[tuple[type, ...], str]] = {
     "format": ((str,), _TEXT),
     "id": ((str,), _TEXT),
-    "robot": ((str,), "a robot name or a settings .toml path (a string)"),
+    "robot": ((str, Mapping), "a robot name, a settings .toml path, or the robot's settings (an object)"),
     "robot_overrides": ((Mapping,), _OBJECT),
     "scene": ((Mapping, str), "a scene object or a scene .json path"),
     "goal": ((Mapping,), "an object with 'q' and/or 'pose'"),
@@ -354,9 +368,26 @@ def _check_overrides(overrides: Mapping[str, Any], source: str) -> None:
         _check_numbers(overrides["home"], "robot_overrides.home", source)
 
 
-def _load_problem_robot(name: str, overrides: dict[str, Any], source: str) -> Robot:
-    """The problem's robot; its errors name the problem file (the robot's own file is not at fault)."""
+def _robot_ref(s: RobotSettings) -> Any:
+    """How a problem file names its robot: a shipped robot by name, another settings file by its
+    path, a robot built from arguments (no file) by its settings themselves."""
+    if Path(s.source).resolve().parent == shipped_settings_dir().resolve():
+        return s.name
+    if s.source.endswith(".toml") and Path(s.source).is_file():
+        return s.source
+    return s.to_dict()
+
+
+def _load_problem_robot(name: Any, overrides: dict[str, Any], source: str, base_dir: Path | None = None) -> Robot:
+    """The problem's robot (a name, a settings file relative to the problem file, or the settings
+    themselves); its errors name the problem file (the robot's own file is not at fault)."""
     try:
+        if isinstance(name, Mapping):
+            settings = settings_from_dict(name, f"{source}: robot", base_dir)
+            return robot_from_settings(settings.replace(**overrides) if overrides else settings)
+        if base_dir is not None and name.endswith(".toml") and not Path(name).is_absolute():
+            if (base_dir / name).is_file():
+                name = str(base_dir / name)
         return load_robot(name, **overrides)
     except PlanbenchError as exc:
         raise ProblemFileError(source, f"robot {name!r}: {exc}") from exc

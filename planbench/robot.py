@@ -66,6 +66,11 @@ def example_robot_data_dir() -> Path:
     raise RobotFileError("example-robot-data", "installed, but no robots/ folder found in it")
 
 
+def shipped_settings_dir() -> Path:
+    """The folder of the robots shipped with planbench (``robots/<name>.toml``)."""
+    return _settings_dir()
+
+
 def _settings_dir() -> Path:
     return planbench_robots.ROBOTS_DIR
 
@@ -93,6 +98,32 @@ class RobotSettings:
     replacing their automatic placement on that link (an empty list: no point on the link)."""
     description: str = ""
     source: str = "arguments"  # the settings file, for error messages and provenance
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "urdf", Path(self.urdf))  # a str is welcome: it is a path
+        if self.srdf is not None:
+            object.__setattr__(self, "srdf", Path(self.srdf))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings as JSON data (the TOML's keys; paths absolute), for a problem file that
+        must carry a robot that has no settings file."""
+        d: dict[str, Any] = {"name": self.name, "urdf": str(Path(self.urdf).resolve()), "ee_frame": self.ee_frame}
+        if self.srdf is not None:
+            d["srdf"] = str(Path(self.srdf).resolve())
+        if self.home is not None:
+            d["home"] = list(self.home)
+        for key in ("fixed_joints", "velocity_limits"):
+            if getattr(self, key):
+                d[key] = dict(getattr(self, key))
+        if self.position_limits:
+            d["position_limits"] = {k: list(v) for k, v in self.position_limits.items()}
+        if self.ignore_collision_pairs:
+            d["ignore_collision_pairs"] = [list(p) for p in self.ignore_collision_pairs]
+        if self.control_points:
+            d["control_points"] = {k: [list(p) for p in v] for k, v in self.control_points.items()}
+        if self.description:
+            d["description"] = self.description
+        return d
 
     def replace(self, **changes: Any) -> RobotSettings:
         return dataclasses.replace(self, **changes)
@@ -124,18 +155,24 @@ def _read_settings(path: Path) -> RobotSettings:
         raise RobotFileError(path, f"cannot read: {exc.strerror}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise RobotFileError(path, f"not valid TOML: {exc}") from exc
+    return settings_from_dict(raw, str(path), path.parent)
+
+
+def settings_from_dict(raw: Mapping[str, Any], source: str, base: Path | None = None) -> RobotSettings:
+    """Robot settings from a TOML table or a JSON object (relative paths from ``base``);
+    :class:`RobotFileError` naming ``source`` and the key at fault."""
     allowed = {f.name for f in dataclasses.fields(RobotSettings)} - {"source"}
     unknown = set(raw) - allowed
     if unknown:
-        raise RobotFileError(path, f"unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+        raise RobotFileError(source, f"unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
     for key in ("name", "urdf", "ee_frame"):
         if key not in raw:
-            raise RobotFileError(path, f"missing required key {key!r}")
+            raise RobotFileError(source, f"missing required key {key!r}")
     try:
         return RobotSettings(
             name=str(raw["name"]),
-            urdf=_resolve(raw["urdf"], path.parent),
-            srdf=_resolve(raw["srdf"], path.parent) if raw.get("srdf") else None,
+            urdf=_resolve(raw["urdf"], base),
+            srdf=_resolve(raw["srdf"], base) if raw.get("srdf") else None,
             ee_frame=str(raw["ee_frame"]),
             home=tuple(float(x) for x in raw["home"]) if "home" in raw else None,
             fixed_joints={k: float(v) for k, v in raw.get("fixed_joints", {}).items()},
@@ -146,10 +183,15 @@ def _read_settings(path: Path) -> RobotSettings:
                 str(link): tuple(_point3(p) for p in pts) for link, pts in raw.get("control_points", {}).items()
             },
             description=str(raw.get("description", "")),
-            source=str(path),
+            source=source,
         )
-    except (TypeError, ValueError, IndexError) as exc:
-        raise RobotFileError(path, f"a value has the wrong type or shape: {exc}") from exc
+    except (TypeError, ValueError, IndexError, AttributeError) as exc:
+        raise RobotFileError(source, f"a value has the wrong type or shape: {exc}") from exc
+
+
+def robot_from_settings(settings: RobotSettings) -> Robot:
+    """The robot of ``settings``, cached like :func:`load_robot`'s."""
+    return _cached_robot(_hashable(settings))
 
 
 class Robot:

@@ -160,3 +160,20 @@ def test_settings_name_the_validator_so_older_verdicts_are_never_resumed_into():
     from planbench.validate import VALIDATOR
 
     assert json.loads(load_suite("smoke").settings_json())["validator"] == VALIDATOR
+
+
+def test_a_suite_finds_its_problem_files_next_to_itself(tmp_path, monkeypatch):
+    import planbench
+    from planbench.bench.suite import expand_problems, load_suite
+
+    lab = tmp_path / "lab"
+    (lab / "problems").mkdir(parents=True)
+    planbench.load_problems("mbm:box/0001")[0].save(lab / "problems" / "p.json")
+    (lab / "s.toml").write_text(
+        '[suite]\nname = "rel"\nproblems = ["problems/", "mbm:box/0002"]\n[[planners]]\nplanner = "straight-line"\n'
+    )
+    monkeypatch.chdir(tmp_path)  # planbench runs elsewhere than the suite lives
+    suite = load_suite(lab / "s.toml")
+    assert suite.problems == (str((lab / "problems").resolve()), "mbm:box/0002")
+    refs = expand_problems(suite.problems)
+    assert [r.id for r in refs] == ["mbm:box/0001", "mbm:box/0002"]

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ from conftest import box
 from planbench import PlanStatus, Problem, Scene, datasets
 from planbench.errors import PlanbenchError, ProblemFileError, UnknownNameError
 from planbench.problem import Pose
+from planbench.robot import load_robot
 
 # Goals whose joint 4 lies above example-robot-data's (Franka datasheet) limit of -0.0698 rad; the
 # data was generated with robowflex's wider limits. planbench keeps the datasheet limits.
@@ -164,3 +166,53 @@ def test_load_problem_keeps_only_the_last_problems_used():
         datasets.load_problem(ref)
     assert len(datasets._ONE) <= datasets.LOADED_PROBLEMS_KEPT
     assert refs[0] not in datasets._ONE and datasets.load_problem(refs[0]) is not first  # dropped, loaded anew
+
+
+def test_a_problem_on_a_robot_without_settings_file_saves_its_settings_and_loads_back(tmp_path):
+    from planbench.robot import Robot, RobotSettings
+
+    panda = load_robot("panda")
+    settings = RobotSettings(  # str paths are paths
+        name="my-panda",
+        urdf=str(panda.settings.urdf),
+        srdf=str(panda.settings.srdf),
+        ee_frame=panda.settings.ee_frame,
+        fixed_joints=dict(panda.settings.fixed_joints),
+    )
+    robot = Robot(settings)
+    problem = Problem.create(robot, Scene(), robot.home, goal_q=robot.home, id="custom")
+    problem.save(tmp_path / "p.json")
+    written = json.loads((tmp_path / "p.json").read_text())
+    assert written["robot"]["name"] == "my-panda" and Path(written["robot"]["urdf"]).is_absolute()
+    back = Problem.load(tmp_path / "p.json")
+    assert back.robot.name == "my-panda" and back.robot.nq == robot.nq == 7
+    np.testing.assert_allclose(back.start, problem.start)
+
+
+def test_a_problem_names_its_robot_file_relative_to_itself_and_moves_with_it(tmp_path):
+    import shutil
+
+    panda = load_robot("panda")
+    lab = tmp_path / "lab"
+    (lab / "robots").mkdir(parents=True)
+    toml = lab / "robots" / "arm.toml"
+    fixed = "fixed_joints = { panda_finger_joint1 = 0.0, panda_finger_joint2 = 0.0 }"
+    toml.write_text(
+        "\n".join(
+            [
+                'name = "arm"',
+                f'urdf = "{panda.settings.urdf}"',
+                f'srdf = "{panda.settings.srdf}"',
+                f'ee_frame = "{panda.settings.ee_frame}"',
+                fixed,
+            ]
+        )
+    )
+    robot = load_robot(toml)
+    Problem.create(robot, Scene(), robot.home, goal_q=robot.home, id="rel").save(lab / "p.json")
+    assert json.loads((lab / "p.json").read_text())["robot"] == "robots/arm.toml"
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(lab, moved)
+    shutil.rmtree(lab)
+    back = Problem.load(moved / "p.json")  # found next to the problem, not in the working directory
+    assert back.robot.name == "arm" and back.robot.settings.source == str((moved / "robots" / "arm.toml").resolve())

@@ -288,7 +288,9 @@ def load_suite(name_or_path: str | Path) -> Suite:
             content = path.read_text()
         except (OSError, UnicodeDecodeError) as exc:
             raise SuiteFileError(str(path), f"cannot read: {exc}") from exc
-        return parse_suite(content, source=str(path))
+        suite = parse_suite(content, source=str(path))
+        here = path.resolve().parent  # files a suite names are found next to it, wherever it runs
+        return suite.with_changes(problems=tuple(_next_to(sel, here) for sel in suite.problems))
     if path.suffix in (".toml", ".tml") or "/" in text:
         raise SuiteFileError(text, "no such file")
     raise UnknownNameError("suite (built-in name or .toml file)", text, list(builtins))
@@ -376,6 +378,15 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
         source=source,
         **kwargs,
     )
+
+
+def _next_to(selector: str, folder: Path) -> str:
+    """``selector`` as the path of a file or folder next to the suite file when there is one there
+    (a relative path in a suite is relative to the suite, not to where planbench runs)."""
+    candidate = Path(selector)
+    if ":" in selector or candidate.is_absolute() or not (folder / candidate).exists():
+        return selector
+    return str(folder / candidate)
 
 
 def _positive_number(v: Any) -> bool:
