@@ -155,7 +155,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     else:
         cells = [[row["problem"], *(_fmt(row[key], units[key][1]) for key in COMPACT)] for row in rows]
         heads = ["problem", *COMPACT.values()]
-        need = sum(max(len(h), *(len(c[i]) for c in cells)) + 3 for i, h in enumerate(heads))
+        need = sum(max([len(h), *(len(c[i]) for c in cells)]) + 3 for i, h in enumerate(heads))
         if need <= console.width:  # one row per problem
             table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
             for i, h in enumerate(heads):
