@@ -133,3 +133,41 @@ def test_the_terminal_table_is_whole_in_80_columns():
     wide = Console(width=80, record=True, color_system=None)
     wide.print(to_rich(summarize(rows), ("planner",), metrics=TERMINAL_METRICS, width=80, wide=True))
     assert "…" in wide.export_text()  # one table, cut to the terminal: what --wide asks for
+
+
+def test_plots_show_a_single_success_and_zero_rates_and_write_every_format(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from planbench.bench.plots import _ecdf_axes, write_plots
+    from planbench.bench.report import METRICS
+
+    rows = [
+        _run("one", True, planning_time=0.2, family="box", problem="a", seed=0, time_limit=1.0),
+        _run(
+            "one",
+            False,
+            "collision",
+            "panda_hand / obstacle:x",
+            planning_time=0.3,
+            family="cage",
+            problem="b",
+            seed=0,
+            time_limit=1.0,
+        ),
+        _run("none", False, "local_minimum", planning_time=0.1, family="box", problem="a", seed=0, time_limit=1.0),
+    ]
+    for r in rows:
+        r.update({m.name: 1.0 for m in METRICS if m.name not in r})
+    fig, ax = plt.subplots()
+    _ecdf_axes(ax, rows, METRICS[0], ["none", "one"])
+    (line,) = ax.get_lines()  # the planner with one success is drawn, from 0 to 1; the other has none
+    assert min(line.get_ydata()) == 0.0 and max(line.get_ydata()) == 1.0
+    plt.close(fig)
+    for fmt in ("png", "pdf", "svg"):
+        files = write_plots(rows, tmp_path / fmt, fmt, by="family")
+        assert files and all(f.suffix == f".{fmt}" and f.stat().st_size > 1000 for f in files)
+    svg = (tmp_path / "svg" / "success_by_family.svg").read_text()
+    assert "0/1" in svg and "1/1" in svg  # a 0 % bar reads as 0 of 1 run, not as missing data

@@ -94,7 +94,8 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--wide", action="store_true", help="one table with every column, whatever the terminal's width")
     p.add_argument("--markdown", metavar="FILE", help="write the table as Markdown")
     p.add_argument("--csv", metavar="FILE", help="write the table as CSV (SI units)")
-    p.add_argument("--plots", metavar="DIR", help="write PNG plots into DIR")
+    p.add_argument("--plots", metavar="DIR", help="write the plots into DIR (per family with --by family)")
+    p.add_argument("--format", choices=("png", "pdf", "svg"), default="png", help="file format of --plots")
     p.add_argument("--html", metavar="FILE", help="write one self-contained HTML report")
     p.set_defaults(func=cmd_report)
 
@@ -318,7 +319,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         console.print(f"CSV table written to {escape(args.csv)}")
     if args.plots:
         with _writing(args.plots):
-            files = write_plots(rows, args.plots)
+            files = write_plots(rows, args.plots, args.format, "family" if "family" in by else "planner")
         console.print(f"{len(files)} plots written to {escape(args.plots)}")
     if args.html:
         with _writing(args.html):

@@ -1,9 +1,12 @@
-"""PNG plots of a results database (matplotlib, headless Agg backend).
+"""Plots of a results database (matplotlib, headless Agg backend): PNG at 150 dpi, PDF or SVG.
 
-- ``ecdf_<metric>.png``: per planner, the empirical CDF of a metric over validated successes;
-- ``box_<metric>.png``: the same data as box plots;
-- ``success_by_family.png``: success rate per family and planner, with Wilson 95 % intervals;
-- ``time_to_success.png``: fraction of all runs solved (validated) within a planning-time budget,
+- ``ecdf_<metric>``: per planner, the empirical CDF of a metric over validated successes
+  (``Axes.ecdf``: every curve starts at 0, a planner with one success is a visible step); with
+  ``by="family"`` one panel per family;
+- ``box_<metric>``: the same data as box plots, grouped by family with ``by="family"``;
+- ``success_by_family``: success rate per family and planner, with Wilson 95 % intervals; every
+  bar labelled ``k/n``, so a 0 % bar reads as such and not as missing data;
+- ``time_to_success``: fraction of all runs solved (validated) within a planning-time budget,
   per planner, against the budget [s] on a log axis.
 
 Closed-loop runs get the closed-loop metrics' ECDFs and box plots and the plots of
@@ -55,67 +58,101 @@ def time_to_success(rows: Sequence[dict[str, Any]], planner: str, budgets: np.nd
     return np.searchsorted(times, budgets, side="right") / len(mine)
 
 
-def ecdf_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path) -> None:
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for planner in _planners(rows):
-        v = np.sort(_values(rows, planner, m))
-        if v.size:
-            ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=f"{planner} (n={v.size})")
-    ax.set_xlabel(m.label)
-    ax.set_ylabel("fraction of successful runs")
-    ax.set_title(f"{m.label}: ECDF over " + ("every run" if m.over_all_runs else "validated successes"))
-    ax.grid(alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize="small")
+FORMATS = ("png", "pdf", "svg")
+
+
+def _save(fig: Any, path: Path) -> None:
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    fig.savefig(path, dpi=150)
+    _pyplot().close(fig)
 
 
-def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path) -> None:
+def _ecdf_axes(ax: Any, rows: Sequence[dict[str, Any]], m: Metric, planners: Sequence[str]) -> None:
+    for i, planner in enumerate(planners):
+        v = _values(rows, planner, m)
+        if v.size:
+            ax.ecdf(v, label=f"{planner} (n={v.size})", color=f"C{i}")
+    if not ax.get_lines():
+        ax.text(0.5, 0.5, "no run to show", transform=ax.transAxes, ha="center", va="center", color="0.4")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+
+
+def ecdf_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "planner") -> None:
     plt = _pyplot()
     planners = _planners(rows)
-    data = [_values(rows, p, m) for p in planners]
-    fig, ax = plt.subplots(figsize=(max(4, 1.4 * len(planners) + 2), 4))
-    keep = [(p, d) for p, d in zip(planners, data, strict=True) if d.size]
+    over = "every run" if m.over_all_runs else "validated successes"
+    families = _families(rows) if by == "family" else ["all"]
+    cols = min(3, len(families))
+    nrows = math.ceil(len(families) / cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(5 * cols, 3.6 * nrows), squeeze=False)
+    for ax, family in zip(axes.flat, families, strict=False):
+        mine = rows if family == "all" else [r for r in rows if (r["family"] or "-") == family]
+        _ecdf_axes(ax, mine, m, planners)
+        ax.set_title(family if by == "family" else f"{m.label}: ECDF over {over}", fontsize="medium")
+        ax.set_xlabel(m.label)
+        ax.set_ylabel(f"fraction of {'runs' if m.over_all_runs else 'successes'}")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="x-small")
+    for ax in list(axes.flat)[len(families) :]:
+        ax.set_visible(False)
+    if by == "family":
+        fig.suptitle(f"{m.label}: ECDF over {over}, per family")
+    _save(fig, path)
+
+
+def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "planner") -> None:
+    plt = _pyplot()
+    planners = _planners(rows)
+    families = _families(rows) if by == "family" else ["all"]
+    groups = [(f, p) for f in families for p in planners]
+    data = [
+        _values(rows if f == "all" else [r for r in rows if (r["family"] or "-") == f], p, m) for f, p in groups
+    ]
+    fig, ax = plt.subplots(figsize=(max(4, 0.9 * len(groups) + 2), 4.2))
+    keep = [(g, d) for g, d in zip(groups, data, strict=True) if d.size]
     if keep:
-        ax.boxplot([d for _, d in keep], tick_labels=[f"{p}\n(n={d.size})" for p, d in keep])
+        labels = [f"{p}\n(n={d.size})" if f == "all" else f"{f}\n{p}\n(n={d.size})" for (f, p), d in keep]
+        parts = ax.boxplot([d for _, d in keep], tick_labels=labels, patch_artist=True)
+        for patch, ((_, p), _) in zip(parts["boxes"], keep, strict=True):
+            patch.set_facecolor(f"C{planners.index(p)}")
+            patch.set_alpha(0.5)
+        ax.tick_params(axis="x", labelsize="x-small", labelrotation=30 if by == "family" else 0)
+    over = "every run" if m.over_all_runs else "validated successes"
     ax.set_ylabel(m.label)
-    ax.set_title(f"{m.label} over " + ("every run" if m.over_all_runs else "validated successes"))
+    ax.set_title(f"{m.label} over {over}" + (", per family" if by == "family" else ""))
     ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(fig, path)
+
+
+def _families(rows: Sequence[dict[str, Any]]) -> list[str]:
+    return sorted({r["family"] or "-" for r in rows})
 
 
 def success_by_family(rows: Sequence[dict[str, Any]], path: Path) -> None:
     plt = _pyplot()
     planners = _planners(rows)
-    families = sorted({r["family"] or "-" for r in rows})
+    families = _families(rows)
     width = 0.8 / max(1, len(planners))
-    fig, ax = plt.subplots(figsize=(max(6, 1.2 * len(families) + 2), 4))
+    fig, ax = plt.subplots(figsize=(max(6, 1.4 * len(families) + 2), 4.2))
     x = np.arange(len(families))
     for i, planner in enumerate(planners):
-        rates, lo, hi = [], [], []
-        for fam in families:
+        for xi, fam in zip(x + (i - (len(planners) - 1) / 2) * width, families, strict=True):
             group = [r for r in rows if r["planner"] == planner and (r["family"] or "-") == fam]
-            k = sum(1 for r in group if r["success"])
-            n = len(group)
-            rate = k / n if n else math.nan
-            a, b = wilson_interval(k, n)
-            rates.append(rate)
-            lo.append(rate - a if n else 0)
-            hi.append(b - rate if n else 0)
-        ax.bar(x + (i - (len(planners) - 1) / 2) * width, rates, width, yerr=[lo, hi], capsize=2, label=planner)
+            n, k = len(group), sum(1 for r in group if r["success"])
+            if not n:
+                continue
+            rate = k / n
+            lo, hi = wilson_interval(k, n)
+            ax.bar(xi, max(rate, 0.006), width, color=f"C{i}", label=planner if fam == families[0] else None)
+            ax.errorbar(xi, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
+            ax.text(xi, hi + 0.015, f"{k}/{n}", ha="center", fontsize="xx-small")
     ax.set_xticks(x, families, rotation=30, ha="right")
-    ax.set_ylim(0, 1.05)
+    ax.set_ylim(0, 1.12)
     ax.set_ylabel("success rate (95% Wilson interval)")
-    ax.set_title("validated success rate per family")
+    ax.set_title("validated success rate per family (bars labelled solved/runs)")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def time_to_success_plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
@@ -134,13 +171,16 @@ def time_to_success_plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     ax.set_title("time to success")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(fig, path)
 
 
-def write_plots(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path]:
-    """Write every plot of the module docstring into ``folder``; returns the files written."""
+def write_plots(
+    rows: Sequence[dict[str, Any]], folder: str | Path, fmt: str = "png", by: str = "planner"
+) -> list[Path]:
+    """Write every plot of the module docstring into ``folder`` as ``fmt`` (png, pdf or svg),
+    per family where ``by="family"``; returns the files written."""
+    if fmt not in FORMATS:
+        raise ValueError(f"plot format must be one of {FORMATS}, got {fmt!r}")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     files = []
@@ -148,14 +188,14 @@ def write_plots(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path
     if metrics is DYNAMIC_METRICS:  # closed-loop runs: their own plots besides the metrics'
         from planbench.reactive.plots import write_dynamic_plots
 
-        files += write_dynamic_plots(rows, out)
+        files += write_dynamic_plots(rows, out, fmt)
     for m in metrics:
         for kind, fn in (("ecdf", ecdf_plot), ("box", box_plot)):
-            p = out / f"{kind}_{m.name}.png"
-            fn(rows, m, p)
+            p = out / f"{kind}_{m.name}.{fmt}"
+            fn(rows, m, p, by)
             files.append(p)
     for name, fn2 in (("success_by_family", success_by_family), ("time_to_success", time_to_success_plot)):
-        p = out / f"{name}.png"
+        p = out / f"{name}.{fmt}"
         fn2(rows, p)
         files.append(p)
     return files

@@ -21,6 +21,7 @@ from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
+from scipy.stats import binomtest
 
 __all__ = [
     "DYNAMIC_METRICS",
@@ -81,18 +82,16 @@ def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple
 FAILURE_STATUSES = ("error", "timeout", "crash")
 
 
-def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % for the default ``z``).
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
 
     Unlike the normal approximation it stays inside [0, 1] and is sensible at 0 or n successes.
+    (NaN, NaN) without runs.
     """
     if n <= 0:
         return (math.nan, math.nan)
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    ci = binomtest(successes, n).proportion_ci(confidence, method="wilson")
+    return (float(ci.low), float(ci.high))
 
 
 def _quartiles(values: Sequence[float]) -> tuple[float, float, float]:

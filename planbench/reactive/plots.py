@@ -1,12 +1,12 @@
-"""Plots of closed-loop runs (matplotlib, Agg), written by ``planbench report --plots`` and the HTML
+"""Plots of closed-loop runs (matplotlib, Agg; PNG, PDF or SVG), written by ``planbench report --plots`` and the HTML
 report for closed-loop suites:
 
-- ``tick_time_ecdf.png``: per controller, the ECDF of its compute time per tick it ran (every tick
+- ``tick_time_ecdf``: per controller, the ECDF of its compute time per tick it ran (every tick
   of every run pooled; ``Axes.ecdf``), on a log axis with the control period and 1 ms marked;
-- ``success_by_speed.png``, ``success_by_sensing.png``: success rate per obstacle speed and per
+- ``success_by_speed``, ``success_by_sensing``: success rate per obstacle speed and per
   sensing model (shipped scenario names: ``dynamic:<robot>_<behaviour>_<speed>_<sensing>/N``),
   with Wilson 95 % intervals and every bar labelled ``k/n`` (a 0 % bar is visible as such);
-- ``clearance_<scenario>.png``: the distance between the arm and the true obstacles over time in
+- ``clearance_<scenario>``: the distance between the arm and the true obstacles over time in
   one scenario, one line per controller (recomputed from each run's trajectory).
 """
 
@@ -140,17 +140,17 @@ def clearance_over_time(scenario: Any, runs: dict[str, tuple[np.ndarray, np.ndar
     plt.close(fig)
 
 
-def write_dynamic_plots(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path]:
+def write_dynamic_plots(rows: Sequence[dict[str, Any]], folder: str | Path, fmt: str = "png") -> list[Path]:
     """The plots of the module docstring for closed-loop ``rows`` (with arrays for the clearance
     plot: ``ResultsDB.rows(with_arrays=True)``); returns the files written."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     files = []
-    p = out / "tick_time_ecdf.png"
+    p = out / f"tick_time_ecdf.{fmt}"
     tick_time_ecdf(rows, p)
     files.append(p)
     for key in ("speed", "sensing"):
-        p = out / f"success_by_{key}.png"
+        p = out / f"success_by_{key}.{fmt}"
         if success_by(rows, key, p):
             files.append(p)
     with_paths = [r for r in rows if r.get("path") is not None and r.get("times") is not None]
@@ -165,7 +165,7 @@ def write_dynamic_plots(rows: Sequence[dict[str, Any]], folder: str | Path) -> l
         runs = {
             r["planner"]: (np.asarray(r["times"]), np.asarray(r["path"])) for r in with_paths if r["problem"] == first
         }
-        p = out / f"clearance_{re.sub(r'[^A-Za-z0-9_.-]+', '_', first)}.png"
+        p = out / f"clearance_{re.sub(r'[^A-Za-z0-9_.-]+', '_', first)}.{fmt}"
         clearance_over_time(scenario, runs, p)
         files.append(p)
     return files
