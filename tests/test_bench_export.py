@@ -150,3 +150,30 @@ def test_parquet_and_csv_with_paths_round_trip_the_paths(rows, tmp_path):
         runs = list(csv.DictReader(f))
     first = next(r for r in runs if r["path"])
     assert np.array(json.loads(first["path"])).shape[1] == 7
+
+
+def test_a_results_file_from_elsewhere_cannot_put_code_in_a_report(tmp_path):
+    from planbench.cli import main
+
+    evil = "<script>alert('x')</script>"
+    db_path = tmp_path / "evil.db"
+    with ResultsDB(db_path) as db:
+        db.put_suite("s" + evil, {"name": evil, "planners": []}, json.dumps({"note": evil}))
+        fields = dict(
+            suite="s" + evil,
+            problem="mbm:box/0001" + evil,
+            family=evil,
+            planner=evil,
+            seed=0,
+            planner_name=evil,
+            planner_settings={"x": evil},
+            time_limit=1.0,
+            settings={"time_limit": 1.0},
+        )
+        db.add_run(fields, failure_record("error", evil, traceback=evil))
+    out = tmp_path / "r.html"
+    assert main(["report", str(db_path), "--html", str(out)]) == 0
+    page = out.read_text()
+    assert "<script" not in page.lower()
+    assert "&lt;script&gt;" in page  # the text is there, as text: in the tables, the run list, the settings
+    assert page.count("&lt;script&gt;") >= 5

@@ -323,7 +323,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         console.print(f"{len(files)} plots written to {escape(args.plots)}")
     if args.html:
         with _writing(args.html):
-            write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}")
+            with ResultsDB(args.db, read_only=True) as db:
+                stored = {name: db.suite_settings(name) for name in {r["suite"] for r in rows}}
+            suites = {k: v for k, v in stored.items() if v is not None}
+            write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}", suites=suites)
         console.print(f"HTML report written to {escape(args.html)}")
     return 0
 

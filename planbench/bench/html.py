@@ -1,11 +1,17 @@
-"""One self-contained HTML report: summary tables (per planner, per planner and family), the list of
-failed runs, and every plot embedded as base64 PNG (no external files, no scripts)."""
+"""One self-contained HTML report: summary tables (per planner, per planner and family, with failure
+reasons), the suites' settings, a table of every run, the list of runs that raised, timed out or
+crashed, and every plot embedded as base64 PNG (no external files, no scripts).
+
+A results file may come from another lab: everything read from it (names, messages, settings) is
+escaped before it is written into the page, so nothing in it runs as code.
+"""
 
 from __future__ import annotations
 
 import base64
 import datetime
 import html
+import json
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,10 +42,60 @@ def _table(summary: Sequence[dict[str, Any]], by: Sequence[str], metrics: Sequen
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
+def _settings(suites: dict[str, Any]) -> str:
+    """Each suite's stored definition and result-changing settings, as escaped JSON."""
+    parts = []
+    for name, (definition, settings) in sorted(suites.items()):
+        text = json.dumps({"settings": settings, "definition": definition}, indent=1, sort_keys=True, default=str)
+        parts.append(f"<details><summary>suite {html.escape(name)}</summary><pre>{html.escape(text)}</pre></details>")
+    return "".join(parts)
+
+
+RUN_COLUMNS = (
+    ("planner", "planner", 1.0),
+    ("problem", "problem", 1.0),
+    ("seed", "seed", 1.0),
+    ("success", "success", 1.0),
+    ("failure", "failure", 1.0),
+    ("planning_time", "time [ms]", 1e3),
+    ("min_clearance", "clearance [mm]", 1e3),
+    ("joint_path_length", "joint length [rad]", 1.0),
+)
+
+
+def _runs(rows: Sequence[dict[str, Any]], limit: int = 5000) -> str:
+    """Every run (at most ``limit``) as one table row."""
+    head = "".join(f"<th>{html.escape(label)}</th>" for _, label, _ in RUN_COLUMNS)
+    body = []
+    for r in rows[:limit]:
+        cells = []
+        for name, _, scale in RUN_COLUMNS:
+            v = r.get(name)
+            if isinstance(v, float):
+                text = "-" if v != v else f"{v * scale:.3g}"  # NaN: no value
+            else:
+                text = "" if v is None else str(v)
+            cells.append(
+                f'<td class="key">{html.escape(text)}</td>'
+                if name in ("planner", "problem", "failure")
+                else f"<td>{html.escape(text)}</td>"
+            )
+        body.append(f"<tr>{''.join(cells)}</tr>")
+    more = f"<p>... and {len(rows) - limit} more runs (planbench export --format csv has them all).</p>"
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>" + (
+        more if len(rows) > limit else ""
+    )
+
+
 def render_html(
-    rows: Sequence[dict[str, Any]], title: str = "planbench report", plots_dir: str | Path | None = None
+    rows: Sequence[dict[str, Any]],
+    title: str = "planbench report",
+    plots_dir: str | Path | None = None,
+    suite_settings: dict[str, Any] | None = None,
 ) -> str:
-    """The report as an HTML string; plots are made in ``plots_dir`` (a temporary folder if None)."""
+    """The report as an HTML string; plots are made in ``plots_dir`` (a temporary folder if None).
+    ``suite_settings``: name to (definition, settings) as stored in the results file, shown as
+    they are."""
     parts = [
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
         f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>",
@@ -68,6 +124,9 @@ def render_html(
         for f in order:
             data = base64.b64encode(f.read_bytes()).decode("ascii")
             parts.append(f'<img alt="{html.escape(f.stem)}" src="data:image/png;base64,{data}">')
+    if suite_settings:
+        parts.append("<h2>Suites and their settings</h2>" + _settings(suite_settings))
+    parts.append(f"<h2>Every run ({len(rows)})</h2><details><summary>show</summary>{_runs(rows)}</details>")
     bad = [r for r in rows if r["status"] in FAILURE_STATUSES]
     if bad:
         parts.append(f"<h2>Runs that raised, timed out or crashed ({len(bad)})</h2>")
@@ -82,8 +141,13 @@ def render_html(
     return "\n".join(parts)
 
 
-def write_html(rows: Sequence[dict[str, Any]], path: str | Path, title: str = "planbench report") -> Path:
+def write_html(
+    rows: Sequence[dict[str, Any]],
+    path: str | Path,
+    title: str = "planbench report",
+    suites: dict[str, Any] | None = None,
+) -> Path:
     """Write :func:`render_html` to ``path``."""
     out = Path(path)
-    out.write_text(render_html(rows, title))
+    out.write_text(render_html(rows, title, suite_settings=suites))
     return out

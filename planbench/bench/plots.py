@@ -106,9 +106,7 @@ def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "p
     planners = _planners(rows)
     families = _families(rows) if by == "family" else ["all"]
     groups = [(f, p) for f in families for p in planners]
-    data = [
-        _values(rows if f == "all" else [r for r in rows if (r["family"] or "-") == f], p, m) for f, p in groups
-    ]
+    data = [_values(rows if f == "all" else [r for r in rows if (r["family"] or "-") == f], p, m) for f, p in groups]
     fig, ax = plt.subplots(figsize=(max(4, 0.9 * len(groups) + 2), 4.2))
     keep = [(g, d) for g, d in zip(groups, data, strict=True) if d.size]
     if keep:
