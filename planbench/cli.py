@@ -189,6 +189,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0 if any(r["success"] for r in rows) else 1
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    from planbench.check import check_in_subprocess
+
+    check_seconds(args.timeout, "--timeout")
+    kind = "controller" if args.controller else "planner"
+    outcome = check_in_subprocess(args.name, kind, args.timeout)
+    if outcome.unknown:
+        raise PlanbenchError(outcome.failure)
+    if outcome.conformant:
+        print(f"{kind} {args.name}: conformant")
+        return 0
+    print(f"{kind} {args.name}: NOT conformant")
+    for line in [outcome.failure] if outcome.failure else outcome.findings:
+        print(f"  - {line}")
+    return 1
+
+
 def _array(a: Any) -> Any:
     return None if a is None else np.asarray(a, dtype=float).tolist()
 
@@ -268,6 +285,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="FILE", help="also write each problem's metrics, path, times (JSON, NaN: null)")
     p.add_argument("--plot", metavar="PNG", help="write the planner's figure of the result (one problem only)")
     p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser(
+        "check",
+        help="run the conformance checker on a planner or controller, in a process of its own",
+        description="Check a planner (or, with --controller, a controller) against planbench's interface and "
+        "behaviour rules, in a separate process: a plugin that crashes or hangs fails its check, nothing else. "
+        "Exit code 0: conformant; 1: not (what was found is listed); 2: unknown name.",
+    )
+    p.add_argument("name", help="a registered name, a family:variant preset, or module:Attr")
+    p.add_argument("--controller", action="store_true", help="NAME is a closed-loop controller")
+    p.add_argument("--timeout", type=float, default=300.0, help="[s] for the whole check")
+    p.set_defaults(func=cmd_check)
 
     for module in COMMAND_MODULES:
         try:  # imported here: a command module whose optional dependency is missing is left out

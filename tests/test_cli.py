@@ -69,3 +69,20 @@ def test_plan_output_is_whole_in_narrow_terminals(monkeypatch, capsys, columns):
     text = capsys.readouterr().out
     assert "…" not in text and max(len(line) for line in text.splitlines()) <= columns
     assert "mbm:bookshelf_small/0001" in text and "mbm:bookshelf_small/0002" in text
+
+
+def test_check_runs_the_conformance_checker_in_its_own_process(monkeypatch, capsys):
+    import os
+    from pathlib import Path
+
+    tests = str(Path(__file__).parent)
+    monkeypatch.setenv("PYTHONPATH", tests + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    monkeypatch.syspath_prepend(tests)
+    assert main(["check", "straight-line"]) == 0
+    assert "planner straight-line: conformant" in capsys.readouterr().out
+    assert main(["check", "bench_planners:SuicidePlanner"]) == 1  # it kills its process: not this one
+    assert "crashed the check's process (SIGKILL)" in capsys.readouterr().out
+    assert main(["check", "bench_planners:RaisingPlanner"]) == 1
+    assert "bench-raising planner fails on purpose" in capsys.readouterr().out
+    assert main(["check", "no-such-planner"]) == 2
+    assert "unknown planner 'no-such-planner'" in capsys.readouterr().err
