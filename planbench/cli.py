@@ -95,6 +95,7 @@ METRICS = (  # (Evaluation field, label, display unit)
     ("min_clearance", "min clearance [mm]", "mm"),
     ("mean_clearance", "mean clearance [mm]", "mm"),
     ("duration", "duration at velocity limits [s]", ""),
+    ("duration_limited", "duration at velocity and acceleration limits [s]", ""),
     ("smoothness", "turning angle [rad]", ""),
     ("n_waypoints", "waypoints", ""),
     ("final_position_error", "final position error [mm]", "mm"),

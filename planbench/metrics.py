@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -9,6 +11,7 @@ __all__ = [
     "joint_path_length",
     "polyline_length",
     "execution_duration",
+    "limited_duration",
     "turning_angle",
 ]
 
@@ -51,6 +54,44 @@ def execution_duration(path: np.ndarray, velocity_limit: np.ndarray) -> float:
     if len(path) < 2:
         return 0.0
     return float((np.abs(np.diff(path, axis=0)) / np.asarray(velocity_limit)).max(axis=1).sum())
+
+
+TIMING_SPACING = 0.02
+"""[rad] Joint-space spacing at which a path is resampled before :func:`limited_duration` fits its
+spline: dense enough that the spline stays within millimetres of the straight segments."""
+
+
+def limited_duration(path: np.ndarray, velocity_limit: np.ndarray, acceleration_limit: np.ndarray) -> float:
+    """Time [s] to follow the path under the joints' velocity and acceleration limits: toppra's
+    time-optimal parameterisation (Pham and Pham, "A new approach to time-optimal path
+    parameterization based on reachability analysis", IEEE T-RO 34(3), 2018) of a cubic spline
+    through the path resampled every :data:`TIMING_SPACING` rad of joint-space length. NaN when an
+    acceleration limit is unknown or toppra finds no parameterisation; 0 for a path that does not
+    move. :func:`execution_duration` is the same figure with infinite acceleration."""
+    path = np.asarray(path, dtype=float)
+    amax = np.asarray(acceleration_limit, dtype=float)
+    if not np.all(np.isfinite(amax)):
+        return math.nan
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))]) if len(path) else []
+    if len(path) < 2 or s[-1] <= 1e-12:
+        return 0.0
+    import toppra
+    import toppra.algorithm
+    import toppra.constraint
+
+    keep = np.unique(np.concatenate([[0], np.flatnonzero(np.diff(np.floor(s / TIMING_SPACING)) > 0) + 1, [len(s) - 1]]))
+    keep = keep[np.concatenate([[True], np.diff(s[keep]) > 1e-9])]  # strictly increasing arc length
+    if len(keep) < 2:
+        return 0.0
+    spline = toppra.SplineInterpolator(s[keep], path[keep])
+    vmax = np.asarray(velocity_limit, dtype=float)
+    constraints = [
+        toppra.constraint.JointVelocityConstraint(np.stack([-vmax, vmax], axis=1)),
+        toppra.constraint.JointAccelerationConstraint(np.stack([-amax, amax], axis=1)),
+    ]
+    instance = toppra.algorithm.TOPPRA(constraints, spline, parametrizer="ParametrizeConstAccel")
+    trajectory = instance.compute_trajectory()
+    return math.nan if trajectory is None else float(trajectory.duration)
 
 
 def turning_angle(path: np.ndarray, min_segment: float = 1e-9) -> float:

@@ -301,7 +301,7 @@ _FIELD_TYPES: dict[str, tuple[tuple[type, ...], str]] = {
     "metadata": ((Mapping,), _OBJECT),
 }
 _TOLERANCES = ("position", "orientation", "joint")
-_NAME_TO_NUMBER = ("fixed_joints", "velocity_limits")
+_NAME_TO_NUMBER = ("fixed_joints", "velocity_limits", "acceleration_limits")
 
 
 def _short(value: Any) -> str:

@@ -16,6 +16,8 @@ Settings file keys (units: m, rad, s)::
     [fixed_joints]      name = value     # optional: joints held fixed [rad or m]
     [position_limits]   name = [lo, hi]  # optional: override the URDF's [rad or m]
     [velocity_limits]   name = value     # optional: override the URDF's [rad/s or m/s]
+    [acceleration_limits] name = value   # optional: [rad/s^2 or m/s^2] (URDFs have none); without
+                                         # them the time-parameterised duration is not reported
     [control_points]    link = [[x, y, z], ...]  # optional: where field planners sample their
                                          # repulsion on that link, in the link frame [m]; replaces
                                          # the automatic placement for that link ([] = none)
@@ -92,6 +94,8 @@ class RobotSettings:
     fixed_joints: Mapping[str, float] = field(default_factory=dict)
     position_limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     velocity_limits: Mapping[str, float] = field(default_factory=dict)
+    acceleration_limits: Mapping[str, float] = field(default_factory=dict)
+    """Per planned joint [rad/s^2 or m/s^2]; a joint without one has no acceleration limit known."""
     ignore_collision_pairs: tuple[tuple[str, str], ...] = ()
     control_points: Mapping[str, tuple[tuple[float, float, float], ...]] = field(default_factory=dict)
     """Per link, points [m] in the link frame where field planners sample their repulsion,
@@ -112,7 +116,7 @@ class RobotSettings:
             d["srdf"] = str(Path(self.srdf).resolve())
         if self.home is not None:
             d["home"] = list(self.home)
-        for key in ("fixed_joints", "velocity_limits"):
+        for key in ("fixed_joints", "velocity_limits", "acceleration_limits"):
             if getattr(self, key):
                 d[key] = dict(getattr(self, key))
         if self.position_limits:
@@ -178,6 +182,7 @@ def settings_from_dict(raw: Mapping[str, Any], source: str, base: Path | None = 
             fixed_joints={k: float(v) for k, v in raw.get("fixed_joints", {}).items()},
             position_limits={k: (float(v[0]), float(v[1])) for k, v in raw.get("position_limits", {}).items()},
             velocity_limits={k: float(v) for k, v in raw.get("velocity_limits", {}).items()},
+            acceleration_limits={k: float(v) for k, v in raw.get("acceleration_limits", {}).items()},
             ignore_collision_pairs=tuple((str(a), str(b)) for a, b in raw.get("ignore_collision_pairs", [])),
             control_points={
                 str(link): tuple(_point3(p) for p in pts) for link, pts in raw.get("control_points", {}).items()
@@ -271,6 +276,13 @@ class Robot:
         self.lower = _frozen(lower)
         self.upper = _frozen(upper)
         self.velocity_limit = _frozen(vmax)
+        amax = np.full(model.nv, np.nan)
+        for jname, a in settings.acceleration_limits.items():
+            amax[self._index(jname, src)] = a
+        if np.any(amax <= 0):
+            raise RobotFileError(src, f"acceleration limits must be > 0 [rad/s^2]: {amax}")
+        self.acceleration_limit = _frozen(amax)
+        """[rad/s^2 or m/s^2] per planned joint; NaN where the settings give none."""
 
         if not model.existFrame(settings.ee_frame):
             frames = [f.name for f in model.frames]
@@ -390,7 +402,7 @@ def load_robot(name_or_path: str | Path, **overrides: Any) -> Robot:
             overrides["urdf"] = _resolve(overrides["urdf"], None)
         if overrides.get("srdf"):
             overrides["srdf"] = _resolve(overrides["srdf"], None)
-        for key in ("fixed_joints", "position_limits", "velocity_limits"):
+        for key in ("fixed_joints", "position_limits", "velocity_limits", "acceleration_limits"):
             if key in overrides:
                 overrides[key] = {**getattr(settings, key), **overrides[key]}
         try:
@@ -407,6 +419,7 @@ def _hashable(s: RobotSettings) -> RobotSettings:
         fixed_joints=_FrozenDict(s.fixed_joints),
         position_limits=_FrozenDict({k: tuple(v) for k, v in s.position_limits.items()}),
         velocity_limits=_FrozenDict(s.velocity_limits),
+        acceleration_limits=_FrozenDict(s.acceleration_limits),
         control_points=_FrozenDict(
             {k: tuple(tuple(float(x) for x in p) for p in v) for k, v in s.control_points.items()}
         ),

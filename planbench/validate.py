@@ -101,6 +101,7 @@ class Evaluation:
     min_clearance_bound: float = math.nan  # certified lower bound of it [m] (valid paths)
     mean_clearance: float = math.nan  # over ValidationSettings.clearance_samples configurations [m]
     duration: float = math.nan  # at the velocity limits, see metrics.execution_duration
+    duration_limited: float = math.nan  # under velocity and acceleration limits (toppra), see metrics.limited_duration
     trajectory_duration: float = math.nan  # the planner's own time stamps, when given
     smoothness: float = math.nan  # total turning angle, see metrics.turning_angle
     final_position_error: float = math.nan
@@ -236,6 +237,7 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         min_clearance_bound=float(verdict.clearance_lower),
         mean_clearance=_mean_clearance(checker, path, settings.clearance_samples) if verdict.free else math.nan,
         duration=metrics.execution_duration(path, robot.velocity_limit),
+        duration_limited=metrics.limited_duration(path, robot.velocity_limit, robot.acceleration_limit),
         trajectory_duration=trajectory_duration,
         smoothness=metrics.turning_angle(path),
         final_position_error=pos_err,

@@ -56,6 +56,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("ee_path_length", "EE path length [m]", 1.0, "EE len [m]"),
     Metric("min_clearance", "min clearance [mm]", 1e3, "clearance [mm]", lower_is_better=False),
     Metric("duration", "duration at velocity limits [s]", 1.0, "duration [s]"),
+    Metric("duration_limited", "duration at velocity and acceleration limits [s]", 1.0, "timed [s]"),
 )
 TERMINAL_METRICS = tuple(m for m in METRICS if m.name != "setup_time")
 DYNAMIC_METRICS: tuple[Metric, ...] = (
