@@ -131,6 +131,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
     problems = planbench.load_problems(args.problem)
     planner = setup.build()
+    if args.replay and len(problems) != 1:
+        raise PlanbenchError("--replay needs one problem")
     if args.plot and (len(problems) != 1 or not hasattr(planner, "plot_result")):
         why = "one problem" if len(problems) != 1 else f"a planner with a figure; {args.planner!r} has none"
         raise PlanbenchError(f"--plot needs {why}")
@@ -176,6 +178,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.plot:
         planner.plot_result(problems[0], result, args.plot)
         console.print(f"figure written to {args.plot}")
+    if args.replay:
+        if result.path is None:
+            console.print("no path to replay")
+        else:
+            from planbench.occupancy import scene_grid
+            from planbench.replay import write_replay
+
+            name = f"{args.planner} on {problems[0].id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
+            grid = scene_grid(problems[0].scene, 0.02, robot=problems[0].robot)
+            write_replay(args.replay, problems[0], result.path, result.times, grid=grid, title=name)
+            console.print(f"replay written to {escape(args.replay)} (open it in a browser)")
     if args.json:
         out = [
             {**row, "message": message, "path": _array(path), "times": _array(times)}
@@ -188,6 +201,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise PlanbenchError(f"cannot write {args.json}: {exc.strerror}") from exc
         console.print(f"metrics and paths written to {escape(args.json)}")
     return 0 if any(r["success"] for r in rows) else 1
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from planbench.replay import replay_run
+
+    out = replay_run(args.db, args.run, args.out)
+    print(f"replay written to {out} (open it in a browser)")
+    return 0
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -285,7 +306,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", metavar="FILE", help="also write each problem's metrics, path, times (JSON, NaN: null)")
     p.add_argument("--plot", metavar="PNG", help="write the planner's figure of the result (one problem only)")
+    p.add_argument("--replay", metavar="HTML", help="write a 3D replay of the path, one HTML file (one problem only)")
     p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser(
+        "replay",
+        help="write a 3D replay of one run of a results file: one HTML file, offline, no server",
+    )
+    p.add_argument("db", help="results database written by `planbench bench`")
+    p.add_argument("--run", type=int, required=True, help="the run's id (the id column of export --format csv)")
+    p.add_argument("--out", default="replay.html", help="the HTML file to write")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser(
         "check",
