@@ -23,7 +23,7 @@ import pinocchio as pin
 
 from planbench.errors import PlanbenchError
 
-__all__ = ["MAX_FRAMES", "replay_html", "write_replay"]
+__all__ = ["MAX_FRAMES", "replay_html", "replay_row", "replay_run", "write_replay"]
 
 MAX_FRAMES = 600
 FPS = 30
@@ -126,20 +126,23 @@ def write_replay(out: str | Path, problem: Any, path: np.ndarray, times: np.ndar
 
 
 def replay_run(db_path: str | Path, run_id: int, out: str | Path) -> Path:
-    """The replay of run ``run_id`` of a results file (a planner's path on its problem, or a
-    closed-loop run among its scenario's moving obstacles)."""
+    """The replay of run ``run_id`` of a results file (:func:`replay_row`)."""
     from planbench.bench.db import ResultsDB
 
     with ResultsDB(db_path, read_only=True) as db:
         rows = [r for r in db.rows(with_arrays=True) if r["id"] == run_id]
     if not rows:
         raise PlanbenchError(f"{db_path} holds no run with id {run_id} (planbench export --format csv lists them)")
-    row = rows[0]
-    if row["path"] is None:
-        raise PlanbenchError(f"run {run_id} ({row['planner']} on {row['problem']}) has no path to replay")
-    title = f"{row['planner']} on {row['problem']}, seed {row['seed']}: " + (
-        "success" if row["success"] else row["failure"]
-    )
+    return replay_row(rows[0], out)
+
+
+def replay_row(row: dict[str, Any], out: str | Path) -> Path:
+    """The replay of a results-file row read with its arrays: a planner's path on its problem, or
+    a closed-loop run among its scenario's moving obstacles."""
+    if row.get("path") is None:
+        raise PlanbenchError(f"run {row.get('id')} ({row['planner']} on {row['problem']}) has no path to replay")
+    verdict = "success" if row["success"] else str(row["failure"])
+    title = f"{row['planner']} on {row['problem']}, seed {row['seed']}: {verdict}"
     if row.get("deadline_misses") is not None:  # a closed-loop run: its scenario, moving obstacles and all
         from planbench.reactive.sets import load_scenario
 

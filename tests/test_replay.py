@@ -72,3 +72,19 @@ def test_the_replay_loads_in_a_headless_browser_without_errors_and_draws_somethi
 
     pixels = matplotlib.image.imread(shot).reshape(-1, 3)
     assert len(np.unique(pixels, axis=0)) > 100  # the scene is drawn: not a blank or single-colour page
+
+
+def test_the_html_report_links_each_run_to_its_replay(tmp_path):
+    from planbench.bench.benchmark import run_benchmark
+    from planbench.bench.suite import parse_suite
+
+    suite = parse_suite(
+        '[suite]\nname = "r"\nproblems = ["mbm:table_pick/0001", "mbm:box/0001"]\ntime_limit = 2.0\n'
+        '[[planners]]\nplanner = "straight-line"\n',
+        "r.toml",
+    )
+    run_benchmark(suite, tmp_path / "r.db", jobs=1)
+    report = tmp_path / "report.html"
+    assert main(["report", str(tmp_path / "r.db"), "--html", str(report), "--replays"]) == 0
+    links = re.findall(r'href="(report_replays/run-\d+\.html)"', report.read_text())
+    assert links and all((tmp_path / link).stat().st_size > 100_000 for link in links)

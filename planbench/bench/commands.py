@@ -97,6 +97,9 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--plots", metavar="DIR", help="write the plots into DIR (per family with --by family)")
     p.add_argument("--format", choices=("png", "pdf", "svg"), default="png", help="file format of --plots")
     p.add_argument("--html", metavar="FILE", help="write one self-contained HTML report")
+    p.add_argument(
+        "--replays", action="store_true", help="with --html: a 3D replay of every run, linked from the report"
+    )
     p.set_defaults(func=cmd_report)
 
     p = subparsers.add_parser(
@@ -282,8 +285,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         _output(out, args.db)
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
-        if (args.plots or args.html) and rows and metrics_for(rows) is DYNAMIC_METRICS:
-            rows = db.rows(args.suite, with_arrays=True)  # trajectories for the clearance plot
+        if rows and ((args.plots or args.html) and metrics_for(rows) is DYNAMIC_METRICS or args.replays):
+            rows = db.rows(args.suite, with_arrays=True)  # trajectories: the clearance plot, the replays
     if args.problems:
         wanted = {ref.id for ref in expand_problems(args.problems)}
         rows = [row for row in rows if row["problem"] in wanted]
@@ -326,7 +329,8 @@ def cmd_report(args: argparse.Namespace) -> int:
             with ResultsDB(args.db, read_only=True) as db:
                 stored = {name: db.suite_settings(name) for name in {r["suite"] for r in rows}}
             suites = {k: v for k, v in stored.items() if v is not None}
-            write_html(rows, args.html, title=f"planbench report: {Path(args.db).name}", suites=suites)
+            title = f"planbench report: {Path(args.db).name}"
+            write_html(rows, args.html, title=title, suites=suites, replays=args.replays)
         console.print(f"HTML report written to {escape(args.html)}")
     return 0
 

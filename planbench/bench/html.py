@@ -63,9 +63,11 @@ RUN_COLUMNS = (
 )
 
 
-def _runs(rows: Sequence[dict[str, Any]], limit: int = 5000) -> str:
-    """Every run (at most ``limit``) as one table row."""
+def _runs(rows: Sequence[dict[str, Any]], limit: int = 5000, replays: dict[int, str] | None = None) -> str:
+    """Every run (at most ``limit``) as one table row, linked to its replay where there is one."""
     head = "".join(f"<th>{html.escape(label)}</th>" for _, label, _ in RUN_COLUMNS)
+    if replays:
+        head += "<th>replay</th>"
     body = []
     for r in rows[:limit]:
         cells = []
@@ -80,6 +82,9 @@ def _runs(rows: Sequence[dict[str, Any]], limit: int = 5000) -> str:
                 if name in ("planner", "problem", "failure")
                 else f"<td>{html.escape(text)}</td>"
             )
+        if replays:
+            link = replays.get(r.get("id", -1))
+            cells.append(f'<td><a href="{html.escape(link)}">3D</a></td>' if link else "<td></td>")
         body.append(f"<tr>{''.join(cells)}</tr>")
     more = f"<p>... and {len(rows) - limit} more runs (planbench export --format csv has them all).</p>"
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>" + (
@@ -92,6 +97,7 @@ def render_html(
     title: str = "planbench report",
     plots_dir: str | Path | None = None,
     suite_settings: dict[str, Any] | None = None,
+    replays: dict[int, str] | None = None,
 ) -> str:
     """The report as an HTML string; plots are made in ``plots_dir`` (a temporary folder if None).
     ``suite_settings``: name to (definition, settings) as stored in the results file, shown as
@@ -126,7 +132,10 @@ def render_html(
             parts.append(f'<img alt="{html.escape(f.stem)}" src="data:image/png;base64,{data}">')
     if suite_settings:
         parts.append("<h2>Suites and their settings</h2>" + _settings(suite_settings))
-    parts.append(f"<h2>Every run ({len(rows)})</h2><details><summary>show</summary>{_runs(rows)}</details>")
+    parts.append(
+        f"<h2>Every run ({len(rows)})</h2><details{' open' if replays else ''}><summary>show</summary>"
+        f"{_runs(rows, replays=replays)}</details>"
+    )
     bad = [r for r in rows if r["status"] in FAILURE_STATUSES]
     if bad:
         parts.append(f"<h2>Runs that raised, timed out or crashed ({len(bad)})</h2>")
@@ -146,8 +155,20 @@ def write_html(
     path: str | Path,
     title: str = "planbench report",
     suites: dict[str, Any] | None = None,
+    replays: bool = False,
 ) -> Path:
-    """Write :func:`render_html` to ``path``."""
+    """Write :func:`render_html` to ``path``; ``replays``: also a replay page per run with a path,
+    in the folder ``<path stem>_replays/`` beside it, linked from the table of runs."""
     out = Path(path)
-    out.write_text(render_html(rows, title, suite_settings=suites))
+    links: dict[int, str] = {}
+    if replays:
+        from planbench.replay import replay_row
+
+        folder = out.parent / f"{out.stem}_replays"
+        folder.mkdir(parents=True, exist_ok=True)
+        for r in rows:
+            if r.get("path") is not None and r.get("id") is not None:
+                replay_row(r, folder / f"run-{int(r['id'])}.html")
+                links[int(r["id"])] = f"{folder.name}/run-{int(r['id'])}.html"
+    out.write_text(render_html(rows, title, suite_settings=suites, replays=links))
     return out
