@@ -127,6 +127,19 @@ def _families(rows: Sequence[dict[str, Any]]) -> list[str]:
     return sorted({r["family"] or "-" for r in rows})
 
 
+def rate_bar(ax: Any, x: float, runs: Sequence[dict[str, Any]], width: float, color: int, label: str | None) -> None:
+    """One bar of the success rate of ``runs`` at ``x``, its Wilson 95 % interval and a ``k/n``
+    label (a 0 % bar keeps a sliver of height and its label: it reads as 0 of n, not as no data)."""
+    n, k = len(runs), sum(1 for r in runs if r["success"])
+    if not n:
+        return
+    rate = k / n
+    lo, hi = wilson_interval(k, n)
+    ax.bar(x, max(rate, 0.006), width, color=f"C{color}", label=label)
+    ax.errorbar(x, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
+    ax.text(x, hi + 0.015, f"{k}/{n}", ha="center", fontsize="xx-small")
+
+
 def success_by_family(rows: Sequence[dict[str, Any]], path: Path) -> None:
     plt = _pyplot()
     planners = _planners(rows)
@@ -137,14 +150,7 @@ def success_by_family(rows: Sequence[dict[str, Any]], path: Path) -> None:
     for i, planner in enumerate(planners):
         for xi, fam in zip(x + (i - (len(planners) - 1) / 2) * width, families, strict=True):
             group = [r for r in rows if r["planner"] == planner and (r["family"] or "-") == fam]
-            n, k = len(group), sum(1 for r in group if r["success"])
-            if not n:
-                continue
-            rate = k / n
-            lo, hi = wilson_interval(k, n)
-            ax.bar(xi, max(rate, 0.006), width, color=f"C{i}", label=planner if fam == families[0] else None)
-            ax.errorbar(xi, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
-            ax.text(xi, hi + 0.015, f"{k}/{n}", ha="center", fontsize="xx-small")
+            rate_bar(ax, xi, group, width, i, planner if fam == families[0] else None)
     ax.set_xticks(x, families, rotation=30, ha="right")
     ax.set_ylim(0, 1.12)
     ax.set_ylabel("success rate (95% Wilson interval)")

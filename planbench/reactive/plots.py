@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.bench.report import wilson_interval
+from planbench.bench.plots import rate_bar
 
 __all__ = ["clearance_over_time", "scenario_keys", "success_by", "tick_time_ecdf", "write_dynamic_plots"]
 
@@ -98,14 +98,7 @@ def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
         pos = x + (i - (len(controllers) - 1) / 2) * width
         for xi, g in zip(pos, groups, strict=True):
             members = [r for k, r in keyed if k == g and r["planner"] == c]
-            n, s = len(members), sum(1 for r in members if r["success"])
-            if not n:
-                continue
-            rate = s / n
-            lo, hi = wilson_interval(s, n)
-            ax.bar(xi, max(rate, 0.004), width, color=f"C{i}", label=c if g == groups[0] else None)
-            ax.errorbar(xi, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
-            ax.text(xi, hi + 0.02, f"{s}/{n}", ha="center", fontsize="x-small")
+            rate_bar(ax, xi, members, width, i, c if g == groups[0] else None)
     ax.set_xticks(x, groups)
     ax.set_ylim(0, 1.12)
     ax.set_xlabel({"speed": "obstacle speed", "sensing": "sensing model"}.get(key, key))
