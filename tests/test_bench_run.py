@@ -247,3 +247,20 @@ def test_planner_and_validation_check_counts_have_their_own_columns_also_in_olde
     with ResultsDB(tmp_path / "r.db") as db:
         (old,) = db.rows()
     assert (old["collision_checks"], old["validation_checks"]) == (row["collision_checks"], row["validation_checks"])
+
+
+@pytest.mark.slow
+def test_no_setup_time_holds_numba_compilation(tmp_path, monkeypatch):
+    """With an empty numba cache, the first run of a worker would compile the loop's step and the
+    field sampler in its timed setup (several seconds); the worker compiles them untimed first."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-cache"))  # cold: nothing compiled yet
+    s = parse_suite(
+        suite('[[planners]]\nplanner = "matrix-field"\n', problems=("mbm:box/0001", "mbm:box/0002"), time_limit=5.0),
+        "cold.toml",
+    )
+    run_benchmark(s, tmp_path / "cold.db", jobs=1)
+    with ResultsDB(tmp_path / "cold.db") as db:
+        rows = db.rows()
+    assert len(rows) == 2 and all(r["status"] == "success" for r in rows)
+    assert (tmp_path / "numba-cache").is_dir()  # it did compile, into the cache the test gave it
+    assert max(r["setup_time"] for r in rows) < 1.5  # a compile is 5-8 s; a field and one step, ~0.1 s

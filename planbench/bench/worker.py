@@ -155,6 +155,7 @@ def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) 
     except Exception as exc:  # a problem or planner that cannot be built is an ERROR of this run
         message = f"could not prepare the run: {type(exc).__name__}: {exc}"
         return error_fields(message, traceback.format_exc(), prepared=False, wall_time=time.perf_counter() - t0)
+    _warm(instance, problem)
     try:
         result = plan(problem, _PhaseReporter(instance, notify), seed=task.seed, time_limit=task.time_limit)
     except Exception as exc:  # the harness could not take what the planner gave (e.g. a path patched in)
@@ -171,6 +172,24 @@ def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) 
     except Exception as exc:  # the planner's objects raised while being read
         message = f"the planner's result could not be read: {type(exc).__name__}"
         return error_fields(message, traceback.format_exc(), wall_time=wall, **_timing(timing))
+
+
+_WARMED: set[type] = set()
+
+
+def _warm(instance: Any, problem: Any) -> None:
+    """Compile the planner's numba code (or load it from numba's on-disk cache) before the timed
+    setup of its first run in this worker, so that no run's setup time holds compilation: one
+    untimed ``setup`` of the run's own problem, for planners that say they run numba code
+    (``use_numba``, the IK-loop planners). A failure here is left to the timed run to meet."""
+    cls = type(instance)
+    if cls in _WARMED or not getattr(instance, "use_numba", False):
+        return
+    _WARMED.add(cls)
+    try:
+        instance.setup(problem)
+    except Exception:  # the timed setup will raise it again, as the run's own error
+        pass
 
 
 def _checked_control(task: RunTask, notify: Callable[[str], None]) -> dict[str, Any]:

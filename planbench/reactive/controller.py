@@ -72,6 +72,9 @@ class Controller:
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = EmptyConfig
+    compiles: ClassVar[bool] = False
+    """The controller runs code compiled on first use (numba): the benchmark puts one frame
+    through it, untimed, before its first run in each worker, so no run pays the compilation."""
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         self.config = build_config(self.Config, config, settings)
