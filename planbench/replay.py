@@ -14,6 +14,7 @@ closed-loop run, a timed planner), else each segment at the joints' velocity lim
 from __future__ import annotations
 
 import contextlib
+import html
 import io
 from pathlib import Path
 from typing import Any
@@ -115,7 +116,7 @@ def replay_html(
     finally:
         vis.delete()
         _close(vis)
-    return page.replace("<title>MeshCat</title>", f"<title>{_escape(title)}</title>", 1)
+    return page.replace("<title>MeshCat</title>", f"<title>{html.escape(title)}</title>", 1)
 
 
 def write_replay(out: str | Path, problem: Any, path: np.ndarray, times: np.ndarray | None = None, **kw: Any) -> Path:
@@ -151,12 +152,6 @@ def replay_row(row: dict[str, Any], out: str | Path) -> Path:
     from planbench.datasets import load_problem
 
     return write_replay(out, load_problem(row["problem"]), row["path"], row["times"], title=title)
-
-
-def _escape(text: str) -> str:
-    import html
-
-    return html.escape(text)
 
 
 def _close(vis: Any) -> None:

@@ -55,8 +55,8 @@ def control_one(task: Any, notify: Callable[[str], None] = lambda phase: None) -
             "path": None,
             "times": None,
         }
-    _warm(controller, scenario)
-    controller = CONTROLLERS.make(task.planner, **task.settings)  # a fresh one: nothing of the warm-up kept
+    if _warm(controller, scenario):
+        controller = CONTROLLERS.make(task.planner, **task.settings)  # a fresh one: nothing of the warm-up kept
     notify("plan")
     record = run_scenario(scenario, controller, seed=task.seed, settings=RunSettings(timing=task.timing))
     loop_time = time.perf_counter() - t0 - (record.setup_time if math.isfinite(record.setup_time) else 0.0)
@@ -77,14 +77,15 @@ def control_one(task: Any, notify: Callable[[str], None] = lambda phase: None) -
 _WARMED: set[type] = set()
 
 
-def _warm(controller: Any, scenario: Scenario) -> None:
+def _warm(controller: Any, scenario: Scenario) -> bool:
     """Compile the controller's numba code (or load numba's on-disk cache) before its first run in
     this worker: one frame of the scenario through ``setup``, ``reset``, ``update`` and ``step``,
     untimed. Without it the first run of each worker charges the compilation to its first ticks
-    as deadline misses. A failure here is left to the run to meet."""
+    as deadline misses. A failure here is left to the run to meet. True when ``controller`` was
+    used for it."""
     cls = type(controller)
     if cls in _WARMED or not getattr(controller, "compiles", False):
-        return
+        return False
     _WARMED.add(cls)
     try:
         from planbench.reactive.controller import ControlTask
@@ -99,6 +100,7 @@ def _warm(controller: Any, scenario: Scenario) -> None:
         controller.step(0.0, np.array(p.start), frame, p.goal)
     except Exception:  # the run will meet it again, as its own error
         pass
+    return True
 
 
 def _record_info(record: RunRecord) -> dict[str, Any]:

@@ -247,18 +247,12 @@ def _base_clearance(checker: TickChecker, q: np.ndarray, t: float) -> float:
     c = checker.checker
     checker.place(t)
     gm = c.geometry_model
+    n = c.n_robot_geoms
+    base = {i for i in range(n) if gm.geometryObjects[i].parentJoint <= 1}
+    pairs = [k for k, (a, b) in enumerate(c._pairs) if (a in base or b in base) and max(a, b) >= n]
     data, gdata = c.robot.model.createData(), pin.GeometryData(gm)
     pin.computeDistances(c.robot.model, data, gm, gdata, q)
-    base = {i for i in range(c.n_robot_geoms) if gm.geometryObjects[i].parentJoint <= 1}
-    near = [gdata.distanceResults[k].min_distance for k, (a, b) in enumerate(c._pairs) if a in base or b in base]
-    return min(
-        [
-            d
-            for d, (a, b) in zip(near, [p for p in c._pairs if p[0] in base or p[1] in base], strict=True)
-            if max(a, b) >= c.n_robot_geoms
-        ],
-        default=np.inf,
-    )
+    return min((gdata.distanceResults[k].min_distance for k in pairs), default=np.inf)
 
 
 def _p(v: Sequence[float] | np.ndarray) -> tuple[float, float, float]:

@@ -20,20 +20,11 @@ from typing import Any
 
 import numpy as np
 
-from planbench.bench.plots import rate_bar
+from planbench.bench.plots import _pyplot, _save, rate_bar
 
 __all__ = ["clearance_over_time", "scenario_keys", "success_by", "tick_time_ecdf", "write_dynamic_plots"]
 
 _NAME = re.compile(r"^dynamic:(?P<robot>[a-z0-9]+)_(?P<behaviour>[a-z]+)_(?P<speed>[a-z]+)_(?P<sensing>[a-z]+)/\d+$")
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def scenario_keys(problem: str) -> dict[str, str]:
@@ -75,9 +66,7 @@ def tick_time_ecdf(rows: Sequence[dict[str, Any]], path: Path, period: float = 0
     ax.set_title("controller compute time per tick (ECDF)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
@@ -105,9 +94,7 @@ def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.set_title(f"closed-loop success by {key}")
     ax.legend(fontsize="small", loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -128,9 +115,7 @@ def clearance_over_time(scenario: Any, runs: dict[str, tuple[np.ndarray, np.ndar
     ax.set_title(f"{scenario.name}: clearance over time")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def write_dynamic_plots(rows: Sequence[dict[str, Any]], folder: str | Path, fmt: str = "png") -> list[Path]:

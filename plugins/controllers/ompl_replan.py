@@ -81,6 +81,7 @@ class OMPLReplanController(Controller):
         self.path: np.ndarray | None = None  # the path being followed, its first row where the arm was
         self.s = 0.0  # position along it: segment index + fraction
         self.checker: CollisionChecker | None = None
+        self.frame_checker: CollisionChecker | None = None
         self.scene: Scene | None = None
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
@@ -90,6 +91,7 @@ class OMPLReplanController(Controller):
     def update(self, observation: Observation) -> None:
         self.scene = observation.scene if observation.scene is not None else self._cells(observation)
         self.checker = None  # built when first needed (in the step: it is part of checking)
+        self.frame_checker: CollisionChecker | None = None  # the whole observed scene's
         self.fresh = True
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
@@ -127,7 +129,7 @@ class OMPLReplanController(Controller):
     def _plan(self, q: np.ndarray) -> None:
         task = self.task
         t0 = time.perf_counter()
-        scene = self._around(q)
+        scene, _ = self._around(q)
         problem = Problem.create(
             task.robot, scene, q, goal_q=task.goal.q, goal_pose=task.goal.pose, tolerances=task.tolerances
         )
@@ -140,24 +142,28 @@ class OMPLReplanController(Controller):
             return
         self.path, self.s = np.array(result.path, dtype=float), 0.0
 
-    def _around(self, q: np.ndarray, count: bool = True) -> Scene:
-        """The observed scene without the obstacles the arm at ``q`` already touches: observed
-        cells are at most a cell off the true surface, so an arm a centimetre from a table can
-        be "in" the table's cells; a plan must start somewhere (counted in ``dropped``)."""
+    def _around(self, q: np.ndarray, count: bool = True) -> tuple[Scene, CollisionChecker]:
+        """The observed scene without the obstacles the arm at ``q`` already touches, and a
+        checker of it: observed cells are at most a cell off the true surface, so an arm a
+        centimetre from a table can be "in" the table's cells; a plan must start somewhere
+        (counted in ``dropped``). The frame's checker is built once and reused when nothing is
+        touched."""
         assert self.scene is not None
-        checker = CollisionChecker(self.task.robot, self.scene)
-        touched = {obstacle.removeprefix("obstacle:") for _, obstacle in checker.collisions(q)}
+        if self.frame_checker is None:
+            self.frame_checker = CollisionChecker(self.task.robot, self.scene)
+        touched = {obstacle.removeprefix("obstacle:") for _, obstacle in self.frame_checker.collisions(q)}
         if not touched:
-            return self.scene
+            return self.scene, self.frame_checker
         if count:
             self.stats["dropped"] += len(touched)
-        return Scene(tuple(o for o in self.scene.obstacles if o.name not in touched), self.scene.name)
+        scene = Scene(tuple(o for o in self.scene.obstacles if o.name not in touched), self.scene.name)
+        return scene, CollisionChecker(self.task.robot, scene)
 
     def _rest_free(self, q: np.ndarray) -> bool:
         """Whether the arm's way from ``q`` along the rest of the path is free in the observation."""
         assert self.path is not None and self.scene is not None
         if self.checker is None:  # what a plan from here would avoid (see _around)
-            self.checker = CollisionChecker(self.task.robot, self._around(q, count=False))
+            self.checker = self._around(q, count=False)[1]
         i = min(int(self.s) + 1, len(self.path) - 1)
         rest = np.vstack([q, self.path[i:]])
         for a, b in zip(rest[:-1], rest[1:], strict=True):
