@@ -209,6 +209,10 @@ class Runner:
         self._runs = 0
         self._start_failures = 0
         self._host = socket.gethostname()
+        self._slots: list[_Slot] = []
+        self.keep_warm = False
+        """Restart a slot's dead worker or validator at once even when no task is pending (the next
+        :meth:`feed` is expected)."""
 
     def run(self, tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None]) -> None:
         """Run every task; call ``on_record(task, record)`` in this process as each one ends.
@@ -218,23 +222,50 @@ class Runner:
         """
         if not tasks:
             return
-        pending: deque[RunTask] = deque(tasks)
-        self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
-        slots: list[_Slot] = []
         try:
-            for _ in range(min(self.jobs, len(pending))):
-                slots.append(_Slot(self._start("worker"), self._start("validator")))
+            self.feed(tasks, on_record)
+        finally:
+            self.close()
+
+    def start(self, slots: int | None = None) -> None:
+        """Start ``slots`` slots (default: ``jobs``) ahead of any run, so their start (~1 s) overlaps
+        with other work; used by a caller that keeps the runner warm (:meth:`feed`)."""
+        self._grow(self.jobs if slots is None else min(self.jobs, slots))
+
+    def feed(self, tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None]) -> None:
+        """Like :meth:`run`, but the slots stay warm for the next call (a Ray actor runs one task per
+        call on a warm slot); :meth:`close` ends them. An exception closes them too."""
+        pending: deque[RunTask] = deque(tasks)
+        try:
+            self._grow(min(self.jobs, len(pending)))
+            slots = self._slots
             while pending or any(s.task is not None for s in slots):
                 for slot in slots:
                     self._maybe_dispatch(slot, pending)
                 self._wait(slots)
                 for slot in slots:
-                    self._service(slot, on_record, bool(pending))
-        finally:
+                    self._service(slot, on_record, bool(pending) or self.keep_warm)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Stop every slot's processes and remove their output files."""
+        slots, self._slots = self._slots, []
+        try:
             for slot in slots:
                 self._stop(slot.worker, idle=slot.task is None)
                 self._stop(slot.validator, idle=slot.phase != "validate" or slot.task is None)
-            shutil.rmtree(self._tmp, ignore_errors=True)
+        finally:
+            if self._tmp:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+                self._tmp = ""
+
+    def _grow(self, n: int) -> None:
+        if not self._tmp:
+            self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
+        while len(self._slots) < n:
+            self._slots.append(_Slot(self._start("worker"), self._start("validator")))
 
     # -- the loop ----------------------------------------------------------------------------------
 
