@@ -20,6 +20,7 @@ from typing import Any
 
 from planbench.bench.benchmark import BenchmarkOutcome, run_benchmark, select
 from planbench.bench.db import ResultsDB
+from planbench.bench.executors import make_executor
 from planbench.bench.report import summarize, wilson_interval
 from planbench.bench.suite import PlannerEntry, Suite, SuiteFileError, load_suite, parse_suite
 
@@ -51,6 +52,8 @@ def benchmark(
     time_limit: float | None = None,
     settings: Mapping[str, Any] | None = None,
     by: Sequence[str] = ("planner",),
+    executor: str = "local",
+    address: str | None = None,
 ) -> list[dict[str, Any]]:
     """Run ``suite`` (a :class:`Suite`, a built-in name or a TOML file) and return its summary table.
 
@@ -58,9 +61,16 @@ def benchmark(
     processes (default: all cores); ``resume`` runs only what ``out`` lacks; ``planners``,
     ``problems``, ``seeds`` and ``time_limit`` [s] narrow or change the suite; ``settings`` are planner
     settings given to every planner of it (parsed to their types before any run). The table has one
-    dict per group of ``by`` (see :func:`planbench.bench.report.summarize`).
+    dict per group of ``by`` (see :func:`planbench.bench.report.summarize`). ``executor="ray"`` runs
+    on a Ray cluster (``address``; default a local Ray instance), see docs/benchmarking.md.
     """
     s = select(suite, planners, problems, seeds, time_limit, settings=settings)
-    run_benchmark(s, out, jobs=jobs, resume=resume, overwrite=overwrite)
+    runner = make_executor(executor, jobs, address)
+    try:
+        run_benchmark(s, out, jobs=jobs, resume=resume, overwrite=overwrite, executor=runner)
+    finally:
+        close = getattr(runner, "close", None)
+        if close is not None:
+            close()
     with ResultsDB(out, create=False) as db:
         return summarize(db.rows(s.name), by)

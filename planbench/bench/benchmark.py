@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from planbench.bench.db import ResultsDB
+from planbench.bench.executors import Executor
 from planbench.bench.probe import probe_planners
 from planbench.bench.runner import Record, Runner, failure_record
 from planbench.bench.suite import PlannerEntry, Suite, expand_problems, expand_scenarios, load_suite, parse_seeds
@@ -235,8 +236,12 @@ def run_benchmark(
     overwrite: bool = False,
     on_record: Callable[[RunTask, Record], None] | None = None,
     on_start: Callable[[int, int, list[str]], None] | None = None,
+    executor: Executor | None = None,
 ) -> BenchmarkOutcome:
     """Run ``suite`` into the results database ``out`` (see :func:`prepare` for resume rules).
+
+    ``executor`` runs the tasks (:mod:`planbench.bench.executors`; default: ``jobs`` local worker
+    processes); whatever it is, this process writes every record.
 
     ``on_start(n_to_run, n_already_done, skipped_planners)`` and ``on_record(task, record)`` let the
     caller show progress; records are in the database before ``on_record`` is called.
@@ -274,7 +279,7 @@ def run_benchmark(
                 on_record(task, record)
 
         t0 = time.perf_counter()
-        Runner(jobs).run(tasks, write)
+        (executor or Runner(jobs)).run(tasks, write)
         wall = time.perf_counter() - t0
         return BenchmarkOutcome(suite.name, str(db.path), len(tasks) + n_done, n_done, len(tasks), wall, skipped)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import logging
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,10 +21,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from planbench.bench import export
 from planbench.bench.benchmark import run_benchmark, select
 from planbench.bench.db import ResultsDB
+from planbench.bench.executors import EXECUTORS, Executor, make_executor
 from planbench.bench.html import write_html
 from planbench.bench.plots import write_plots
 from planbench.bench.report import DYNAMIC_METRICS, failures, metrics_for, summarize, to_csv, to_markdown, to_rich
-from planbench.bench.runner import default_jobs
+from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
 from planbench.cli import parse_setting, settings_text
@@ -39,6 +41,16 @@ def _csv_list(text: str) -> list[str]:
     return [x.strip() for x in text.split(",") if x.strip()]
 
 
+def _json_object(text: str) -> dict[str, Any]:
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"not JSON: {exc}") from exc
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("must be a JSON object")
+    return value
+
+
 def add_commands(subparsers: Any) -> None:
     """Add ``bench``, ``report`` and ``export`` to an argparse subparsers object."""
     p = subparsers.add_parser(
@@ -52,7 +64,27 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--planners", type=_csv_list, help="comma-separated labels of the suite, or planner names to add")
     p.add_argument("--problems", nargs="+", metavar="SELECTOR", help="problem selectors replacing the suite's")
     p.add_argument("--seeds", help="a count (3), a list (0,1,5) or a range (0-9); 0 <= seed < 2**63")
-    p.add_argument("--jobs", "-j", type=int, default=0, help="worker processes (default, or 0: all cores)")
+    p.add_argument(
+        "--jobs", "-j", type=int, default=0, help="worker processes (default, or 0: all cores, of the Ray cluster too)"
+    )
+    p.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="where runs execute: local worker processes (default) or a Ray cluster (pip install 'planbench[ray]')",
+    )
+    p.add_argument(
+        "--address",
+        help="with --executor ray: the cluster ('auto', HOST:PORT, ray://HOST:10001); default: a Ray instance "
+        "started here on 127.0.0.1",
+    )
+    p.add_argument(
+        "--ray-runtime-env",
+        type=_json_object,
+        metavar="JSON",
+        help="with --executor ray: Ray's runtime environment for the workers, e.g. "
+        '\'{"py_modules": ["my_plugins"]}\' (plugins not installed on every node)',
+    )
     p.add_argument("--time-limit", type=float, help="[s] planning time per run, a finite number > 0")
     p.add_argument(
         "--set",
@@ -152,7 +184,26 @@ def _stored_count(path: str, suite: str) -> int:
 def cmd_bench(args: argparse.Namespace) -> int:
     console = Console(stderr=False)
     suite = _bench_suite(args)
-    jobs = args.jobs or default_jobs()
+    executor = make_executor(args.executor, args.jobs, args.address, args.ray_runtime_env)
+    try:
+        return _bench(args, suite, executor, console)
+    finally:
+        close = getattr(executor, "close", None)
+        if close is not None:
+            close()
+
+
+def _where(executor: Executor) -> tuple[str, str]:
+    """Where the runs execute, as a phrase and as the progress bar's label. A Ray executor connects
+    here: a missing Ray or an unreachable cluster is reported before any file is touched."""
+    if isinstance(executor, Runner):
+        return f"on {executor.jobs} worker process{'es' if executor.jobs > 1 else ''}", "benchmark"
+    info = executor.connect()  # type: ignore[attr-defined]
+    return f"on the {info.describe()}", f"ray: {info.size()}"
+
+
+def _bench(args: argparse.Namespace, suite: Any, executor: Executor, console: Any) -> int:
+    where, label = _where(executor)
     progress = _Progress(console, enabled=not args.no_progress)
 
     def on_start(n: int, done: int, skipped: list[str]) -> None:
@@ -161,21 +212,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
         memory = f"{suite.memory_limit:g} MiB" if suite.memory_limit else "none"
         console.print(
             f"suite [bold]{escape(suite.name)}[/bold]: {n + done} runs ({done} already in {escape(args.out)}, "
-            f"{n} to run) on {jobs} worker process{'es' if jobs > 1 else ''}, time limit {suite.time_limit:g} s, "
+            f"{n} to run) {where}, time limit {suite.time_limit:g} s, "
             f"memory limit {memory} per worker",
             highlight=False,
         )
-        progress.start(n)
+        progress.start(n, label)
 
     try:
         outcome = run_benchmark(
             suite,
             args.out,
-            jobs=jobs,
             resume=args.resume,
             overwrite=args.overwrite,
             on_record=progress.update,
             on_start=on_start,
+            executor=executor,
         )
     except KeyboardInterrupt:
         progress.stop()
@@ -211,7 +262,7 @@ class _Progress:
         self.bar: Any = None
         self.counts = {"solved": 0, "failed": 0, "error": 0, "timeout": 0, "crash": 0}
 
-    def start(self, total: int) -> None:
+    def start(self, total: int, label: str = "benchmark") -> None:
         if not self.enabled or total == 0:
             return
         self.bar = Progress(
@@ -225,7 +276,7 @@ class _Progress:
             console=self.console,
         )
         self.bar.start()
-        self.task = self.bar.add_task("benchmark", total=total, solved=0, failed=0, bad="")
+        self.task = self.bar.add_task(label, total=total, solved=0, failed=0, bad="")
 
     def update(self, task: RunTask, record: dict[str, Any]) -> None:
         ev = record["evaluation"]
