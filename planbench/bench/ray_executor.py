@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,7 +35,7 @@ from planbench.errors import InvalidConfigError, PlanbenchError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ClusterInfo", "RayExecutor", "RayNotInstalledError", "import_ray"]
+__all__ = ["ClusterInfo", "RayExecutor", "RayNotInstalledError", "RayStats", "import_ray"]
 
 INSTALL = "pip install 'planbench[ray]'"
 MAX_LOSSES = 2
@@ -81,6 +82,18 @@ class ClusterInfo:
 
 
 @dataclass
+class RayStats:
+    """What the last :meth:`RayExecutor.run` cost the driver: per run, the ``overhead`` [s] Ray added
+    (from handing the run to an actor to its record being decoded here, minus the run's own
+    ``elapsed`` in its slot), and ``driver_cpu`` [s], this process's CPU time over the whole run
+    (Ray's client threads, decoding and the database writes), for ``rows`` rows."""
+
+    overhead: list[float] = field(default_factory=list)
+    driver_cpu: float = 0.0
+    rows: int = 0
+
+
+@dataclass
 class RayExecutor:
     """Runs tasks on Ray actors and hands each record to ``on_record`` in this process.
 
@@ -95,6 +108,7 @@ class RayExecutor:
     address: str | None = None
     threads_per_worker: int = 1
     runtime_env: dict[str, Any] | None = None
+    stats: RayStats = field(default_factory=RayStats, repr=False)
     _started: bool = field(default=False, repr=False)
     _info: ClusterInfo | None = field(default=None, repr=False)
 
@@ -146,10 +160,13 @@ class RayExecutor:
             for _ in range(min(info.workers, len(tasks)))
         ]
         clean = False
+        self.stats = RayStats()
+        cpu = time.process_time()
         try:
-            _dispatch(ray, actors, tasks, on_record)
+            _dispatch(ray, actors, tasks, on_record, self.stats)
             clean = True
         finally:
+            self.stats.driver_cpu = time.process_time() - cpu
             _stop(ray, actors, graceful=clean)
 
     def close(self) -> None:
@@ -161,20 +178,20 @@ class RayExecutor:
 
 
 def _dispatch(
-    ray: Any, actors: list[Any], tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None]
+    ray: Any, actors: list[Any], tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None], stats: RayStats
 ) -> None:
     """Hand tasks to idle actors until every one has a record."""
     pending: deque[RunTask] = deque(tasks)
     idle: deque[Any] = deque(actors)
-    in_flight: dict[Any, tuple[Any, RunTask]] = {}
+    in_flight: dict[Any, tuple[Any, RunTask, float]] = {}
     losses: dict[tuple[str, str, str, int], int] = {}
     while pending or in_flight:
         while idle and pending:
             actor, task = idle.popleft(), pending.popleft()
-            in_flight[actor.run.remote(task_to_wire(task))] = (actor, task)
+            in_flight[actor.run.remote(task_to_wire(task))] = (actor, task, time.monotonic())
         done, _ = ray.wait(list(in_flight), num_returns=1)
         for ref in done:
-            actor, task = in_flight.pop(ref)
+            actor, task, sent = in_flight.pop(ref)
             idle.append(actor)  # a dead actor is restarted by Ray; its next call waits for that
             try:
                 data = ray.get(ref)
@@ -195,6 +212,8 @@ def _dispatch(
                 record = record_from_wire(data)
             except BadMessage as exc:  # pragma: no cover (the actor is planbench's own code)
                 raise PlanbenchError(f"a Ray worker sent back an unreadable record for {task.key}: {exc}") from exc
+            stats.overhead.append(time.monotonic() - sent - record["elapsed"])
+            stats.rows += 1
             on_record(task, record)
 
 
