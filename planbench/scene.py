@@ -12,12 +12,14 @@ which are those of ``shape_msgs/SolidPrimitive``, URDF and coal)::
        {"name": "ball", "type": "sphere", "radius": 0.05, "position": [...]},
        {"name": "forearm", "type": "capsule", "radius": 0.05, "length": 0.3, # segment along local z [m]
         "position": [...], "orientation_xyzw": [...]},
-       {"name": "bowl", "type": "mesh", "path": "bowl.stl", "scale": [1, 1, 1], "position": [...]}
+       {"name": "bowl", "type": "mesh", "path": "bowl.stl", "scale": [1, 1, 1], "position": [...]},
+       {"name": "camera", "type": "pointcloud", "path": "cloud.npz", "radius": 0.005} # .npz or .ply
      ]}
 
 ``orientation_xyzw`` is a unit quaternion, scalar last, mapping the obstacle's local axes into the
-scene frame (``p_scene = R p_local + position``); it defaults to the identity. A mesh path is
-relative to the JSON file.
+scene frame (``p_scene = R p_local + position``); it defaults to the identity. A mesh or point
+cloud path is relative to the JSON file. A point cloud's geometry is the union of the cubes of edge
+``2 radius`` on a lattice that hold a point (its octree's leaves): :mod:`planbench.pointcloud`.
 """
 
 from __future__ import annotations
@@ -33,10 +35,11 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.errors import ProblemFileError
+from planbench.pointcloud import VoxelCloud, load_cloud
 
 __all__ = ["Obstacle", "Scene", "SHAPES"]
 
-SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh")
+SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh", "pointcloud")
 SCENE_FORMAT = "planbench-scene/1"
 
 
@@ -49,9 +52,9 @@ class Obstacle:
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     orientation_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     size: tuple[float, float, float] | None = None  # box: full edge lengths [m]
-    radius: float | None = None  # sphere, cylinder, capsule [m]
+    radius: float | None = None  # sphere, cylinder, capsule; pointcloud: point radius, cubes of edge 2 radius [m]
     length: float | None = None  # cylinder: full height along local z; capsule: its segment's length [m]
-    path: str | None = None  # mesh file (absolute, or relative to the working directory)
+    path: str | None = None  # mesh or point-cloud file (absolute, or relative to the working directory)
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)  # mesh scale
 
     def __post_init__(self) -> None:
@@ -69,7 +72,7 @@ class Obstacle:
             _check_vector(self.size, 3, f"{where}: size")
             if min(self.size) <= 0:
                 raise ValueError(f"{where}: box size must be > 0, got {list(self.size)}")
-        if self.type in ("sphere", "cylinder", "capsule"):
+        if self.type in ("sphere", "cylinder", "capsule", "pointcloud"):
             if self.radius is None or not math.isfinite(self.radius) or self.radius <= 0:
                 raise ValueError(f"{where}: a {self.type} needs 'radius' > 0 [m], got {self.radius}")
         if self.type == "cylinder":
@@ -83,6 +86,10 @@ class Obstacle:
                 raise ValueError(f"{where}: a mesh needs 'path'")
             if not Path(self.path).is_file():
                 raise ValueError(f"{where}: mesh file not found: {self.path}")
+        if self.type == "pointcloud":
+            if not self.path:
+                raise ValueError(f"{where}: a pointcloud needs 'path' (a .npz with array 'points' or a .ply)")
+            self.cloud()  # read now: a bad file is an error of the scene file, not of a later query
 
     # --- geometry -------------------------------------------------------------------------
     @property
@@ -94,10 +101,18 @@ class Obstacle:
         """The pose as a ``pinocchio.SE3``."""
         return pin.SE3(self.rotation, np.array(self.position, dtype=float))
 
+    def cloud(self) -> VoxelCloud:
+        """A pointcloud's voxel geometry (read once per file and radius, then cached)."""
+        if self.type != "pointcloud":
+            raise ValueError(f"obstacle {self.name!r} is a {self.type}, not a pointcloud")
+        return load_cloud(str(self.path), float(self.radius))  # type: ignore[arg-type]
+
     def collision_geometry(self) -> Any:
-        """A coal collision geometry in the obstacle's local frame."""
+        """A coal collision geometry in the obstacle's local frame (a pointcloud: its octree)."""
         import coal
 
+        if self.type == "pointcloud":
+            return self.cloud().octree()
         if self.type == "box":
             return coal.Box(*self.size)  # type: ignore[misc]
         if self.type == "sphere":
@@ -120,6 +135,9 @@ class Obstacle:
         if self.type == "capsule":
             r = float(self.radius)  # type: ignore[arg-type]
             return np.array([r, r, 0.5 * self.length + r], dtype=float)  # type: ignore[operator]
+        if self.type == "pointcloud":
+            lo, hi = self.cloud().bounds()
+            return np.maximum(np.abs(lo), np.abs(hi))
         geom = self.collision_geometry()
         geom.computeLocalAABB()
         aabb = geom.aabb_local
@@ -128,15 +146,22 @@ class Obstacle:
 
     def aabb(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounding box in the scene frame, as (lower corner, upper corner) [m]."""
+        if self.type == "pointcloud":  # not centred on its frame's origin: box its own bounds
+            lo, hi = self.cloud().bounds()
+            half = np.abs(self.rotation) @ (0.5 * (hi - lo))
+            c = self.rotation @ (0.5 * (lo + hi)) + np.array(self.position, dtype=float)
+            return c - half, c + half
         half = np.abs(self.rotation) @ self.local_half_extents()
         c = np.array(self.position, dtype=float)
         return c - half, c + half
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
         """Exact signed distance [m] from each of the (N, 3) points to the obstacle's surface:
-        negative inside. Primitives only (meshes are handled by coal).
+        negative inside. Primitives and point clouds (meshes are handled by coal).
         """
         local = (np.asarray(points, dtype=float) - np.array(self.position)) @ self.rotation
+        if self.type == "pointcloud":
+            return self.cloud().signed_distance(local)
         if self.type == "box":
             q = np.abs(local) - 0.5 * np.array(self.size)
         elif self.type == "sphere":
@@ -167,13 +192,15 @@ class Obstacle:
         d: dict[str, Any] = {"name": self.name, "type": self.type}
         if self.type == "box":
             d["size"] = list(self.size)  # type: ignore[arg-type]
-        if self.type in ("sphere", "cylinder", "capsule"):
+        if self.type in ("sphere", "cylinder", "capsule", "pointcloud"):
             d["radius"] = self.radius
         if self.type in ("cylinder", "capsule"):
             d["length"] = self.length
         if self.type == "mesh":
             d["path"] = self.path
             d["scale"] = list(self.scale)
+        if self.type == "pointcloud":
+            d["path"] = self.path
         d["position"] = list(self.position)
         d["orientation_xyzw"] = list(self.orientation_xyzw)
         return d

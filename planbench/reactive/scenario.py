@@ -155,8 +155,10 @@ class MovingObstacle:
     disappear: float | None = None
 
     def __post_init__(self) -> None:
-        if self.obstacle.type == "mesh":
-            raise ValueError(f"moving obstacle {self.obstacle.name!r}: meshes cannot move (use a primitive)")
+        if self.obstacle.type in ("mesh", "pointcloud"):
+            raise ValueError(
+                f"moving obstacle {self.obstacle.name!r}: a {self.obstacle.type} cannot move (use a primitive)"
+            )
         if not math.isfinite(self.appear):
             raise ValueError(f"moving obstacle {self.obstacle.name!r}: appear must be finite [s]")
         if self.disappear is not None and not self.disappear > self.appear:

@@ -120,6 +120,11 @@ def _shape_triangles(key: tuple[Any, ...]) -> Triangles:
         mesh = trimesh.creation.cylinder(radius=radius, height=length, sections=ROUND_SECTIONS)
     elif kind == "capsule":
         mesh = _capsule(radius, length)
+    elif kind == "pointcloud":
+        raise ValueError(
+            "a pointcloud obstacle has no surface for the simulated depth cameras; "
+            "use sensing model 'truth', or give the scene as primitives or meshes"
+        )
     else:
         mesh = _load_mesh(path, scale)
     return _frozen(mesh.vertices), _frozen(mesh.faces.astype(np.int64))
