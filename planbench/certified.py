@@ -51,6 +51,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from planbench.cloud_pairs import cloud_pairs
 from planbench.collision import CollisionChecker
 from planbench.robot import _link_of
 
@@ -176,8 +177,15 @@ class CertifiedChecker:
             for k in range(self.n_pairs):
                 _fresh_request(gd.distanceRequests[k])
         self._pairs = [(int(p.first), int(p.second)) for p in pairs]
+        # point-cloud pairs: a bounding-sphere bound and a collide-then-surface distance instead of
+        # coal's octree distances (planbench.cloud_pairs); pinocchio's batch call skips them
+        self._clouds = cloud_pairs(self.geometry_model, self._pairs, scene, self.n_robot_geoms)
+        for k in self._clouds:
+            self._hull_data.deactivateCollisionPair(k)
         # a pair of two primitives: its "hull" distance is exact, no second query
-        self._hull_is_exact = [not (has_hull[a] or has_hull[b]) for a, b in self._pairs]
+        self._hull_is_exact = [
+            not (has_hull[a] or has_hull[b]) and k not in self._clouds for k, (a, b) in enumerate(self._pairs)
+        ]
         self._obstacle_pair = [a >= self.n_robot_geoms or b >= self.n_robot_geoms for a, b in self._pairs]
         self.motion_weights = _motion_weights(robot, self.geometry_model, self.n_robot_geoms, self._pairs)
         self.pair_margin = [0.0] * self.n_pairs
@@ -222,6 +230,9 @@ class CertifiedChecker:
             self._pin.updateGeometryPlacements(self._model, self._data, gm, gd, s.q)
             self._placed[which] = s.key
         self._spend()
+        cloud = self._clouds.get(k)
+        if cloud is not None:
+            return cloud.bound(gd.oMg) if which == "hull" else cloud.exact(gd.oMg)
         return _distance(gm, gd, k)
 
     def _all_bounds(self, s: _Sample) -> None:
@@ -232,7 +243,8 @@ class CertifiedChecker:
         for k in range(self.n_pairs):
             if k not in s.bound:
                 self._spend()
-                d = s.bound[k] = float(results[k].min_distance)
+                cloud = self._clouds.get(k)
+                d = s.bound[k] = cloud.bound(self._hull_data.oMg) if cloud else float(results[k].min_distance)
                 if self._hull_is_exact[k]:
                     self._note_exact(s, k, d)
 
@@ -411,6 +423,9 @@ class CertifiedChecker:
             u0, u1, s0, s1, d0, d1 = stack.pop()
             if u0 >= stop:
                 continue
+            # an end's exact distance may have been computed since this interval was pushed (by its
+            # neighbour): use it, not the bound that travelled on the stack
+            d0, d1 = s0.exact.get(k, d0), s1.exact.get(k, d1)
             m = _cum_at(cum, u1) - _cum_at(cum, u0)
             if d0 >= need and d1 >= need and d0 + d1 - m >= 2 * need:
                 if obstacle_pair:
