@@ -7,6 +7,8 @@ Selectors:
 - ``mbm:<family>/0001-0020`` or ``mbm:*/0021-0100``: an index range (inclusive);
 - ``gen`` or ``gen:*``: planbench's own generated problems (``planbench/data/gen``, see
   :mod:`planbench.generators`); ``gen:<robot>_<family>/0001-0003``, ``gen:ur5_*``, ``gen:*_shelf``;
+- ``examples`` or ``examples:<name>``: the shipped example problems (``planbench/data/examples``),
+  e.g. ``examples:depth_camera_table``, a depth-camera point cloud (:mod:`planbench.depth_example`);
 - a path to a problem JSON file, or to a folder of them.
 
 The MotionBenchMaker data ships inside planbench (``planbench/data/mbm``, with its README as
@@ -41,6 +43,7 @@ def problem_sets() -> dict[str, str]:
         + ", ".join(mbm_families()),
         "gen": "planbench's own generated scenes (planbench.generators), 25 problems per set: "
         + ", ".join(shipped_sets()),
+        "examples": "shipped example problems: " + ", ".join(example_names()),
     }
 
 
@@ -94,6 +97,8 @@ def load_problems(selector: str | Path) -> list[Problem]:
         return _load_mbm(text.partition(":")[2] or "*")
     if text == "gen" or text.startswith("gen:"):
         return _load_gen(text.partition(":")[2] or "*")
+    if text == "examples" or text.startswith("examples:"):
+        return _load_examples(text.partition(":")[2] or "*")
     path = Path(text)
     if path.is_dir():
         files = sorted(path.glob("*.json"))
@@ -103,6 +108,7 @@ def load_problems(selector: str | Path) -> list[Problem]:
     if path.is_file():
         return [Problem.load(path)]
     names = ["mbm", "mbm:*", *(f"mbm:{f}" for f in mbm_families()), "gen:*", *(f"gen:{s}" for s in shipped_sets())]
+    names += ["examples", *(f"examples:{n}" for n in example_names())]
     raise UnknownNameError("problem set or file", text, names)
 
 
@@ -146,6 +152,22 @@ def _unique_ids(loaded: list[tuple[Problem, str]]) -> list[Problem]:
         if first != source:
             raise DuplicateProblemError(problem.id, first, source)
     return [problem for problem, _ in loaded]
+
+
+def _examples_dir() -> Path:
+    return Path(str(resources.files("planbench") / "data" / "examples"))
+
+
+def example_names() -> list[str]:
+    """Names of the shipped example problems (``examples:<name>``)."""
+    return sorted(p.stem for p in _examples_dir().glob("*.json"))
+
+
+def _load_examples(pattern: str) -> list[Problem]:
+    chosen = [n for n in example_names() if fnmatch.fnmatchcase(n, pattern)]
+    if not chosen:
+        raise UnknownNameError("example problem", pattern, example_names())
+    return [Problem.load(_examples_dir() / f"{n}.json") for n in chosen]
 
 
 def _load_mbm(rest: str) -> list[Problem]:
