@@ -1,5 +1,6 @@
 """The Ray executor against the local one: wall time, Ray's overhead per run, the driver's cost per
-row, and a check that the rows are identical (times aside), on this machine only (loopback).
+row, and a check that the rows are identical (times aside: the rows' times and a planner's own
+``*_time`` entries in ``info``), on this machine only (loopback).
 
     python benchmarks/ray_executor.py                 # smoke, then mbm:*/0001-0010 x 3 planners
     python benchmarks/ray_executor.py --suites smoke
@@ -16,6 +17,7 @@ results file (the SQLite part alone).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -56,6 +58,9 @@ def _rows(path: Path) -> list[dict]:
 
 def _key(row: dict) -> dict:
     out = {k: v for k, v in row.items() if k not in VARIABLE and k not in ("path", "times")}
+    if isinstance(out.get("info"), str):  # a planner's own timings in info are times too
+        info = json.loads(out["info"])
+        out["info"] = {k: v for k, v in info.items() if not k.endswith("_time")}
     for k in ("path", "times"):
         out[k] = None if row[k] is None else np.ascontiguousarray(row[k], "<f8").tobytes()
     return {k: ("nan" if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
@@ -69,7 +74,8 @@ def _differences(a: list[dict], b: list[dict]) -> list[str]:
         kx, ky = _key(x), _key(y)
         if kx != ky:
             fields = sorted(k for k in kx if kx[k] != ky.get(k))
-            out.append(f"{x['problem']} {x['planner']}: {', '.join(fields)}")
+            deltas = [f"{k} {kx[k] - ky[k]:+.3g}" if isinstance(kx[k], float) else k for k in fields]
+            out.append(f"{x['problem']} {x['planner']}: {', '.join(deltas)}")
     return out
 
 
