@@ -52,7 +52,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.cloud_pairs import cloud_pairs
-from planbench.collision import CollisionChecker
+from planbench.collision import CollisionChecker, fresh_geometry_data
 from planbench.robot import _link_of
 
 __all__ = ["CertifiedChecker", "CertificationSettings", "PathVerdict"]
@@ -168,14 +168,11 @@ class CertifiedChecker:
         self._pin = pin
         self._model = robot.model
         self._data = robot.model.createData()
-        self._exact_data = pin.GeometryData(self.geometry_model)
+        self._exact_data = fresh_geometry_data(self.geometry_model)
         self._hull_model, has_hull = _hull_model(self.geometry_model)
-        self._hull_data = pin.GeometryData(self._hull_model)
+        self._hull_data = fresh_geometry_data(self._hull_model)
         pairs = self.geometry_model.collisionPairs
         self.n_pairs = len(pairs)
-        for gd in (self._exact_data, self._hull_data):
-            for k in range(self.n_pairs):
-                _fresh_request(gd.distanceRequests[k])
         self._pairs = [(int(p.first), int(p.second)) for p in pairs]
         # point-cloud pairs: a bounding-sphere bound and a collide-then-surface distance instead of
         # coal's octree distances (planbench.cloud_pairs); pinocchio's batch call skips them
@@ -527,12 +524,6 @@ def _cum_at(cum: Any, u: float) -> float:
     if u != i:
         a = a + (u - i) * (cum[i + 1] - a)
     return float(a)
-
-
-def _fresh_request(req: Any) -> None:
-    """GJK from its default initial guess, never from the previous query's (verdicts must not
-    depend on the order of queries)."""
-    req.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
 
 
 def _distance(gm: Any, gd: Any, k: int) -> float:

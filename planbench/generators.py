@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import CollisionChecker
+from planbench.collision import CollisionChecker, fresh_geometry_data
 from planbench.datasets import GEN_SEED, problem_from_record, shipped_problems, shipped_sets
 from planbench.errors import PlanbenchError, UnknownNameError
 from planbench.harness import plan
@@ -464,7 +464,7 @@ class _Distances:
         self.model = checker.robot.model
         self.data = self.model.createData()
         self.geometry_model = checker.geometry_model
-        self.geometry_data = pin.GeometryData(checker.geometry_model)
+        self.geometry_data = fresh_geometry_data(checker.geometry_model)
         n = checker.n_robot_geoms
         self.obstacle = np.array([max(p.first, p.second) >= n for p in checker.geometry_model.collisionPairs])
 

@@ -6,8 +6,9 @@ waypoint by waypoint to 1e-4 rad. A refactoring that only reorders floating-poin
 most paths by 1e-11 rad or less; where a planner's step is sensitive, rounding grows along the
 path: reading the obstacles' quaternions with pinocchio instead of scipy (a 1e-16 change of the
 rotation matrices) moved distance-field's path on the generated Panda scene by 1.6e-5 rad after
-500 steps (coal's witness points). A real change of behaviour moves paths by far more, or
-changes their length.
+500 steps (coal's witness points). Turning off coal's cached GJK guess (distances no longer
+depend on the queries before) moved that path by 2.1e-4 rad; it was recorded again. A real change
+of behaviour moves paths by far more, or changes their length.
 """
 
 from __future__ import annotations

@@ -31,6 +31,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from planbench.collision import fresh_geometry_data
+
 __all__ = ["DistanceModel", "PairDistances"]
 
 
@@ -170,9 +172,7 @@ class DistanceModel:
         self._obs_hi = np.array(highs).reshape(-1, 3)
         self._is_self = second < n_robot
         self.geometry_model = gm
-        self.geometry_data = gd = pin.GeometryData(gm)
-        for k in range(self.n_pairs):  # the same answer whatever was queried before
-            gd.distanceRequests[k].gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
+        self.geometry_data = gd = fresh_geometry_data(gm)  # the same answer whatever was queried before
         self._oMg = [gd.oMg[i] for i in range(n_robot)]
         self._rotation = np.tile(np.eye(3), (n_bodies, 1, 1))
         self._translation = np.zeros((n_bodies, 3))

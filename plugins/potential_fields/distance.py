@@ -29,6 +29,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from planbench.collision import fresh_geometry_data
 from planbench.problem import Problem
 from planbench.robot import _link_of
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
@@ -119,7 +120,7 @@ class DistanceFieldRepulsion:
             self._pair[r, o - self.n_robot] = k
         self.geometry_model = gm
         self._data = None
-        self._geom_data = pin.GeometryData(gm)
+        self._geom_data = fresh_geometry_data(gm)
         self._oMg = [self._geom_data.oMg[i] for i in range(self.n_robot)]
         L = len(links)
         self.points = np.zeros((L, 3))
