@@ -125,12 +125,35 @@ def _fmt(value: Any, unit: str) -> str:
     return str(value)
 
 
+def _numpy_while_cold(planner: Any) -> None:
+    """A planner that would compile numba code on a cold cache computes with numpy instead (the same
+    numbers to rounding), while the kernels compile in the background for the next command
+    (:mod:`planbench.compile_cache`); ``PLANBENCH_BACKGROUND_COMPILE=0`` turns this off."""
+    from planbench import compile_cache
+    from planbench.field import backend
+
+    if not compile_cache.enabled() or not getattr(planner, "use_numba", False) or compile_cache.is_warm():
+        return
+    backend.prefer("numpy")
+    if getattr(planner, "use_numba", False):  # numba asked for by name: it compiles now
+        backend.prefer(None)
+        return
+    compile_cache.warm_in_background()
+    Console(stderr=True).print(
+        "numba's cache is cold: this command computes with numpy (the same numbers to rounding, "
+        "slower per step) while planbench's kernels compile in the background for the next ones",
+        style="dim",
+        highlight=False,
+    )
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     check_seconds(args.time_limit, "--time-limit")
     check_seed(args.seed)
     setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
     problems = planbench.load_problems(args.problem)
     planner = setup.build()
+    _numpy_while_cold(planner)
     if args.replay and len(problems) != 1:
         raise PlanbenchError("--replay needs one problem")
     if args.plot and (len(problems) != 1 or not hasattr(planner, "plot_result")):

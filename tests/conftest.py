@@ -11,6 +11,8 @@ Most are marked with ``@pytest.mark.slow`` in their file; the few below are mark
 (``SLOW_CASES``): single cases of a parametrized test, and a module without a pytest import.
 """
 
+import os
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -18,6 +20,10 @@ from scipy.spatial.transform import Rotation
 import planbench
 from planbench.problem import Problem
 from planbench.scene import Obstacle, Scene
+
+# planbench commands run here compute with numba whatever its cache holds, and start no background
+# compilation (tests/test_compile_cache.py turns it on where it tests it)
+os.environ["PLANBENCH_BACKGROUND_COMPILE"] = "0"
 
 # "file::test[case]" of the slow tests that cannot carry a decorator of their own
 SLOW_CASES = {

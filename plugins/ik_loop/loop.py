@@ -51,6 +51,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from planbench.collision import CollisionChecker
+from planbench.field import backend as field_backend
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench.validate import verdict_checker
@@ -217,7 +218,8 @@ class IKLoopPlanner(Planner):
     # --- setup (untimed by the harness, reported as setup time) ------------------------------
     @property
     def use_numba(self) -> bool:
-        return self.config.backend == "numba" or (self.config.backend == "auto" and fast.have_numba())
+        backend = self.config.backend
+        return backend == "numba" or (backend == "auto" and field_backend.resolve("auto") == "numba")
 
     def hierarchy_for(self, n_joints: int) -> str:
         """The hierarchy (``"nullspace"`` or ``"priority"``) on an arm of ``n_joints`` joints: the
@@ -543,6 +545,7 @@ class IKLoopPlanner(Planner):
             cfg.escape_draws,
             goal=None if goal is None else np.asarray(goal, dtype=float),
             toward_goal=cfg.escape_toward_goal,
+            scales=cfg.escape_scales,
         )
         if motion is None or k + len(motion) >= n_max:
             return 0, False

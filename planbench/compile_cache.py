@@ -1,0 +1,117 @@
+"""Whether numba's on-disk cache already holds planbench's compiled kernels, and how it gets there.
+
+The field kernels and the IK loop's step are compiled by numba on first use and cached on disk
+(``cache=True``); compiling them all takes 8 s on the 2-core VM, loading them from the cache
+well under a second. A first ``planbench plan`` on a fresh install should not wait for that:
+when the cache is cold, ``plan`` computes with the numpy implementations (the same numbers to
+rounding, a few times slower per step) and starts ``python -m planbench.compile_cache`` in the
+background, which compiles the kernels, at low priority, then leaves a marker saying so. The
+benchmark never takes this route: its workers compile before their first timed setup.
+
+The marker is keyed by what numba's cache is keyed by (numba and Python versions, the CPU, the
+kernels' source files), so editing a kernel or moving to another machine makes the cache cold
+again. A marker whose cache was deleted since costs one compilation, never a wrong result.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import importlib.util
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+__all__ = ["enabled", "is_warm", "marker_path", "warm_in_background", "warm_up"]
+
+KERNEL_MODULES = ("planbench.field._compiled", "planbench_plugins.ik_loop._compiled")
+"""The modules whose functions numba compiles with ``cache=True``."""
+
+
+def _sources() -> list[Path]:
+    out = []
+    for name in KERNEL_MODULES:
+        spec = importlib.util.find_spec(name)  # the module's file, without importing (numba) it
+        if spec is not None and spec.origin:
+            out.append(Path(spec.origin))
+    return out
+
+
+def marker_path() -> Path:
+    """The marker file for this numba, Python, CPU and these kernel sources."""
+    import numba
+
+    key = [numba.__version__, sys.version, platform.machine(), _cpu_name()]
+    for src in _sources():
+        st = src.stat()
+        key.append(f"{src}:{st.st_mtime_ns}:{st.st_size}")
+    digest = hashlib.sha256("\n".join(key).encode()).hexdigest()[:16]
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "planbench" / f"numba-warm-{digest}"
+
+
+def _cpu_name() -> str:
+    try:
+        from llvmlite import binding
+
+        return f"{binding.get_host_cpu_name()}:{binding.get_host_cpu_features().flatten()}"
+    except Exception:  # an llvmlite without these calls: the machine name stands in
+        return platform.processor()
+
+
+def enabled() -> bool:
+    """Whether a cold cache may switch a command to numpy and start the background compilation
+    (``PLANBENCH_BACKGROUND_COMPILE=0`` in the environment: no, numba compiles in the foreground)."""
+    return os.environ.get("PLANBENCH_BACKGROUND_COMPILE", "1") != "0"
+
+
+def is_warm() -> bool:
+    """Whether the background compilation (or :func:`warm_up`) has run for this cache key."""
+    try:
+        return marker_path().exists()
+    except (OSError, ImportError):
+        return False
+
+
+def warm_up() -> None:
+    """Compile (or load) the kernels a field planner's plan uses, then write the marker: one plan
+    of each field planner on a small MotionBenchMaker problem."""
+    import planbench
+
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    for planner in ("matrix-field", "edt-field", "distance-field"):
+        planbench.plan(problem, planner, seed=0, time_limit=30.0, backend="numba", max_steps=50)
+    path = marker_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("numba's cache holds planbench's kernels for this key\n")
+
+
+def warm_in_background() -> None:
+    """Start :func:`warm_up` in a detached, low-priority process (output discarded); at most one
+    runs at a time (a lock file next to the marker)."""
+    subprocess.Popen(
+        [sys.executable, "-m", "planbench.compile_cache"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # outlives the command that started it, untouched by its Ctrl-C
+    )
+
+
+def main() -> None:
+    os.nice(10)
+    lock_path = marker_path().with_suffix(".lock")
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock_path, "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # another one is compiling
+            return
+        if not is_warm():
+            warm_up()
+
+
+if __name__ == "__main__":
+    main()

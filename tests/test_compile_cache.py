@@ -1,0 +1,69 @@
+"""A first ``planbench plan`` on a cold numba cache computes with numpy and compiles in the
+background (planbench.compile_cache); with the cache warm, or asked for numba, it compiles as before."""
+
+from __future__ import annotations
+
+import pytest
+
+import planbench
+from planbench import compile_cache
+from planbench.cli import main
+from planbench.field import backend
+
+
+@pytest.fixture
+def cold(tmp_path, monkeypatch):
+    """A marker directory of our own (the cache looks cold), the mechanism on, and the background
+    compilation recorded instead of started."""
+    monkeypatch.setenv("PLANBENCH_BACKGROUND_COMPILE", "1")
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)  # numba's own cache stays where it is
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    started: list[bool] = []
+    monkeypatch.setattr(compile_cache, "warm_in_background", lambda: started.append(True))
+    yield started
+    backend.prefer(None)
+
+
+def test_a_cold_cache_plans_with_numpy_and_starts_the_compilation(cold, capsys):
+    assert not compile_cache.is_warm()
+    assert main(["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field", "--time-limit", "5"]) == 0
+    assert cold == [True]
+    assert backend.resolve("auto") == "numpy"
+    assert not planbench.make_planner("matrix-field").use_numba
+    assert "numba's cache is cold" in capsys.readouterr().err
+
+
+def test_numba_by_name_compiles_in_the_foreground(cold):
+    main(["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field", "--set", "backend=numba"])
+    assert cold == []
+    assert backend.resolve("auto") == "numba"
+
+
+def test_a_warm_cache_changes_nothing(cold, capsys, tmp_path):
+    compile_cache.warm_up()  # numba's cache is warm in the test run: this loads it and writes the marker
+    assert compile_cache.is_warm()
+    assert compile_cache.marker_path().is_relative_to(tmp_path)
+    main(["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field"])
+    assert cold == []
+    assert backend.resolve("auto") == "numba"
+    assert "cold" not in capsys.readouterr().err
+
+
+def test_the_marker_follows_the_kernel_sources(cold, monkeypatch):
+    before = compile_cache.marker_path()
+    sources = compile_cache._sources()
+    assert len(sources) == 2
+    monkeypatch.setattr(compile_cache, "_sources", lambda: sources[:1])
+    assert compile_cache.marker_path() != before
+
+
+def test_the_numpy_plan_is_the_numba_plan_to_rounding():
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    a = planbench.plan(problem, "matrix-field", seed=0, time_limit=10, backend="numba")
+    backend.prefer("numpy")
+    try:
+        b = planbench.plan(problem, "matrix-field", seed=0, time_limit=10)
+    finally:
+        backend.prefer(None)
+    assert a.path.shape == b.path.shape
+    assert abs(a.path - b.path).max() < 1e-6
