@@ -39,6 +39,7 @@ def escape_motion(
     draws: int,
     goal: np.ndarray | None = None,
     toward_goal: bool = False,
+    scales: int = 1,
 ) -> tuple[np.ndarray | None, int, bool]:
     """``(motion, draws used, toward the goal)``: the configurations (m, n) of the move from ``q``
     to a free target drawn as in the module docstring (``radius`` [rad]; ``goal`` the goal
@@ -46,11 +47,14 @@ def escape_motion(
     ``dt`` [s] at the velocity limits ``qd_max`` [rad/s] (``q`` itself excluded, the target last),
     or ``None`` when none of ``draws`` candidates is reachable in a straight line without
     collision. ``in_collision(q)`` answers for one configuration (a quick rejection),
-    ``segment_free(a, b)`` for the motion."""
+    ``segment_free(a, b)`` for the motion. ``scales`` > 1 cycles the radius through ``radius``,
+    ``radius / 2``, ... ``radius / 2**(scales - 1)`` from one draw to the next, so that in clutter,
+    where a long straight move rarely stays free, shorter detours are tried too."""
     for draw in range(1, draws + 1):
         toward = toward_goal and goal is not None and draw % 2 == 1
         centre = q + rng.uniform(0.2, 1.0) * (goal - q) if toward and goal is not None else q
-        target = np.clip(centre + rng.normal(0.0, radius, size=q.shape), lower, upper)
+        scale = 0.5 ** (((draw - 1) // 2) % scales)  # both kinds of draw see every scale
+        target = np.clip(centre + rng.normal(0.0, radius * scale, size=q.shape), lower, upper)
         delta = target - q
         if in_collision(target) or not segment_free(q, target):
             continue
