@@ -113,3 +113,22 @@ def test_the_qp_variant_escapes_only_to_where_its_constraints_hold():
     strict.setup(problem)
     assert not strict.escape_target_ok(q)
     assert planbench.make_planner("matrix-field").escape_target_ok(q)  # the field planners: any free target
+
+
+def test_draws_cycle_through_the_radii_in_pairs():
+    # scales=2: draws 1-2 at the full radius, 3-4 at half of it, 5-6 at the full radius again...
+    q = np.zeros(6)
+    limits = (-1e3 * np.ones(6), 1e3 * np.ones(6), np.ones(6))
+    seen: list[np.ndarray] = []
+    blocked = (lambda c: seen.append(c.copy()) or True, lambda a, b: True)
+    escape_motion(q, np.random.default_rng(0), *blocked, *limits, 0.01, 1.0, 4000, scales=2)
+    spread = np.array([np.std(np.array(seen[i::4])) for i in range(4)])
+    assert np.allclose(spread, [1.0, 1.0, 0.5, 0.5], rtol=0.05)
+    # scales=1 draws exactly what the escape drew before radii could cycle
+    one, before = [], []
+    escape_motion(
+        q, np.random.default_rng(1), lambda c: one.append(c.copy()) or True, lambda a, b: True, *limits, 0.01, 0.7, 9
+    )
+    rng = np.random.default_rng(1)
+    before = [np.clip(q + rng.normal(0.0, 0.7, size=6), limits[0], limits[1]) for _ in range(9)]
+    assert np.array_equal(np.array(one), np.array(before))
