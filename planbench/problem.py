@@ -272,10 +272,12 @@ class Problem:
             raise ProblemFileError(source, str(exc)) from exc
 
     def save(self, path: str | Path) -> None:
-        """Write the problem as JSON; a robot settings file outside planbench's own is written
-        relative to the problem file, so that the two can move together."""
+        """Write the problem as JSON; a robot settings file outside planbench's own, and the scene's
+        mesh and point-cloud files, are written relative to the problem file, so that they can move
+        together."""
         out = Path(path)
         d = self.to_dict()
+        d["scene"] = self.scene.to_dict(relative_to=out.resolve().parent)
         if isinstance(d["robot"], str) and d["robot"].endswith(".toml") and Path(d["robot"]).is_absolute():
             d["robot"] = os.path.relpath(d["robot"], out.resolve().parent)
         out.write_text(json.dumps(d, indent=1))

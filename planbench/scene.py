@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -256,8 +257,15 @@ class Scene:
     def with_obstacles(self, obstacles: Iterable[Obstacle]) -> Scene:
         return Scene(tuple(self.obstacles) + tuple(obstacles), self.name, dict(self.metadata))
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"format": SCENE_FORMAT, "name": self.name, "obstacles": [o.to_dict() for o in self.obstacles]}
+    def to_dict(self, relative_to: Path | None = None) -> dict[str, Any]:
+        """The scene as JSON; with ``relative_to`` (the folder of the file it goes into) the meshes'
+        and clouds' file paths are written relative to it, so the files can move together."""
+        obstacles = [o.to_dict() for o in self.obstacles]
+        if relative_to is not None:
+            for d in obstacles:
+                if "path" in d and Path(d["path"]).is_absolute():
+                    d["path"] = os.path.relpath(d["path"], Path(relative_to).resolve())
+        return {"format": SCENE_FORMAT, "name": self.name, "obstacles": obstacles}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<dict>", base_dir: Path | None = None) -> Scene:
@@ -283,7 +291,8 @@ class Scene:
             raise ProblemFileError(source, str(exc)) from exc
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        """Write the scene as JSON, file paths relative to its folder (:meth:`to_dict`)."""
+        Path(path).write_text(json.dumps(self.to_dict(relative_to=Path(path).resolve().parent), indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> Scene:

@@ -216,3 +216,39 @@ def test_a_problem_names_its_robot_file_relative_to_itself_and_moves_with_it(tmp
     shutil.rmtree(lab)
     back = Problem.load(moved / "p.json")  # found next to the problem, not in the working directory
     assert back.robot.name == "arm" and back.robot.settings.source == str((moved / "robots" / "arm.toml").resolve())
+
+
+def test_a_problem_and_a_scene_write_their_mesh_and_cloud_files_relative_to_themselves(tmp_path):
+    import shutil
+
+    import trimesh
+
+    from planbench.pointcloud import write_points
+    from planbench.scene import Obstacle
+
+    lab = tmp_path / "lab"
+    (lab / "assets").mkdir(parents=True)
+    trimesh.creation.box((0.1, 0.1, 0.1)).export(lab / "assets" / "block.stl")
+    write_points(lab / "assets" / "cloud.npz", np.array([[0.6, 0.0, 0.2], [0.6, 0.02, 0.2]]))
+    scene = Scene(
+        (
+            Obstacle("block", "mesh", position=(0.5, 0.3, 0.3), path=str(lab / "assets" / "block.stl")),
+            Obstacle("cloud", "pointcloud", radius=0.01, path=str(lab / "assets" / "cloud.npz")),
+        )
+    )
+    panda = load_robot("panda")
+    Problem.create(panda, scene, panda.home, goal_q=panda.home, id="assets").save(lab / "p.json")
+    scene.save(lab / "s.json")
+    for name in ("p.json", "s.json"):
+        obstacles = json.loads((lab / name).read_text())
+        obstacles = (obstacles.get("scene") or obstacles)["obstacles"]
+        assert [o["path"] for o in obstacles] == ["assets/block.stl", "assets/cloud.npz"]
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(lab, moved)
+    shutil.rmtree(lab)
+    back = Problem.load(moved / "p.json")
+    assert [o.path for o in back.scene.obstacles] == [str(moved / "assets" / f) for f in ("block.stl", "cloud.npz")]
+    block, cloud = back.scene.obstacles  # both read from their new place
+    assert block.collision_geometry().num_vertices == 8
+    assert cloud.contains(np.array([[0.6, 0.0, 0.2], [0.6, 0.3, 0.2]])).tolist() == [True, False]
+    assert len(Scene.load(moved / "s.json").obstacles) == 2
