@@ -91,16 +91,20 @@ def warm_up() -> None:
 def warm_in_background() -> None:
     """Start :func:`warm_up` in a detached, low-priority process (output discarded); at most one
     runs at a time (a lock file next to the marker)."""
-    subprocess.Popen(
-        [sys.executable, "-m", "planbench.compile_cache"],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,  # outlives the command that started it, untouched by its Ctrl-C
-    )
+    try:
+        subprocess.Popen(
+            [sys.executable, "-m", "planbench.compile_cache"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # outlives the command that started it, untouched by its Ctrl-C
+        )
+    except OSError:  # no process to spare: the next command finds the cache cold again, nothing worse
+        pass
 
 
 def main() -> None:
+    """The background process: compile unless another process is at it or it is done."""
     os.nice(10)
     lock_path = marker_path().with_suffix(".lock")
     lock_path.parent.mkdir(parents=True, exist_ok=True)
