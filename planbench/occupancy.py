@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from planbench.overlap import cubes_overlap_boxes
 from planbench.scene import Scene
 
 __all__ = ["OccupancyGrid", "merge_cells", "scene_grid"]
@@ -232,21 +233,11 @@ def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.n
 
 
 def _cube_box_overlap(centres: np.ndarray, half: float, obstacle: Any) -> np.ndarray:
-    """Exact overlap of axis-aligned cubes (centres (N, 3), half edge ``half``) with an oriented box,
-    by the separating-axis theorem: 3 grid axes, 3 box axes and their 9 cross products. Touching
-    faces do not count as overlap."""
-    R = obstacle.rotation
+    """Exact overlap (1.0 or 0.0) of axis-aligned cubes (centres (N, 3), half edge ``half``) with a
+    box obstacle (:func:`planbench.overlap.cubes_overlap_boxes`)."""
     extents = 0.5 * np.array(obstacle.size)
-    d = centres - np.array(obstacle.position)
-    axes = [np.eye(3)[i] for i in range(3)] + [R[:, k] for k in range(3)]
-    axes += [np.cross(np.eye(3)[i], R[:, k]) for i in range(3) for k in range(3)]
-    separated = np.zeros(len(centres), dtype=bool)
-    for axis in axes:
-        if axis @ axis < 1e-20:  # parallel edges: the face axes already cover it
-            continue
-        radius = half * np.abs(axis).sum() + np.abs(axis @ R) @ extents
-        separated |= np.abs(d @ axis) >= radius * (1.0 - 1e-12)
-    return (~separated).astype(float)
+    hit = cubes_overlap_boxes(centres, half, np.array(obstacle.position), obstacle.rotation, extents, 1e-12)
+    return hit.astype(float)  # type: ignore[no-any-return]
 
 
 def _points(origin, resolution, i0, n, offsets) -> np.ndarray:  # type: ignore[no-untyped-def]

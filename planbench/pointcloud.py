@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from planbench.overlap import cubes_overlap_boxes
+
 __all__ = ["PointCloudError", "VoxelCloud", "load_cloud", "read_points", "write_points"]
 
 SUFFIXES = (".npz", ".ply")
@@ -281,7 +283,7 @@ class VoxelCloud:
             idx = idx[keep]
             if not axis_aligned:
                 grid_centres = origin + (idx + 0.5) * resolution
-                idx = idx[_cubes_overlap(grid_centres, 0.5 * resolution, centres[keep], h, R)]
+                idx = idx[cubes_overlap_boxes(grid_centres, 0.5 * resolution, centres[keep], R, np.full(3, h), 1e-9)]
             out[tuple((idx - i0).T)] = 1.0
         return out
 
@@ -308,22 +310,6 @@ def _shell(n: int) -> np.ndarray:
     r = np.arange(-n, n + 1)
     cube = np.stack(np.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
     return cube[np.abs(cube).max(axis=1) == n]
-
-
-def _cubes_overlap(a: np.ndarray, ha: float, b: np.ndarray, hb: float, R: np.ndarray) -> np.ndarray:
-    """Whether axis-aligned cubes (centres ``a``, half edge ``ha``) and cubes rotated by ``R``
-    (centres ``b``, half edge ``hb``) overlap with interiors, pairwise: separating-axis theorem over
-    the 3 + 3 face normals and their 9 cross products."""
-    d = b - a
-    axes = [np.eye(3)[i] for i in range(3)] + [R[:, k] for k in range(3)]
-    axes += [np.cross(np.eye(3)[i], R[:, k]) for i in range(3) for k in range(3)]
-    separated = np.zeros(len(a), dtype=bool)
-    for axis in axes:
-        if axis @ axis < 1e-20:
-            continue
-        radius = ha * np.abs(axis).sum() + hb * np.abs(axis @ R).sum()
-        separated |= np.abs(d @ axis) >= radius * (1.0 - 1e-9)
-    return ~separated
 
 
 @functools.lru_cache(maxsize=16)

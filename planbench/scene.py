@@ -197,11 +197,10 @@ class Obstacle:
             d["radius"] = self.radius
         if self.type in ("cylinder", "capsule"):
             d["length"] = self.length
+        if self.type in ("mesh", "pointcloud"):
+            d["path"] = self.path
         if self.type == "mesh":
-            d["path"] = self.path
             d["scale"] = list(self.scale)
-        if self.type == "pointcloud":
-            d["path"] = self.path
         d["position"] = list(self.position)
         d["orientation_xyzw"] = list(self.orientation_xyzw)
         return d

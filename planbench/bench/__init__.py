@@ -69,8 +69,6 @@ def benchmark(
     try:
         run_benchmark(s, out, jobs=jobs, resume=resume, overwrite=overwrite, executor=runner)
     finally:
-        close = getattr(runner, "close", None)
-        if close is not None:
-            close()
+        runner.close()
     with ResultsDB(out, create=False) as db:
         return summarize(db.rows(s.name), by)

@@ -188,9 +188,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     try:
         return _bench(args, suite, executor, console)
     finally:
-        close = getattr(executor, "close", None)
-        if close is not None:
-            close()
+        executor.close()
 
 
 def _where(executor: Executor) -> tuple[str, str]:

@@ -20,6 +20,9 @@ EXECUTORS = ("local", "ray")
 class Executor(Protocol):
     def run(self, tasks: Sequence[RunTask], on_record: Callable[[RunTask, Record], None]) -> None: ...
 
+    def close(self) -> None:
+        """Release what the executor holds (worker processes, a Ray connection); idempotent."""
+
 
 def make_executor(
     kind: str = "local",
