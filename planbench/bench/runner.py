@@ -58,14 +58,17 @@ import struct
 import tempfile
 import time
 from collections import deque
+from multiprocessing.reduction import send_handle
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from planbench.bench.kinds import RunKind, kind_of
 from planbench.bench.procs import OUTPUT_HEADER, OutputFile, kill_group
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
+from planbench.reactive.isolation import make_undumpable
 from planbench.validate import Evaluation
 
 log = logging.getLogger(__name__)
@@ -188,6 +191,14 @@ class _Slot:
     dispatched: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     fields: dict[str, Any] | None = None
+    index: int = 0
+    channel: socket.socket | None = None
+    """The validator's end of a closed-loop run's socket pair, until the validator has it."""
+
+    @property
+    def kind(self) -> RunKind:
+        assert self.task is not None
+        return kind_of(self.task.kind)
 
 
 class _ChildFailed(Exception):
@@ -198,7 +209,9 @@ class Runner:
     """Runs tasks (:class:`~planbench.bench.task.RunTask`, built by :mod:`planbench.bench.benchmark`)
     on ``jobs`` worker slots."""
 
-    def __init__(self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1) -> None:
+    def __init__(
+        self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1, pin: bool = True
+    ) -> None:
         self.jobs = default_jobs() if not jobs else int(jobs)
         self.threads = int(threads_per_worker)
         if self.jobs < 1:
@@ -210,6 +223,10 @@ class Runner:
         self._start_failures = 0
         self._host = socket.gethostname()
         self._slots: list[_Slot] = []
+        self.pin = pin
+        """Closed-loop runs of slot ``i`` on the ``i``-th core this process may use (else on the core
+        the simulation happens to be on when the run starts)."""
+        self._cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [0]
         self.keep_warm = False
         """Restart a slot's dead worker or validator at once even when no task is pending (the next
         :meth:`feed` is expected)."""
@@ -264,8 +281,9 @@ class Runner:
     def _grow(self, n: int) -> None:
         if not self._tmp:
             self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
+            make_undumpable()  # no confined controller may read or write this process's memory
         while len(self._slots) < n:
-            self._slots.append(_Slot(self._start("worker"), self._start("validator")))
+            self._slots.append(_Slot(self._start("worker"), self._start("validator"), index=len(self._slots)))
 
     # -- the loop ----------------------------------------------------------------------------------
 
@@ -278,7 +296,8 @@ class Runner:
             return
         if not slot.worker.ready:
             return
-        if (pending[0].fresh_process or slot.worker.spent) and slot.worker.runs > 0:
+        fresh = pending[0].fresh_process or kind_of(pending[0].kind).fresh_worker
+        if (fresh or slot.worker.spent) and slot.worker.runs > 0:
             self._stop(slot.worker, idle=True)
             slot.worker = self._start("worker")
             return
@@ -305,8 +324,8 @@ class Runner:
         w = slot.worker
         if w.closed or w.proc.is_alive():
             return
-        if slot.task is not None and slot.phase in ("setup", "plan"):
-            self._finish(slot, self._crash(slot, w), on_record)
+        if slot.task is not None and (slot.phase == "setup" or (slot.phase == "plan" and not slot.kind.channel)):
+            self._finish(slot, self._crash(slot, w), on_record)  # (a closed loop's record is the simulation's)
         elif not w.ready:
             self._start_failed(w)
         self._close(w)
@@ -317,7 +336,9 @@ class Runner:
         v = slot.validator
         if v.closed or v.proc.is_alive():
             return
-        if slot.task is not None and slot.phase == "validate":
+        if slot.task is not None and (slot.phase == "validate" or (slot.phase == "plan" and slot.kind.channel)):
+            if slot.phase == "plan":  # the simulation is gone: so is the run's controller
+                self._kill(slot.worker)
             self._finish(slot, self._crash(slot, v), on_record)
         elif not v.ready:
             self._start_failed(v)
@@ -341,6 +362,9 @@ class Runner:
         _note_memory_limit(record, task)
         _check_planning_time(record, slot.timings.get("plan"))
         slot.task, slot.fields, slot.phase, slot.deadline = None, None, "", math.inf
+        if slot.channel is not None:
+            slot.channel.close()
+            slot.channel = None
         on_record(task, record)
 
     # -- processes -------------------------------------------------------------------------------
@@ -409,11 +433,20 @@ class Runner:
 
     def _dispatch(self, slot: _Slot, task: RunTask) -> bool:
         """Hand ``task`` to the slot's worker; False (the slot left free) when its connection is gone."""
-        message = encode({"type": "run", "run": self._runs + 1, "task": task.to_wire()})
+        kind = kind_of(task.kind)
+        message = encode({"type": "run", "run": self._runs + 1, "task": task.to_wire(), "channel": kind.channel})
+        ours = None
         try:
             slot.worker.conn.send_bytes(message)
+            if kind.channel:
+                theirs, ours = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+                with theirs:
+                    send_handle(slot.worker.conn, theirs.fileno(), slot.worker.proc.pid)
         except OSError:
+            if ours is not None:
+                ours.close()
             return False
+        slot.channel = ours
         now = time.monotonic()
         self._runs += 1
         slot.task, slot.run, slot.fields = task, self._runs, None
@@ -478,8 +511,10 @@ class Runner:
                 continue  # a late message of a run already recorded
             elif kind == "phase" and header.get("phase") == "plan" and slot.phase == "setup":
                 self._enter(slot, "plan", time.monotonic())
-            elif kind == "done":
-                return self._on_result(slot, header, arrays)
+                if slot.kind.channel:
+                    self._start_simulation(slot)
+            elif kind == "done" and (slot.phase == "setup" or not slot.kind.channel):
+                return self._on_result(slot, header, arrays)  # (a closed loop's record is the simulation's)
         return None
 
     def _on_result(self, slot: _Slot, header: dict[str, Any], arrays: dict[str, Any]) -> Record | None:
@@ -498,6 +533,8 @@ class Runner:
         fields["traceback"] = _with_output(fields["traceback"], tail)
         if not fields["prepared"]:
             return record_from(fields, None, math.nan)
+        if slot.kind.channel:  # only the simulation makes a closed loop's record
+            return None
         slot.fields = fields
         self._enter(slot, "validate", time.monotonic())
         if not slot.validator.usable:
@@ -517,6 +554,31 @@ class Runner:
             pass  # the validator died: its liveness check records the crash
         return None
 
+    def _start_simulation(self, slot: _Slot) -> None:
+        """Hand the validator a closed-loop run: the request, then its end of the socket pair."""
+        task, channel = slot.task, slot.channel
+        assert task is not None and channel is not None
+        if not slot.validator.usable:
+            self._close(slot.validator)
+            slot.validator = self._start("validator")
+        request = {
+            "type": "validate",
+            "run": slot.run,
+            "kind": task.kind,
+            "problem_ref": task.problem_ref,
+            "seed": task.seed,
+            "timing": task.timing,
+            "pid": slot.worker.proc.pid,
+            "cpu": self._cores[slot.index % len(self._cores)] if self.pin else None,
+        }
+        try:
+            slot.validator.conn.send_bytes(encode(request))
+            send_handle(slot.validator.conn, channel.fileno(), slot.validator.proc.pid)
+        except OSError:
+            pass  # the validator died: its liveness check records the crash
+        channel.close()
+        slot.channel = None
+
     def _drain_validator(self, slot: _Slot) -> Record | None:
         try:
             messages = self._receive(slot.validator)
@@ -525,22 +587,35 @@ class Runner:
             if slot.task is not None and slot.phase == "validate":
                 return failure_record("error", f"the validator {exc}; validator process killed")
             return None
-        for header, _ in messages:
+        for header, arrays in messages:
             if header.get("type") == "ready":
                 slot.validator.ready = True
-            elif header.get("type") == "verdict" and slot.phase == "validate" and header.get("run") == slot.run:
-                return self._on_verdict(slot, header)
+            elif header.get("type") == "verdict" and header.get("run") == slot.run and self._judging(slot):
+                return self._on_verdict(slot, header, arrays)
         return None
 
-    def _on_verdict(self, slot: _Slot, header: dict[str, Any]) -> Record:
+    def _judging(self, slot: _Slot) -> bool:
+        """Whether the slot waits for its validator's verdict."""
+        return slot.task is not None and (slot.phase == "validate" or (slot.phase == "plan" and slot.kind.channel))
+
+    def _on_verdict(self, slot: _Slot, header: dict[str, Any], arrays: dict[str, Any]) -> Record:
         fields = slot.fields
-        assert fields is not None
         evaluation = header.get("evaluation")
         if not isinstance(evaluation, dict):
             message = "validation raised (a planbench bug, please report it)"
+            if fields is None:  # a closed loop: the simulation raised
+                message = "the closed-loop simulation raised (a planbench bug, please report it)"
+                self._kill(slot.worker)
+                return failure_record("error", message, str(header.get("error", ""))[-8000:])
             record = failure_record("error", message, str(header.get("error", ""))[-8000:], fields["planning_time"])
             record.update(info=fields["info"], pid=fields["pid"], host=fields["host"])
             return record
+        if fields is None:  # the validator ran the closed loop: its record is the run's
+            try:
+                fields = _fields_from(header, arrays)
+            except BadField as bad:
+                return failure_record("error", f"the simulation's record is unusable: {bad} (a planbench bug)")
+            fields["host"] = self._host
         validation_time = header.get("validation_time")
         if type(validation_time) is not float:
             validation_time = math.nan
@@ -557,6 +632,9 @@ class Runner:
             fields = slot.fields or {}
             return failure_record("timeout", msg, "", fields.get("planning_time", math.nan))
         self._kill(slot.worker, dump_stack=True)
+        if slot.phase == "plan" and slot.kind.channel:  # the simulation of a closed loop
+            self._kill(slot.validator)
+            self._close(slot.validator)
         if slot.phase == "plan":
             msg = (
                 f"planning ran {elapsed:.1f} s, past the time limit of {task.time_limit} s "

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from planbench.bench.db import RunKey
+from planbench.bench.kinds import KINDS
 from planbench.bench.suite import (
     DEFAULT_GRACE,
     DEFAULT_MEMORY_LIMIT,
@@ -90,6 +91,8 @@ class RunTask:
             if type(value) is not kind or (isinstance(value, float) and math.isnan(value)):
                 raise BadMessage(f"run task field {name!r}: expected {kind.__name__}, got {type(value).__name__}")
             values[name] = value
+        if values["kind"] not in KINDS:
+            raise BadMessage(f"run task field 'kind': {values['kind'][:40]!r} is not one of {sorted(KINDS)}")
         return cls(**values)
 
 

@@ -6,13 +6,20 @@ planbench, numpy or coal in its own worker cannot reach this process, so it cann
 verdict or a later run's. The runner kills it (and starts another) when a validation passes
 ``validation_timeout``, which keeps its own loop free to enforce the other workers' deadlines.
 
+It also runs the closed loop of a ``dynamic`` run (:mod:`planbench.bench.kinds`): the simulation
+against the controller in the run's worker, over a socket pair the parent hands both of them.
+The process is marked undumpable, so a confined controller cannot reach into its memory.
+
 Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
-- in: ``{"type": "validate", "run": id, "problem_ref": ..., "validation": {...}, "kind": "static"
-  or "dynamic", "result": {...}}``
-  with the result's ``path`` and ``times`` arrays; already checked by the parent;
+- in: ``{"type": "validate", "run": id, "kind": "static", "problem_ref": ..., "validation":
+  {...}, "result": {...}}`` with the result's ``path`` and ``times`` arrays, already checked by
+  the parent; or ``{"type": "validate", "run": id, "kind": "dynamic", "problem_ref": ...,
+  "seed": n, "timing": ..., "pid": the controller's, "cpu": core or null}`` followed by the
+  socket (``SCM_RIGHTS``);
 - out: ``{"type": "ready"}`` once imports are done, then per run
-  ``{"type": "verdict", "run": id, "evaluation": {...}, "validation_time": s}``, or ``"error"``
+  ``{"type": "verdict", "run": id, "evaluation": {...}, "validation_time": s}`` (with the run's
+  ``result`` fields and its ``path`` and ``times`` arrays for a closed-loop run), or ``"error"``
   (the traceback) where validation itself raised.
 """
 
@@ -20,14 +27,19 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import time
 import traceback
+from multiprocessing.reduction import recv_handle
 from typing import Any
 
+from planbench.bench.kinds import kind_of
+
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
-from planbench.bench.wire import clean_result, decode, encode
+from planbench.bench.wire import decode, encode
 from planbench.datasets import load_problem
 from planbench.planner import PlanResult, PlanStatus
+from planbench.reactive.isolation import make_undumpable
 from planbench.validate import ValidationSettings, evaluate
 
 __all__ = ["validate_fields", "validator_main"]
@@ -37,17 +49,9 @@ def _problem(ref: str) -> Any:
     return load_problem(ref)
 
 
-def validate_fields(
-    problem: Any, fields: dict[str, Any], validation: dict[str, Any], kind: str = "static"
-) -> dict[str, Any]:
-    """``planbench.evaluate`` of a checked raw result (see :func:`planbench.bench.wire.clean_result`);
-    ``problem`` is a problem or its reference. ``kind="dynamic"``: ``problem`` is a scenario's
-    reference and the result a closed-loop run's (:func:`planbench.reactive.bench.validate_run_fields`)."""
-    if kind == "dynamic":
-        from planbench.reactive.bench import validate_run_fields
-        from planbench.reactive.sets import load_scenario
-
-        return validate_run_fields(load_scenario(problem), fields)
+def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, Any]) -> dict[str, Any]:
+    """``planbench.evaluate`` of a static run's checked raw result (see
+    :func:`planbench.bench.wire.clean_result`); ``problem`` is a problem or its reference."""
     if isinstance(problem, str):
         problem = _problem(problem)
     result = PlanResult(
@@ -63,20 +67,33 @@ def validate_fields(
     return evaluate(problem, result, ValidationSettings(**validation)).as_dict()
 
 
-def _answer(msg: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:
+def _answer(conn: Any, msg: dict[str, Any], arrays: dict[str, Any]) -> bytes:
+    """The verdict message for request ``msg`` (its kind's ``judge``), with the run's raw fields
+    and arrays when this process made them (a closed-loop run)."""
     run = msg.get("run")
     t0 = time.perf_counter()
+    channel = None
     try:
-        fields = clean_result({**msg["result"], "path": arrays.get("path"), "times": arrays.get("times")})
-        evaluation = validate_fields(msg["problem_ref"], fields, msg["validation"], msg.get("kind", "static"))
+        kind = kind_of(str(msg.get("kind", "static")))
+        if kind.channel:
+            channel = socket.socket(fileno=recv_handle(conn))
+        fields, evaluation = kind.judge(msg, arrays, channel)
     except Exception:
-        return {"type": "verdict", "run": run, "error": traceback.format_exc()[-8000:]}
-    return {"type": "verdict", "run": run, "evaluation": evaluation, "validation_time": time.perf_counter() - t0}
+        return encode({"type": "verdict", "run": run, "error": traceback.format_exc()[-8000:]})
+    finally:
+        if channel is not None:
+            channel.close()
+    answer = {"type": "verdict", "run": run, "evaluation": evaluation, "validation_time": time.perf_counter() - t0}
+    if fields is None:
+        return encode(answer)
+    answer["result"] = {k: v for k, v in fields.items() if k not in ("path", "times")}
+    return encode(answer, {"path": fields["path"], "times": fields["times"]})
 
 
 def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) -> None:
     """Entry point of a validator process (see the module docstring)."""
     detach(parent_pid)
+    make_undumpable()  # no confined controller may read or write this process's memory
     watch_parent(parent_pid)
     limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -90,4 +107,4 @@ def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 
         header, arrays = decode(data)
         if header.get("type") == "stop":
             return
-        conn.send_bytes(encode(_answer(header, arrays)))
+        conn.send_bytes(_answer(conn, header, arrays))

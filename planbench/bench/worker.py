@@ -42,8 +42,10 @@ import sys
 import time
 import traceback
 from collections.abc import Callable, Mapping
+from multiprocessing.reduction import recv_handle
 from typing import Any
 
+from planbench.bench.kinds import kind_of
 from planbench.bench.procs import (
     THREAD_VARIABLES,
     OutputFile,
@@ -139,14 +141,12 @@ def _result_fields(result: Any) -> dict[str, Any]:
 
 
 def plan_one(task: RunTask, notify: Callable[[str], None] = lambda phase: None) -> dict[str, Any]:
-    """Plan one run in this process and return its checked raw-result fields; never raises for a
-    planner's fault (a bad result is an ``error`` run naming the bad field).
+    """Plan one static run in this process and return its checked raw-result fields; never raises
+    for a planner's fault (a bad result is an ``error`` run naming the bad field).
 
     The planner is built from ``task.planner`` and ``task.settings`` by
     :meth:`~planbench.registry.Registry.make`, as everywhere else.
     """
-    if task.kind == "dynamic":
-        return _checked_control(task, notify)
     t0 = time.perf_counter()
     base = {"pid": os.getpid(), "host": socket.gethostname()}
     try:
@@ -192,32 +192,14 @@ def _warm(instance: Any, problem: Any) -> None:
         pass
 
 
-def _checked_control(task: RunTask, notify: Callable[[str], None]) -> dict[str, Any]:
-    """A closed-loop run (:func:`planbench.reactive.bench.control_one`), checked as a plan is."""
-    from planbench.reactive.bench import control_one
-
-    t0 = time.perf_counter()
-    try:
-        fields = control_one(task, notify)
-    except Exception as exc:  # planbench's loop itself failed: still a row
-        return error_fields(
-            f"the closed-loop run failed: {type(exc).__name__}: {exc}",
-            traceback.format_exc(),
-            wall_time=time.perf_counter() - t0,
-        )
-    try:
-        return clean_result(fields)
-    except BadField as bad:
-        return error_fields(f"the run's result is unusable: {bad}", "", wall_time=time.perf_counter() - t0)
-
-
 def _timing(timing: dict[str, Any]) -> dict[str, float]:
     """The measured times that are plain numbers (the harness's own, unless a planner patched it)."""
     return {k: float(v) for k, v in timing.items() if type(v) in (float, int)}
 
 
 def run_one(task: RunTask) -> dict[str, Any]:
-    """Plan and validate one run in *this* process and return its record (as the runner builds it).
+    """Plan and validate one static run in *this* process and return its record (as the runner
+    builds it).
 
     For tools and tests that need a record without worker processes; the benchmark itself never
     validates where a planner ran (see the module docstring).
@@ -226,7 +208,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
     evaluation, validation_time = None, math.nan
     if fields["prepared"]:
         t0 = time.perf_counter()
-        evaluation = validate_fields(task.problem_ref, fields, task.validation, task.kind)
+        evaluation = validate_fields(task.problem_ref, fields, task.validation)
         validation_time = time.perf_counter() - t0
     return record_from(fields, evaluation, validation_time)
 
@@ -270,25 +252,32 @@ def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) 
         if header.get("type") != "run":
             return
         run = header.get("run")
+        channel = None
         try:
+            if header.get("channel"):  # a closed-loop run: its end of the socket pair follows
+                channel = socket.socket(fileno=recv_handle(conn))
             task = RunTask.from_wire(header.get("task"))
-        except BadMessage as exc:  # planbench's own fault: still a row
+        except (BadMessage, OSError) as exc:  # planbench's own fault: still a row
             _send_result(conn, run, error_fields(f"the worker received a malformed task: {exc}", prepared=False))
-            continue
+            return
         _set_memory_limit(task.memory_limit)
 
         def notify(phase: str, run: Any = run) -> None:
             _send(conn, {"type": "phase", "run": run, "phase": phase})
 
+        kind = kind_of(task.kind)
         try:
-            fields = plan_one(task, notify)
+            fields = kind.work(task, notify, channel)
         except Exception as exc:  # planbench's own fault, or a planner that broke it: still a row
             fields = error_fields(f"the worker failed: {type(exc).__name__}: {exc}", traceback.format_exc())
+        if channel is not None:
+            channel.close()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
             except Exception:  # a planner may have replaced or closed them
                 pass
-        _send_result(conn, run, fields)
-        if _out_of_memory(fields):
-            return  # its heap may be in any state: the runner starts a fresh worker
+        if fields is not None:
+            _send_result(conn, run, fields)
+        if kind.fresh_worker or fields is None or _out_of_memory(fields):
+            return  # one run only, or its heap may be in any state: the runner starts a fresh worker

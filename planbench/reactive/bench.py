@@ -1,11 +1,19 @@
-"""Closed-loop runs in the benchmark: the worker's side (run a controller, send the trajectory as
-data) and the validator's (verdict and metrics from the trajectory alone).
+"""Closed-loop runs in the benchmark: the controller's side and the simulation's side of one run.
 
-A closed-loop run crosses the benchmark's process boundaries as a static run does: the worker
-sends the raw fields of :data:`planbench.bench.wire.RESULT_FIELDS` (status, message, the executed
-trajectory as ``path`` and ``times``, the compute times in ``info``), the validator, where no
-controller code ran, computes :func:`~planbench.reactive.runner.evaluate_run` and returns an
-:class:`~planbench.validate.Evaluation` whose closed-loop fields are filled.
+The benchmark (:mod:`planbench.bench.kinds`) gives each closed-loop run two processes joined by a
+socket pair (:mod:`planbench.reactive.remote`):
+
+- the **controller's process** (a fresh benchmark worker) calls :func:`serve_run`: it confines
+  itself (:func:`~planbench.reactive.isolation.confine`: no capabilities, no new processes)
+  *before* the controller's module is imported, builds the controller, runs ``setup`` and
+  ``reset`` (untimed), tells the benchmark the loop may start, and answers the simulation's calls
+  until the run ends. It sends the benchmark nothing else: a run's record never comes from here.
+- the **simulation's process** (the slot's validator, where no plugin code ever runs) calls
+  :func:`simulate_run`: sensing, integration, velocity clipping, joint clamping, the compute
+  charged from the kernel's CPU clock of the controller's process, certification of every tick,
+  then the verdict: :func:`~planbench.reactive.runner.evaluate_run` and the control model
+  (:func:`~planbench.reactive.control_model.check_record`) on the trajectory and the
+  simulation's own timing record. It returns the run's raw fields and its evaluation together.
 """
 
 from __future__ import annotations
@@ -21,80 +29,92 @@ from typing import Any
 import numpy as np
 
 from planbench.problem import pose_error
-from planbench.reactive.runner import RunRecord, RunSettings, evaluate_run, run_scenario
+from planbench.reactive.control_model import check_record
+from planbench.reactive.runner import (
+    RunRecord,
+    RunSettings,
+    control_rng_of,
+    control_task,
+    evaluate_run,
+    simulate,
+)
 from planbench.reactive.scenario import Scenario
 from planbench.validate import Evaluation
 
-__all__ = ["control_one", "validate_run_fields"]
+__all__ = ["evaluate_record", "serve_run", "simulate_remote", "simulate_run"]
 
-_STATUS = {"success": "success", "collision": "collision", "timeout": "timeout", "error": "error"}
+_STATUS = {"success": "success", "collision": "collision", "timeout": "timeout", "error": "error", "crash": "crash"}
 
 
-def control_one(task: Any, notify: Callable[[str], None] = lambda phase: None) -> dict[str, Any]:
-    """Run ``task`` (a closed-loop :class:`~planbench.bench.task.RunTask`) in this process and
-    return its raw-result fields (unchecked: the worker checks them as it does a planner's)."""
+def _error(message: str, t0: float, tb: str = "") -> dict[str, Any]:
+    return {
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "target": "pose",
+        "status": "error",
+        "message": message,
+        "info": {},
+        "planning_time": math.nan,
+        "setup_time": math.nan,
+        "wall_time": time.perf_counter() - t0,
+        "traceback": tb,
+        "prepared": False,
+        "path": None,
+        "times": None,
+    }
+
+
+def serve_run(
+    scenario_ref: str | Scenario,
+    controller_name: str,
+    settings: dict[str, Any],
+    seed: int,
+    sock: socket.socket,
+    notify: Callable[[str], None],
+) -> dict[str, Any] | None:
+    """The controller's side of one run (module docstring). None once the run has been served;
+    the raw fields of an ``error`` (not prepared) when the controller could not be built or set up."""
+    from planbench.reactive.isolation import IsolationUnavailable, confine
+    from planbench.reactive.remote import serve_controller
     from planbench.reactive.sets import load_scenario
     from planbench.registry import CONTROLLERS
 
     t0 = time.perf_counter()
-    base = {"pid": os.getpid(), "host": socket.gethostname(), "target": "pose", "traceback": ""}
     try:
-        scenario = load_scenario(task.problem_ref)
-        controller = CONTROLLERS.make(task.planner, **task.settings)
+        scenario = scenario_ref if isinstance(scenario_ref, Scenario) else load_scenario(scenario_ref)
     except Exception as exc:
-        return {
-            **base,
-            "status": "error",
-            "message": f"could not prepare the run: {type(exc).__name__}: {exc}",
-            "info": {},
-            "planning_time": math.nan,
-            "setup_time": math.nan,
-            "wall_time": time.perf_counter() - t0,
-            "traceback": traceback.format_exc(),
-            "prepared": False,
-            "path": None,
-            "times": None,
-        }
-    if _warm(controller, scenario):
-        controller = CONTROLLERS.make(task.planner, **task.settings)  # a fresh one: nothing of the warm-up kept
+        return _error(f"could not load the scenario: {type(exc).__name__}: {exc}", t0, traceback.format_exc())
+    try:
+        confine()
+    except IsolationUnavailable as exc:
+        return _error(f"controllers run confined and this machine cannot confine them: {exc}", t0)
+    try:
+        controller = CONTROLLERS.make(controller_name, **settings)
+        if _warm(controller, scenario):
+            controller = CONTROLLERS.make(controller_name, **settings)  # nothing of the warm-up kept
+        controller.setup(control_task(scenario))
+        controller.reset(np.array(scenario.problem.start), control_rng_of(seed))
+    except Exception as exc:
+        return _error(f"could not prepare the run: {type(exc).__name__}: {exc}", t0, traceback.format_exc())
     notify("plan")
-    record = run_scenario(scenario, controller, seed=task.seed, settings=RunSettings(timing=task.timing))
-    loop_time = time.perf_counter() - t0 - (record.setup_time if math.isfinite(record.setup_time) else 0.0)
-    return {
-        **base,
-        "status": _STATUS[record.status],
-        "message": record.message,
-        "info": _record_info(record),
-        "planning_time": loop_time,
-        "setup_time": record.setup_time,
-        "wall_time": time.perf_counter() - t0,
-        "prepared": True,
-        "path": record.path,
-        "times": record.times,
-    }
-
-
-_WARMED: set[type] = set()
+    serve_controller(sock, controller, scenario.problem.robot.nq, scenario.problem.goal)
+    return None
 
 
 def _warm(controller: Any, scenario: Scenario) -> bool:
-    """Compile the controller's numba code (or load numba's on-disk cache) before its first run in
-    this worker: one frame of the scenario through ``setup``, ``reset``, ``update`` and ``step``,
-    untimed. Without it the first run of each worker charges the compilation to its first ticks
-    as deadline misses. A failure here is left to the run to meet. True when ``controller`` was
-    used for it."""
-    cls = type(controller)
-    if cls in _WARMED or not getattr(controller, "compiles", False):
+    """Compile the controller's numba code (or load numba's on-disk cache) before its run: one
+    frame of the scenario through ``setup``, ``reset``, ``update`` and ``step``, untimed, so that
+    the run's first ticks are not charged the compilation. A failure here is left to the run to
+    meet. True when ``controller`` was used for it."""
+    if not getattr(controller, "compiles", False):
         return False
-    _WARMED.add(cls)
     try:
-        from planbench.reactive.controller import ControlTask
         from planbench.reactive.sensing import Sensor
 
         p = scenario.problem
         rng = np.random.default_rng(0)
         frame = Sensor(scenario.sensing, p.robot).capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, rng)
-        controller.setup(ControlTask(p.robot, p.start, p.goal, p.tolerances, scenario.period, scenario.name))
+        controller.setup(control_task(scenario))
         controller.reset(np.array(p.start), rng)
         controller.update(frame)
         controller.step(0.0, np.array(p.start), frame, p.goal)
@@ -103,8 +123,68 @@ def _warm(controller: Any, scenario: Scenario) -> bool:
     return True
 
 
-def _record_info(record: RunRecord) -> dict[str, Any]:
-    """What the validator needs besides the trajectory, and the controller's own diagnostics."""
+def simulate_remote(
+    scenario: Scenario, sock: socket.socket, pid: int, *, seed: int = 0, settings: RunSettings | None = None,
+    cpu: int | None = None,
+) -> tuple[RunRecord, list[float]]:
+    """The closed loop against the controller of process ``pid`` over ``sock``, both pinned to core
+    ``cpu`` (None: left where they are): the run's record and each call's hand-off time [s]."""
+    from planbench.reactive.remote import ControllerGone, RemoteController
+
+    own = os.sched_getaffinity(0)
+    try:
+        if cpu is not None:
+            _pin(cpu, pid)
+        try:
+            port = RemoteController(sock, pid, scenario.problem.robot.nq)
+        except ProcessLookupError as exc:
+            raise ControllerGone(f"the controller's process is gone ({exc})") from exc
+        record = simulate(scenario, port, seed=seed, settings=settings)
+        if record.overrun:
+            port.kill()
+    finally:
+        os.sched_setaffinity(0, own)
+    return record, port.handoff
+
+
+def simulate_run(
+    scenario: Scenario, seed: int, timing: str, sock: socket.socket, pid: int, cpu: int | None
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The simulation's side of one benchmark run (module docstring): the run's raw fields (with
+    ``path`` and ``times``) and its evaluation (as a dict)."""
+    t0 = time.perf_counter()
+    record, handoff = simulate_remote(scenario, sock, pid, seed=seed, settings=RunSettings(timing=timing), cpu=cpu)
+    loop_time = time.perf_counter() - t0
+    fields = {
+        "pid": pid,
+        "host": socket.gethostname(),
+        "target": "pose",
+        "status": _STATUS[record.status],
+        "message": record.message + (f" [a call was abandoned: {record.overrun}]" if record.overrun else ""),
+        "info": _record_info(record, handoff),
+        "planning_time": loop_time,
+        "setup_time": math.nan,
+        "wall_time": loop_time,
+        "traceback": "",
+        "prepared": True,
+        "path": record.path,
+        "times": record.times,
+    }
+    return fields, evaluate_record(scenario, record, loop_time)
+
+
+def _pin(cpu: int, pid: int) -> None:
+    """Both processes on one core: they alternate, so a hand-off is a switch on that core."""
+    for who in (0, pid):
+        try:
+            os.sched_setaffinity(who, {cpu})
+        except OSError:  # a core this process may not use, or the controller already gone
+            pass
+
+
+def _record_info(record: RunRecord, handoff: list[float]) -> dict[str, Any]:
+    """The simulation's own record of the run, and the controller's diagnostics (as it sent them)."""
+    h = np.asarray(handoff, dtype=float)
     return {
         "compute": _floats(record.compute),
         "measured": _floats(record.measured),
@@ -114,6 +194,9 @@ def _record_info(record: RunRecord) -> dict[str, Any]:
         "velocity_clipped": int(record.velocity_clipped),
         "position_clamped": int(record.position_clamped),
         "collision": list(record.collision) if record.collision else None,
+        "handoff_median": float(np.median(h)) if len(h) else None,
+        "handoff_p99": float(np.percentile(h, 99)) if len(h) else None,
+        "handoff_calls": len(h),
         "controller": dict(record.info),
     }
 
@@ -122,38 +205,27 @@ def _floats(values: Any) -> list[float | None]:
     return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float).tolist()]
 
 
-def validate_run_fields(scenario: Scenario, fields: dict[str, Any]) -> dict[str, Any]:
-    """The :class:`Evaluation` (as a dict) of a closed-loop run's checked raw fields."""
-    info = fields["info"]
-    path, times = fields["path"], fields["times"]
-    status = fields["status"]
-    base = Evaluation(False, "", status, fields["planning_time"], fields["setup_time"])
-    if path is None or times is None or len(path) == 0:
-        failure = f"{status}: {fields['message']}" if fields["message"] else status
-        return {**base.as_dict(), "failure": failure}
-    record = RunRecord(
-        scenario.name,
-        "",
-        status,
-        fields["message"],
-        np.asarray(times, dtype=float),
-        np.asarray(path, dtype=float),
-        np.zeros((0, path.shape[1])),
-        _array(info.get("compute")),
-        _array(info.get("measured")),
-        field_update_times=_array(info.get("field_update_times")).tolist(),
-        deadline_misses=int(info.get("deadline_misses") or 0),
-    )
+def evaluate_record(scenario: Scenario, record: RunRecord, planning_time: float = math.nan) -> dict[str, Any]:
+    """The :class:`~planbench.validate.Evaluation` (as a dict) of a closed-loop run's record: the
+    control model first (a record the loop cannot produce is ``invalid``, naming the rule and the
+    tick), then :func:`~planbench.reactive.runner.evaluate_run` (every tick certified again)."""
+    base = Evaluation(False, "", record.status, planning_time, record.setup_time)
+    if len(record.path) == 0:
+        return {**base.as_dict(), "failure": f"{record.status}: {record.message}"}
+    violation = check_record(scenario, record)
+    if violation is not None:
+        return {**base.as_dict(), "failure": f"invalid: {violation}", "n_waypoints": len(record.path)}
     m = evaluate_run(scenario, record)
     err_p, err_r = pose_error(scenario.problem.robot, record.path[-1], scenario.problem.goal.pose)
     pair = ""
     if m.failure.startswith("collision with "):  # "collision with <body> (<robot link>) at t = ..."
         body, _, link = m.failure.removeprefix("collision with ").partition(" at t")[0].rpartition(" (")
         pair = f"{link.rstrip(')')} / {body}"  # as a static run's: "<robot link> / <link or obstacle:name>"
+    failure = m.failure
     return {
         **base.as_dict(),
         "success": m.success,
-        "failure": m.failure,
+        "failure": failure,
         "n_waypoints": len(record.path),
         "joint_path_length": m.path_length,
         "min_clearance": m.min_clearance,
@@ -169,9 +241,3 @@ def validate_run_fields(scenario: Scenario, fields: dict[str, Any]) -> dict[str,
         "stalled_time": m.stalled_time,
         "path_length": m.path_length,
     }
-
-
-def _array(values: Any) -> np.ndarray:
-    if not isinstance(values, list):
-        return np.zeros(0)
-    return np.array([math.nan if v is None else float(v) for v in values], dtype=float)

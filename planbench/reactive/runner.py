@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -39,7 +39,19 @@ from planbench.reactive.checker import TickChecker
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.reactive.scenario import Scenario
 
-__all__ = ["RunSettings", "RunRecord", "RunMetrics", "TIMINGS", "evaluate_run", "run_scenario"]
+__all__ = [
+    "ControllerPort",
+    "LocalPort",
+    "RunMetrics",
+    "RunRecord",
+    "RunSettings",
+    "TIMINGS",
+    "control_rng_of",
+    "control_task",
+    "evaluate_run",
+    "run_scenario",
+    "simulate",
+]
 
 TIMINGS = ("measured", "ideal", "replay")
 _EPS = 1e-9
@@ -92,10 +104,55 @@ class RunRecord:
     info: dict[str, Any] = field(default_factory=dict)
     setup_time: float = math.nan
     """[s] the controller's ``setup`` and ``reset`` (untimed by the loop)."""
+    overrun: str = ""
+    """Why a call was abandoned (its command never came), when one was."""
 
 
 class ControllerFault(Exception):
-    """The controller raised or returned something that is not a joint velocity."""
+    """The controller raised or returned something that is not a joint velocity (``status``
+    ``"error"``), or its process died (``"crash"``)."""
+
+    def __init__(self, message: str, status: str = "error") -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class ControllerPort(Protocol):
+    """How the simulation calls a controller: each call returns what it is charged [s].
+
+    :class:`LocalPort` calls a controller object in this process (timed with this process's clock:
+    for your own code, in a notebook or a debugger);
+    :class:`~planbench.reactive.remote.RemoteController` calls one in another process and charges
+    the CPU time it consumed there (the benchmark's way)."""
+
+    budget: float
+
+    def update(self, observation: Observation) -> float: ...
+
+    def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Any) -> tuple[Any, float]: ...
+
+    def info(self) -> dict[str, Any]: ...
+
+
+class LocalPort:
+    """A controller object called in this process, each call timed with ``time.perf_counter``."""
+
+    def __init__(self, controller: Controller) -> None:
+        self.controller = controller
+        self.budget = math.inf
+
+    def update(self, observation: Observation) -> float:
+        t0 = time.perf_counter()
+        self.controller.update(observation)
+        return time.perf_counter() - t0
+
+    def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Any) -> tuple[Any, float]:
+        t0 = time.perf_counter()
+        qd = self.controller.step(t, q, observation, goal)
+        return qd, time.perf_counter() - t0
+
+    def info(self) -> dict[str, Any]:
+        return dict(self.controller.info())
 
 
 def run_scenario(
@@ -108,23 +165,68 @@ def run_scenario(
     name: str | None = None,
     sensor: Any = None,
 ) -> RunRecord:
-    """Run ``controller`` on ``scenario`` (module docstring). ``replay``: the ``compute`` array of an
-    earlier run, for ``timing="replay"``. ``sensor``: anything with the ``capture`` method of
-    :class:`~planbench.reactive.sensing.Sensor` (default: the scenario's sensing model). The
-    controller's ``setup`` is called here (untimed)."""
+    """Run ``controller`` on ``scenario`` in this process (module docstring): its ``setup`` and
+    ``reset`` (untimed), then :func:`simulate` through a :class:`LocalPort`. Compute is timed with
+    this process's clock, which the controller shares: the benchmark runs controllers in a process
+    of their own instead (:mod:`planbench.reactive.remote`)."""
+    problem = scenario.problem
+    control_rng = control_rng_of(seed)
+    task = control_task(scenario)
+    t_setup = time.perf_counter()
+    controller.setup(task)
+    controller.reset(np.array(problem.start), control_rng)
+    setup_time = time.perf_counter() - t_setup
+    record = simulate(
+        scenario,
+        LocalPort(controller),
+        seed=seed,
+        settings=settings,
+        replay=replay,
+        name=name or getattr(controller, "name", ""),
+        sensor=sensor,
+    )
+    record.setup_time = setup_time
+    return record
+
+
+def ticks_of(scenario: Scenario) -> int:
+    """The number of control ticks of a run: as many whole periods as fit in the horizon."""
+    return max(1, math.floor(scenario.horizon * scenario.control_rate + 1e-9))
+
+
+def control_task(scenario: Scenario) -> ControlTask:
+    """What the controller of ``scenario`` is told before it runs."""
+    p = scenario.problem
+    return ControlTask(p.robot, p.start, p.goal, p.tolerances, scenario.period, scenario.name)
+
+
+def control_rng_of(seed: int) -> np.random.Generator:
+    """The controller's random generator of run ``seed`` (the sensor's is the other child)."""
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[1])
+
+
+def simulate(
+    scenario: Scenario,
+    port: ControllerPort,
+    *,
+    seed: int = 0,
+    settings: RunSettings | None = None,
+    replay: np.ndarray | None = None,
+    name: str = "",
+    sensor: Any = None,
+) -> RunRecord:
+    """The closed loop of the module docstring, calling the controller through ``port`` (already
+    set up and reset). ``replay``: the ``compute`` array of an earlier run, for
+    ``timing="replay"``. ``sensor``: anything with the ``capture`` method of
+    :class:`~planbench.reactive.sensing.Sensor` (default: the scenario's sensing model)."""
     settings = settings or RunSettings()
     if settings.timing == "replay" and replay is None:
         raise ValueError('timing="replay" needs the compute times of an earlier run (replay=record.compute)')
     problem = scenario.problem
     robot = problem.robot
     T = scenario.period
-    n_ticks = max(1, int(round(scenario.horizon * scenario.control_rate)))
-    sensor_rng, control_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    task = ControlTask(robot, problem.start, problem.goal, problem.tolerances, T, scenario.name)
-    t_setup = time.perf_counter()
-    controller.setup(task)
-    controller.reset(np.array(problem.start), control_rng)
-    setup_time = time.perf_counter() - t_setup
+    n_ticks = ticks_of(scenario)
+    sensor_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[0])
     if sensor is None:
         from planbench.reactive.sensing import Sensor
 
@@ -142,18 +244,7 @@ def run_scenario(
     q = np.array(problem.start, dtype=float)
     path[0] = q
     held = np.zeros(robot.nq)
-    rec = RunRecord(
-        scenario.name,
-        name or getattr(controller, "name", ""),
-        "timeout",
-        "",
-        times,
-        path,
-        commands,
-        compute,
-        measured,
-        setup_time=setup_time,
-    )
+    rec = RunRecord(scenario.name, name, "timeout", "", times, path, commands, compute, measured)
     pending: list[Observation] = []  # captured, not yet delivered
     latest: Observation | None = None
     fresh = False  # a frame delivered since the controller last took one in
@@ -171,10 +262,11 @@ def run_scenario(
         while pending and pending[0].time + scenario.sensing.latency <= t + _EPS:
             latest, fresh = pending.pop(0), True
         if k >= free_at:
+            port.budget = (n_ticks - k) * T
             try:
-                qd, c = _compute(controller, t, q, latest if fresh else None, latest, problem.goal, robot.nq, rec)
+                qd, c = _compute(port, t, q, latest if fresh else None, latest, problem.goal, robot.nq, rec)
             except ControllerFault as exc:
-                status, message, n_done = "error", f"tick {k} (t = {t:.3f} s): {exc}", k
+                status, message, n_done = exc.status, f"tick {k} (t = {t:.3f} s): {exc}", k
                 break
             fresh = False
             measured[k] = c
@@ -186,7 +278,9 @@ def run_scenario(
             missed = max(0, math.ceil(c / T - _EPS) - 1)
             rec.deadline_misses += missed
             free_at = k + missed + 1
-            if missed == 0:
+            if qd is None:  # abandoned: its command never comes
+                pass
+            elif missed == 0:
                 held = qd
             else:
                 late = (k + missed, qd)
@@ -218,14 +312,14 @@ def run_scenario(
     rec.times, rec.path = times[: n_done + 1], path[: n_done + 1]
     rec.commands, rec.compute, rec.measured = commands[:n_done], compute[:n_done], measured[:n_done]
     try:
-        rec.info = dict(controller.info())
+        rec.info = dict(port.info())
     except Exception as exc:  # diagnostics must not lose the run
         rec.info = {"info_error": f"{type(exc).__name__}: {exc}"}
     return rec
 
 
 def _compute(
-    controller: Controller,
+    port: ControllerPort,
     t: float,
     q: np.ndarray,
     new: Observation | None,
@@ -233,19 +327,27 @@ def _compute(
     goal: Any,
     nq: int,
     rec: RunRecord,
-) -> tuple[np.ndarray, float]:
-    """One controller turn: ``update`` for a new frame, then ``step``; the command and its time [s]."""
+) -> tuple[np.ndarray | None, float]:
+    """One controller turn: ``update`` for a new frame, then ``step``; the command (None when the
+    turn was abandoned, :class:`~planbench.reactive.remote.Overrun`) and the time charged [s]."""
+    from planbench.reactive.remote import ControllerGone, Overrun, RemoteFault
+
     spent = 0.0
     try:
         if new is not None:
-            t0 = time.perf_counter()
-            controller.update(new)
-            u = time.perf_counter() - t0
+            u = port.update(new)
             rec.field_update_times.append(u)
             spent += u
-        t0 = time.perf_counter()
-        qd = controller.step(t, q.copy(), latest, goal)
-        spent += time.perf_counter() - t0
+            port.budget -= u
+        qd, s = port.step(t, q.copy(), latest, goal)
+        spent += s
+    except Overrun as over:
+        rec.overrun = f"{over} ({spent + over.charged:.3f} s charged)"
+        return None, spent + over.charged
+    except ControllerGone as exc:
+        raise ControllerFault(str(exc), status="crash") from exc
+    except RemoteFault as exc:
+        raise ControllerFault(str(exc)) from exc
     except Exception as exc:
         raise ControllerFault(f"the controller raised {type(exc).__name__}: {exc}") from exc
     try:
@@ -308,8 +410,8 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
     err_p, err_r = pose_error(problem.robot, path[-1], problem.goal.pose)
     reached = err_p <= problem.tolerances.position and err_r <= problem.tolerances.orientation
     if not failure and not reached:
-        if record.status == "error":
-            failure = f"error: {record.message}"
+        if record.status in ("error", "crash"):
+            failure = f"{record.status}: {record.message}"
         else:
             failure = f"goal not reached (position error {err_p * 1000:.1f} mm, orientation {err_r:.3f} rad)"
     compute = np.asarray(record.measured, dtype=float)
