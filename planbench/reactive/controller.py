@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from planbench.robot import Robot
     from planbench.scene import Scene
 
-__all__ = ["ControlTask", "Controller", "Observation"]
+__all__ = ["BadCommand", "ControlTask", "Controller", "Observation", "as_command"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,3 +95,26 @@ class Controller:
     def info(self) -> dict[str, Any]:
         """Diagnostics of the run just finished (JSON-friendly values)."""
         return {}
+
+
+class BadCommand(ValueError):
+    """What a controller's ``step`` returned is not ``nq`` finite real joint velocities."""
+
+
+def as_command(qd: Any, nq: int) -> np.ndarray:
+    """``qd`` as ``nq`` finite float64 joint velocities [rad/s]; :class:`BadCommand` naming what is
+    wrong otherwise (complex numbers are refused, not cut to their real part)."""
+    try:
+        arr = np.asarray(qd)
+        if arr.dtype.kind not in "fiub":
+            raise BadCommand(f"step returned {type(qd).__name__} of {arr.dtype}, not real joint velocities")
+        arr = arr.astype(float)
+    except BadCommand:
+        raise
+    except Exception as exc:
+        raise BadCommand(f"step returned {type(qd).__name__}, not joint velocities ({type(exc).__name__})") from None
+    if arr.shape != (nq,):
+        raise BadCommand(f"step returned shape {arr.shape}, expected ({nq},) joint velocities")
+    if not np.isfinite(arr).all():
+        raise BadCommand(f"step returned non-finite joint velocities {arr.tolist()}")
+    return arr

@@ -18,8 +18,8 @@ Two kernel facilities, no third-party code:
   but loses ``CAP_SYS_PTRACE``, ``CAP_DAC_OVERRIDE`` and the rest), and :func:`make_undumpable`
   marks a process (the simulation's, the benchmark's) so that a process without
   ``CAP_SYS_PTRACE`` cannot read or write its memory through ``/proc/<pid>/mem``, even under the
-  same uid. :func:`confine` does what a controller's process needs: capabilities dropped, new
-  processes forbidden.
+  same uid. :func:`confine` does what a controller's process needs: undumpable, capabilities
+  dropped, new processes forbidden.
 
 Linux on x86-64 or AArch64 only; elsewhere :func:`confine` raises :class:`IsolationUnavailable`
 and the benchmark says so.
@@ -146,7 +146,9 @@ def forbid_new_processes() -> None:
 
 
 def confine() -> None:
-    """Confine the calling process for a controller: capabilities dropped, new processes forbidden."""
+    """Confine the calling process for a controller: capabilities dropped, new processes forbidden,
+    and undumpable (so another confined controller, as capable as this one, cannot reach into it)."""
+    make_undumpable()
     drop_capabilities()
     forbid_new_processes()
 

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from planbench.occupancy import OccupancyGrid
-from planbench.reactive.controller import Observation
+from planbench.reactive.controller import BadCommand, Observation, as_command
 from planbench.reactive.isolation import ProcessClock
 from planbench.scene import Scene
 
@@ -249,12 +249,9 @@ def serve_controller(sock: socket.socket, controller: Any, nq: int, goal: Any) -
 def command_bytes(qd: Any, nq: int) -> tuple[bytes, bytes]:
     """The answer to a step: ``c`` and the velocities, or ``x`` naming what is wrong with them."""
     try:
-        arr = np.array(qd, dtype=float)
-    except (TypeError, ValueError):
-        return b"x", f"step returned {type(qd).__name__}, not joint velocities".encode()
-    if arr.shape != (nq,):
-        return b"x", f"step returned shape {arr.shape}, expected ({nq},) joint velocities".encode()
-    return b"c", arr.astype("<f8").tobytes()
+        return b"c", as_command(qd, nq).astype("<f8").tobytes()
+    except BadCommand as bad:
+        return b"x", str(bad)[:4000].encode()
 
 
 # -- the simulation's side -------------------------------------------------------------------------
@@ -296,10 +293,10 @@ class RemoteController:
             raise RemoteFault(f"answered {kind!r} to a step")
         if len(answer) != 8 * self.nq:
             raise RemoteFault(f"sent a command of {len(answer)} bytes, expected {self.nq} float64")
-        qd = np.frombuffer(answer, dtype="<f8").astype(float)
-        if not np.isfinite(qd).all():
-            raise RemoteFault(f"step returned non-finite joint velocities {qd.tolist()}")
-        return qd, charged
+        try:
+            return as_command(np.frombuffer(answer, dtype="<f8"), self.nq), charged
+        except BadCommand as bad:
+            raise RemoteFault(str(bad)) from None
 
     def info(self) -> dict[str, Any]:
         """The controller's diagnostics (JSON data as sent; the benchmark cleans them)."""

@@ -36,7 +36,7 @@ import numpy as np
 
 from planbench.problem import pose_error
 from planbench.reactive.checker import TickChecker
-from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.reactive.controller import BadCommand, Controller, ControlTask, Observation, as_command
 from planbench.reactive.scenario import Scenario
 
 __all__ = [
@@ -351,14 +351,9 @@ def _compute(
     except Exception as exc:
         raise ControllerFault(f"the controller raised {type(exc).__name__}: {exc}") from exc
     try:
-        qd = np.array(qd, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ControllerFault(f"step returned {type(qd).__name__}, not joint velocities") from exc
-    if qd.shape != (nq,):
-        raise ControllerFault(f"step returned shape {qd.shape}, expected ({nq},) joint velocities")
-    if not np.isfinite(qd).all():
-        raise ControllerFault(f"step returned non-finite joint velocities {qd.tolist()}")
-    return qd, spent
+        return as_command(qd, nq), spent
+    except BadCommand as bad:
+        raise ControllerFault(str(bad)) from None
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,124 @@
+"""Closed-loop verdicts no controller can fake (issue 27): controllers written to fool the benchmark,
+run through ``planbench bench``, and the simulation's own record checked against the control model.
+
+None of these asserts depends on how fast the machine is: charged compute is CPU time, and each
+bound below is a fraction of work the controller is known to have done."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from planbench.bench.benchmark import run_benchmark
+from planbench.bench.db import ResultsDB
+from planbench.bench.suite import parse_suite
+from planbench.reactive.bench import evaluate_record
+from planbench.reactive.runner import RunSettings, run_scenario
+from planbench.reactive.sets import load_scenario
+
+SCENARIO = "dynamic:panda_crossing_slow_truth/0001"
+
+
+def _scenario_file(tmp_path, horizon: float) -> str:
+    d = load_scenario(SCENARIO).to_dict()
+    d.update(name="hostile", horizon=horizon, metadata={})
+    path = tmp_path / "hostile.json"
+    path.write_text(json.dumps(d))
+    return str(path)
+
+
+def _bench(tmp_path, controllers: list[str], horizon: float = 1.0) -> dict[str, dict]:
+    entries = "".join(f'[[controllers]]\ncontroller = "bench_hostile_controllers:{c}"\n' for c in controllers)
+    suite = (
+        f'[suite]\nname = "hostile"\nscenarios = ["{_scenario_file(tmp_path, horizon)}"]\n'
+        f'timing = "measured"\ntime_limit = 120.0\n{entries}'
+    )
+    db_path = tmp_path / "h.db"
+    run_benchmark(parse_suite(suite, "hostile.toml"), db_path, jobs=2)
+    with ResultsDB(db_path) as db:
+        return {r["planner"].split(":")[-1]: r for r in db.rows(with_arrays=True)}
+
+
+def _within_velocity_limits(row, scenario) -> bool:
+    vmax = np.asarray(scenario.problem.robot.velocity_limit)
+    step = np.abs(np.diff(row["path"], axis=0))
+    return bool(np.all(step <= vmax * scenario.period * (1 + 1e-9)))
+
+
+@pytest.mark.slow
+def test_patching_clocks_modules_and_the_robot_in_the_controller_process_changes_no_verdict(tmp_path):
+    rows = _bench(tmp_path, ["PatchEverything", "SlowClocks", "BackgroundThread"])
+    scenario = load_scenario(SCENARIO)
+    T = scenario.period
+
+    patched = rows["PatchEverything"]
+    assert json.loads(patched["info"])["controller"]["patched"] is True  # the attempt ran
+    assert _within_velocity_limits(patched, scenario)  # clipped by the simulation all the same
+    assert len(patched["path"]) > 2  # in-process, this reached the goal in one 10 ms tick
+    if patched["success"]:
+        assert patched["time_to_goal"] > T
+
+    slow = rows["SlowClocks"]
+    assert json.loads(slow["info"])["controller"]["patched"] is True
+    assert slow["tick_time_median"] >= 0.03 * 0.9  # 30 ms of CPU per step, whatever its clocks say
+    n_turns = np.isfinite(np.array(json.loads(slow["info"])["compute"], dtype=float)).sum()
+    assert slow["deadline_misses"] >= 2 * n_turns - 1  # ceil(30 ms / 10 ms) - 1 per turn
+
+    background = rows["BackgroundThread"]
+    info = json.loads(background["info"])
+    work = info["controller"].get("background_cpu")
+    charged = np.nansum(np.array(info["compute"], dtype=float))
+    if work is not None:  # the thread finished within the run: all of its work was charged
+        assert charged >= 0.95 * work
+    else:  # it did not: the run's calls were charged at least the horizon's worth of CPU
+        assert charged >= 0.5 * scenario.horizon or background["deadline_misses"] > 0
+    assert charged >= 0.1 and background["deadline_misses"] > 0
+
+
+@pytest.mark.slow
+def test_a_controller_can_start_no_process_nor_reach_into_the_simulation(tmp_path):
+    rows = _bench(tmp_path, ["ChildProcess", "ReachesIntoSimulation"])
+    tried = json.loads(rows["ChildProcess"]["info"])["controller"]
+    assert tried["seccomp"] == "2"
+    for how in ("fork", "subprocess", "multiprocessing", "posix_spawn"):
+        assert tried[how].startswith("refused"), (how, tried[how])
+    reached = json.loads(rows["ReachesIntoSimulation"]["info"])["controller"]
+    assert reached, "found none of the benchmark's processes"
+    assert all(v.startswith("refused") for v in reached.values()), [v for v in reached.values() if "refused" not in v]
+
+
+WRONG = ["short", "matrix", "nan", "inf", "text", "none", "object", "complex", "raises_on_read"]
+
+
+@pytest.mark.slow
+def test_every_wrong_kind_of_command_is_an_error_row_that_keeps_the_ticks_run(tmp_path):
+    rows = _bench(tmp_path, [f"Wrong_{k}" for k in WRONG])
+    for kind in WRONG:
+        row = rows[f"Wrong_{kind}"]
+        assert row["status"] == "error" and not row["success"], (kind, row["status"], row["message"])
+        assert row["failure"].startswith("error:") and "tick 2" in row["message"], (kind, row["message"])
+        assert len(row["path"]) == 3, kind  # the two ticks before it: kept
+
+
+def test_a_record_that_breaks_the_control_model_is_an_invalid_row_naming_rule_and_tick():
+    from bench_controllers import ToGoalController
+
+    scenario = load_scenario(SCENARIO)
+    honest = evaluate_record(scenario, run_scenario(scenario, ToGoalController(), settings=RunSettings(timing="ideal")))
+    assert not honest["failure"].startswith("invalid")
+    vmax = np.asarray(scenario.problem.robot.velocity_limit)
+    broken = run_scenario(scenario, ToGoalController(), settings=RunSettings(timing="ideal"))
+    broken.path = broken.path.copy()
+    broken.path[5:] += 0.5 * vmax * scenario.period  # tick 4 moves 1.5 x the limit
+    ev = evaluate_record(scenario, broken)
+    assert not ev["success"] and ev["failure"].startswith("invalid: control model broken (velocity) at tick 4")
+    late = run_scenario(scenario, ToGoalController(), settings=RunSettings(timing="ideal"))
+    late.deadline_misses = 0
+    late.compute = late.compute.copy()
+    late.compute[3] = 0.025  # a 25 ms turn at 100 Hz misses 2 deadlines; the record says none
+    ev = evaluate_record(scenario, late)
+    assert not ev["success"] and ev["failure"].startswith("invalid: control model broken (schedule)")
+    assert math.isnan(ev["min_clearance"])
