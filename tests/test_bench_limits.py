@@ -1,15 +1,17 @@
 """Hard time limits of static runs: an answer after the time limit is a ``timeout`` that did not
-succeed, whatever its path, in a benchmark and from ``planbench.plan``; a
+succeed, whatever its path, in a benchmark, in ``planbench plan`` and from ``planbench.plan``; a
 row's success never contradicts its status. Planners in tests/bench_adversarial_planners.py."""
 
 from __future__ import annotations
 
 import json
+import time
 
 import planbench
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.suite import parse_suite
+from planbench.cli import main
 
 FREE = "mbm:table_pick/0001"  # the straight line solves it
 A = "bench_adversarial_planners"
@@ -61,3 +63,25 @@ def test_plan_in_process_makes_a_late_answer_a_timeout():
     assert "past the time limit of 0.2 s" in result.message and "the planner said success" in result.message
     ev = planbench.evaluate(problem, result)
     assert not ev.success and ev.status == "timeout"
+
+
+def test_planbench_plan_kills_a_planner_at_its_limit(tmp_path, capsys):
+    out = tmp_path / "m.json"
+    t0 = time.monotonic()
+    argv = ["plan", "--problem", FREE, "--planner", f"{A}:LatePlanner", "--set", "past=30", "--time-limit", "1"]
+    assert main([*argv, "--json", str(out)]) == 1
+    assert time.monotonic() - t0 < 25  # killed, not waited for (it would answer after 31 s)
+    (row,) = json.loads(out.read_text())
+    assert row["status"] == "timeout" and row["success"] is False
+    assert "worker process killed" in row["failure"]
+    assert "0/1 solved" in capsys.readouterr().out
+
+
+def test_planbench_plan_shows_a_late_answer_as_a_timeout(tmp_path):
+    """Answered 0.6 s late (or killed at 1 s + 1 s grace on a very slow machine): a timeout either way."""
+    out = tmp_path / "m.json"
+    argv = ["plan", "--problem", FREE, "--planner", f"{A}:LatePlanner", "--set", "past=0.6", "--time-limit", "1"]
+    assert main([*argv, "--json", str(out)]) == 1
+    (row,) = json.loads(out.read_text())
+    assert row["status"] == "timeout" and row["success"] is False
+    assert "past the time limit of 1" in row["failure"]
