@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import json
 import logging
@@ -18,10 +19,11 @@ from rich.markup import escape
 from rich.table import Table
 
 import planbench
-from planbench.bench.suite import check_seconds, check_seed
+from planbench.bench.suite import check_seconds, check_seed, expand_problems
 from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
 from planbench.harness import DEFAULT_TIME_LIMIT
+from planbench.planner import PlanResult, PlanStatus
 from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
 
@@ -147,28 +149,93 @@ def _numpy_while_cold(planner: Any) -> None:
     )
 
 
+PLAN_GRACE = 1.0
+"""[s] past its time limit before ``planbench plan`` kills a planner's worker. Any answer later than
+the limit (+ :data:`planbench.harness.HANDOFF_TOLERANCE`) is a ``timeout`` whatever the grace; the
+grace only lets a slightly late answer's path be shown, so it is short (a suite's is 5 s)."""
+
+
+def _worker_settings(setup: Any) -> dict[str, Any]:
+    """The planner's settings as its worker gets them: those given, plus ``backend="numpy"`` where
+    this command chose numpy for a cold numba cache (:func:`_numpy_while_cold`; the choice is made
+    in this process, the worker is a fresh interpreter)."""
+    from planbench.field import backend
+
+    settings = dict(setup.settings)
+    config = setup.config
+    if (
+        backend.resolve("auto") == "numpy"
+        and dataclasses.is_dataclass(config)
+        and getattr(config, "backend", None) == "auto"
+        and "backend" not in settings
+    ):
+        settings["backend"] = "numpy"
+    return settings
+
+
+def _plan_in_workers(args: argparse.Namespace, refs: Sequence[Any], settings: dict[str, Any]) -> list[dict[str, Any]]:
+    """Each problem planned as a benchmark run is (:class:`planbench.bench.runner.Runner`, one worker):
+    killed at the time limit + :data:`PLAN_GRACE`, a late answer a ``timeout``, the path validated
+    where no planner code ran. The records, in the order of ``refs``."""
+    from planbench.bench.runner import Runner
+    from planbench.bench.task import RunTask
+
+    tasks = [
+        RunTask(
+            suite="plan",
+            problem_id=ref.id,
+            problem_ref=ref.ref,
+            label=args.planner,
+            planner=args.planner,
+            seed=args.seed,
+            settings=settings,
+            time_limit=float(args.time_limit),
+            grace=PLAN_GRACE,
+            memory_limit=0.0,  # as in-process before: no address-space limit
+        )
+        for ref in refs
+    ]
+    records: dict[str, dict[str, Any]] = {}
+    Runner(1).run(tasks, lambda task, record: records.__setitem__(task.problem_id, record))
+    return [records[ref.id] for ref in refs]
+
+
+def _result_of(record: dict[str, Any]) -> PlanResult:
+    """The plan result a record holds (for ``--plot``)."""
+    ev = record["evaluation"]
+    return PlanResult(
+        PlanStatus(ev["status"]),
+        path=record["path"],
+        times=record["times"],
+        message=str(record.get("message") or ""),
+        info=record.get("info") or {},
+        planning_time=ev["planning_time"],
+        setup_time=ev["setup_time"],
+    )
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     check_seconds(args.time_limit, "--time-limit")
     check_seed(args.seed)
     setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
-    problems = planbench.load_problems(args.problem)
+    refs = expand_problems([args.problem])
     planner = setup.build()
     _numpy_while_cold(planner)
-    if args.replay and len(problems) != 1:
+    if args.replay and len(refs) != 1:
         raise PlanbenchError("--replay needs one problem")
-    if args.plot and (len(problems) != 1 or not hasattr(planner, "plot_result")):
-        why = "one problem" if len(problems) != 1 else f"a planner with a figure; {args.planner!r} has none"
+    if args.plot and (len(refs) != 1 or not hasattr(planner, "plot_result")):
+        why = "one problem" if len(refs) != 1 else f"a planner with a figure; {args.planner!r} has none"
         raise PlanbenchError(f"--plot needs {why}")
     console = Console()
     rows = []
     paths = []  # (path, times, the planner's message) per problem, for --json
-    for problem in problems:
-        result = planbench.plan(problem, planner, seed=args.seed, time_limit=args.time_limit)
-        if result.status is planbench.PlanStatus.ERROR:
-            log.debug("%s", result.info.get("traceback", ""))
-        ev = planbench.evaluate(problem, result)
-        rows.append({"problem": problem.id, "planner": args.planner, "seed": args.seed, **ev.as_dict()})
-        paths.append((result.path, result.times, result.message))
+    records = _plan_in_workers(args, refs, _worker_settings(setup))
+    for ref, record in zip(refs, records, strict=True):
+        ev = record["evaluation"]
+        if ev["status"] in ("error", "crash", "timeout") and record.get("traceback"):
+            log.debug("%s", record["traceback"])
+        rows.append({"problem": ref.id, "planner": args.planner, "seed": args.seed, **ev})
+        paths.append((record["path"], record["times"], record["message"]))
     title = f"{args.planner} on {args.problem}, seed {args.seed} (every path checked by planbench)"
     units = {key: (label, unit) for key, label, unit in METRICS}
     if len(rows) == 1:
@@ -198,19 +265,22 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if row["failure"]:
             console.print(f"[bold]{escape(row['problem'])}[/bold] failed: {escape(row['failure'])}", highlight=False)
     console.print(f"{sum(r['success'] for r in rows)}/{len(rows)} solved (validated)")
+    if args.plot or args.replay:
+        problem = planbench.load_problems(refs[0].ref)[0]
+        path, times, _ = paths[0]
     if args.plot:
-        planner.plot_result(problems[0], result, args.plot)
+        planner.plot_result(problem, _result_of(records[0]), args.plot)
         console.print(f"figure written to {args.plot}")
     if args.replay:
-        if result.path is None:
+        if path is None:
             console.print("no path to replay")
         else:
             from planbench.occupancy import scene_grid
             from planbench.replay import write_replay
 
-            name = f"{args.planner} on {problems[0].id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
-            grid = scene_grid(problems[0].scene, 0.02, robot=problems[0].robot)
-            write_replay(args.replay, problems[0], result.path, result.times, grid=grid, title=name)
+            name = f"{args.planner} on {problem.id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
+            grid = scene_grid(problem.scene, 0.02, robot=problem.robot)
+            write_replay(args.replay, problem, path, times, grid=grid, title=name)
             console.print(f"replay written to {escape(args.replay)} (open it in a browser)")
     if args.json:
         out = [

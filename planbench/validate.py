@@ -11,7 +11,14 @@ voxel grid) and the robot's limits, and success means every check holds:
   conservative advancement, no sampling resolution, every distance at least ``required_clearance``;
 - for a trajectory with time stamps, the joint velocities of every segment are within the limits;
 - the final end-effector pose is within the position and orientation tolerances of the goal pose,
-  and, when the planner says it drove to the goal configuration, the final joint error too.
+  and, when the planner says it drove to the goal configuration, the final joint error too;
+- the planner itself reported success (``checks["claimed_success"]``): a valid path that comes with
+  a failure status (``timeout``, ``step_limit``, ...) is kept and measured but not counted, since a
+  caller acts on the planner's status and would discard it. So ``success`` implies ``status ==
+  "success"``: a row never says both "solved" and "failed".
+
+The benchmark adds one condition where it timed the plan itself: the answer came within the time
+limit (``checks["in_time"]``, :data:`planbench.harness.HANDOFF_TOLERANCE`).
 
 Clearance is measured along the whole path: ``min_clearance`` is the smallest robot-obstacle
 distance found, ``min_clearance_bound`` a certified lower bound of it (the true minimum is between
@@ -31,11 +38,24 @@ from planbench.certified import CertificationSettings, CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem, pose_error
 
-__all__ = ["VALIDATOR", "ValidationSettings", "Evaluation", "evaluate", "verdict_checker"]
+__all__ = [
+    "CLAIMED_SUCCESS",
+    "IN_TIME",
+    "VALIDATOR",
+    "ValidationSettings",
+    "Evaluation",
+    "evaluate",
+    "verdict_checker",
+]
 
 VALIDATOR = "certified/1"
 """What "validated" means, by version: stored with every benchmark's settings, so results judged by
 an earlier validator (``sampled`` every 0.01 rad, before this one) are never mixed with these."""
+
+CLAIMED_SUCCESS = "claimed_success"
+"""The ``checks`` key that says whether the planner reported success (set with every path)."""
+IN_TIME = "in_time"
+"""The ``checks`` key the benchmark sets False on an answer that came after the time limit."""
 
 
 @dataclass(frozen=True)
@@ -220,10 +240,11 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
                     f"(tolerance {tol.joint:.4f} rad)"
                 )
 
-    success = not failures
+    checks[CLAIMED_SUCCESS] = result.status is PlanStatus.SUCCESS
+    success = not failures and checks[CLAIMED_SUCCESS]
     failure = "; ".join(failures)
-    if success and result.status is not PlanStatus.SUCCESS:
-        failure = ""  # the path is valid whatever the planner said; its claim stays in `status`
+    if not failures and not success:
+        failure = _claimed_failure(result)
     return Evaluation(
         success=success,
         failure=failure,
@@ -253,6 +274,13 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         penetration_depth=verdict.depth,
         checks=checks,
     )
+
+
+def _claimed_failure(result: PlanResult) -> str:
+    """The failure of a valid path whose planner did not report success (not counted: see the
+    module docstring)."""
+    said = f"{result.status.value}: {result.message}" if result.message else result.status.value
+    return f"{said} (the path is valid, but the planner did not report success: not counted)"
 
 
 def verdict_checker(problem: Problem) -> CertifiedChecker:

@@ -209,3 +209,30 @@ class ClockLiarPlanner(Planner):
         time.perf_counter = lambda: frozen  # type: ignore[assignment]
         time.sleep(1.0)
         return PlanResult(PlanStatus.TIMEOUT, message="took 1 s, says 0")
+
+
+@dataclass(frozen=True)
+class LateConfig:
+    past: float = 1.0
+    """[s] how long after its time limit it answers."""
+    status: str = "success"
+    """The status it reports with its (valid) path."""
+    freeze_clock: bool = False
+    """Freeze the worker's ``time.perf_counter`` first, so that only the parent's clock sees it late."""
+
+
+class LatePlanner(Planner):
+    """Plans the straight line (valid on mbm:table_pick/0001), then answers ``past`` seconds after
+    its time limit, with ``status`` (``past`` < 0: that long before it)."""
+
+    name = "bench-late"
+    Config = LateConfig
+
+    def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
+        t0 = time.monotonic()
+        result = planbench.make_planner("straight-line").plan(problem, time_limit=time_limit, rng=rng)
+        if self.config.freeze_clock:
+            frozen = time.perf_counter()
+            time.perf_counter = lambda: frozen  # type: ignore[assignment]
+        time.sleep(max(0.0, time_limit + self.config.past - (time.monotonic() - t0)))
+        return result.replace(status=PlanStatus(self.config.status), message=f"answered {self.config.past:+g} s past")

@@ -171,3 +171,30 @@ def test_plots_show_a_single_success_and_zero_rates_and_write_every_format(tmp_p
         assert files and all(f.suffix == f".{fmt}" and f.stat().st_size > 1000 for f in files)
     svg = (tmp_path / "svg" / "success_by_family.svg").read_text()
     assert "0/1" in svg and "1/1" in svg  # a 0 % bar reads as 0 of 1 run, not as missing data
+
+
+def test_valid_paths_that_failed_are_named_apart():
+    """A late answer and a valid path with a failure status are failures the tables name, with the
+    status claimed; rows written before these checks existed keep their old reasons."""
+    from planbench.bench.report import failure_reason, failure_text, valid_path_failure
+
+    path_ok = {"starts_at_start": True, "collision_free": True, "goal_pose": True}
+    late = _run("p", False, "timeout", checks={**path_ok, "claimed_success": True, "in_time": False})
+    claimed = _run("p", False, "step_limit", checks={**path_ok, "claimed_success": False})
+    claimed_json = _run("p", False, "timeout", checks='{"claimed_success": false, "collision_free": true}')
+    unclaimed = {**path_ok, "collision_free": False, "claimed_success": False}
+    bad_and_unclaimed = _run("p", False, "timeout", checks=unclaimed)
+    old = _run("p", False, "timeout", checks='{"collision_free": true}')
+    rows = [late, claimed, claimed_json, bad_and_unclaimed, old, _run("p", True, checks=path_ok)]
+    assert [valid_path_failure(r) for r in rows] == ["late", "claimed_failure", "claimed_failure", "", "", ""]
+    assert [failure_reason(r) for r in rows] == [
+        "late",
+        "claimed-failure step limit",
+        "claimed-failure timeout",
+        "time limit",
+        "time limit",
+        "",
+    ]
+    assert failure_text(rows) == "claimed-failure 2 (step limit 1, timeout 1), time limit 2, late 1"
+    (s,) = summarize([{**r, "planning_time": 1.0} for r in rows], metrics=())
+    assert (s["solved"], s["timeout"], s["late"], s["claimed_failure"]) == (1, 4, 1, 2)

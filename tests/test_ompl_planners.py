@@ -239,8 +239,11 @@ def test_ik_from_a_goal_just_outside_the_limits_stays_next_to_it():
 
 
 def test_a_search_that_uses_the_whole_time_limit_returns_the_raw_path_unsimplified(blocked):
-    result = solved(blocked, BITstarPlanner, time_limit=1.0, optimize=True)  # improves until the limit
-    assert result.info["path_source"] == "raw"
+    # improves until the limit, then certifies its path: it may answer past the limit (0.11 s on the
+    # 2-core VM), which is a timeout now (issue 27, part 4); the path it returns is still the raw one
+    result = planbench.plan(blocked, BITstarPlanner, seed=3, time_limit=1.0, optimize=True)
+    assert result.status in (PlanStatus.SUCCESS, PlanStatus.TIMEOUT), result.message
+    assert result.path is not None and result.info["path_source"] == "raw"
     assert result.info["simplify_time"] == 0.0 and "no time left" in result.info["simplify_skipped"]
 
 

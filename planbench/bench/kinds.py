@@ -38,6 +38,10 @@ class RunKind:
     the plan phase is the record (else: the worker's result is validated after the plan phase)."""
     fresh_worker: bool
     """Every run gets a worker that has run nothing, and the worker ends after it."""
+    answer_in_time: bool
+    """Success needs the plan phase to end within ``time_limit`` (+ the hand-off tolerance); else
+    ``time_limit`` is only the wall-clock limit past which the run is killed (a closed loop's time
+    is charged inside the simulation)."""
     work: Callable[[Any, Notify, socket.socket | None], dict[str, Any] | None]
     """In the worker: ``work(task, notify, channel)`` -> the raw result fields, or None when the
     run's record comes from the validator."""
@@ -101,9 +105,23 @@ def _dynamic_judge(
 
 
 KINDS: dict[str, RunKind] = {
-    "static": RunKind("static", controllers=False, channel=False, fresh_worker=False, work=_static_work, judge=_static_judge),
+    "static": RunKind(
+        "static",
+        controllers=False,
+        channel=False,
+        fresh_worker=False,
+        answer_in_time=True,
+        work=_static_work,
+        judge=_static_judge,
+    ),
     "dynamic": RunKind(
-        "dynamic", controllers=True, channel=True, fresh_worker=True, work=_dynamic_work, judge=_dynamic_judge
+        "dynamic",
+        controllers=True,
+        channel=True,
+        fresh_worker=True,
+        answer_in_time=False,
+        work=_dynamic_work,
+        judge=_dynamic_judge,
     ),
 }
 

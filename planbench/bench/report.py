@@ -3,7 +3,9 @@ confidence interval, and the median and quartiles of each metric over the runs t
 
 Success is planbench's validated success (the path was re-checked), never the planner's claim.
 Metrics of failed runs are left out of the medians (a failed run's path length means nothing);
-the status counts say how runs failed.
+the status counts say how runs failed. Two failures with a valid path are named apart: ``late``
+(an answer after the time limit, a ``timeout`` row) and ``claimed-failure`` (the planner reported a
+failure status with a path that validates), so that neither hides among the other reasons.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import collections
 import csv
 import io
+import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -81,6 +84,10 @@ def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple
 
 
 FAILURE_STATUSES = ("error", "timeout", "crash")
+VALID_PATH_FAILURES = ("late", "claimed_failure")
+"""Counts of :func:`summarize` for failed runs whose path is valid (see :func:`valid_path_failure`)."""
+LOCATED = ("collision", "self-collision", "claimed-failure")
+"""Failure reasons counted with their detail (a link, the status claimed) by :func:`failure_text`."""
 
 
 def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -109,7 +116,8 @@ def summarize(
     """One summary dict per group of ``rows`` (grouped by the columns ``by``), in first-seen order.
 
     Keys: the ``by`` columns, ``runs``, ``solved``, ``success_rate``, ``success_ci_low``,
-    ``success_ci_high``, a count per failure status (``error``, ``timeout``, ``crash``), and for
+    ``success_ci_high``, a count per failure status (``error``, ``timeout``, ``crash``), the counts of
+    :data:`VALID_PATH_FAILURES` (``late``, ``claimed_failure``), and for
     each metric ``<name>_median``, ``<name>_q1``, ``<name>_q3`` in SI units over solved runs (over
     every run for a metric ``over_all_runs``). ``metrics``: by default :func:`metrics_for` the rows.
     """
@@ -126,6 +134,8 @@ def summarize(
         s.update(runs=n, solved=len(solved), success_rate=len(solved) / n, success_ci_low=lo, success_ci_high=hi)
         for status in FAILURE_STATUSES:
             s[status] = sum(1 for r in members if r["status"] == status)
+        for what in VALID_PATH_FAILURES:
+            s[what] = sum(1 for r in members if valid_path_failure(r) == what)
         s["failures"] = failure_text(members)
         for m in metrics:
             med, q1, q3 = _quartiles([r.get(m.name, math.nan) for r in (members if m.over_all_runs else solved)])
@@ -134,16 +144,47 @@ def summarize(
     return out
 
 
+def _checks(row: dict[str, Any]) -> dict[str, Any]:
+    """A row's ``checks`` (a dict in a record, JSON text in a results file; {} when absent)."""
+    checks = row.get("checks")
+    if isinstance(checks, str):
+        try:
+            checks = json.loads(checks)
+        except ValueError:
+            return {}
+    return checks if isinstance(checks, dict) else {}
+
+
+def valid_path_failure(row: dict[str, Any]) -> str:
+    """``"late"`` for a run that answered after its time limit, ``"claimed_failure"`` for a valid
+    path whose planner reported a failure status, else "" (rows written before these checks
+    existed: "")."""
+    if row.get("success"):
+        return ""
+    checks = _checks(row)
+    if checks.get("in_time") is False:
+        return "late"
+    if checks.get("claimed_success") is False and all(v for k, v in checks.items() if k != "claimed_success"):
+        return "claimed_failure"
+    return ""
+
+
 def failure_reason(row: dict[str, Any]) -> str:
     """Why a run failed, in a few words ("" for a success): ``collision <robot link>``,
-    ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``horizon`` (a
-    closed-loop run that did not reach its goal in time), ``error``, ``crash``, or the planner's
-    own status (``step limit``, ``infeasible``, ...)."""
+    ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``late`` (an
+    answer after the time limit), ``claimed-failure <status>`` (a valid path, a failure status),
+    ``horizon`` (a closed-loop run that did not reach its goal in time), ``error``, ``crash``, or
+    the planner's own status (``step limit``, ``infeasible``, ...)."""
     if row.get("success"):
         return ""
     status = str(row.get("status") or "")
     if status in ("error", "crash"):
         return status
+    valid = valid_path_failure(row)
+    if valid == "late":
+        return "late"
+    if valid == "claimed_failure":
+        return "claimed-failure " + status.replace("_", " ")
     pair = str(row.get("collision_pair") or "")
     if pair:
         a, _, b = pair.partition(" / ")
@@ -155,12 +196,13 @@ def failure_reason(row: dict[str, Any]) -> str:
 
 def failure_text(rows: Sequence[dict[str, Any]], links: int = 2) -> str:
     """The failure reasons of ``rows`` counted, most frequent first; collisions summed with their
-    most frequent robot links: ``collision 37 (panda_hand 20, panda_link5 10), stall 10``."""
+    most frequent robot links, claimed failures with their statuses:
+    ``collision 37 (panda_hand 20, panda_link5 10), stall 10, claimed-failure 2 (timeout 2)``."""
     reasons = collections.Counter(failure_reason(r) for r in rows if not r.get("success"))
     grouped: collections.Counter[str] = collections.Counter()
     detail: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
     for reason, n in reasons.items():
-        located = reason.startswith(("collision ", "self-collision "))
+        located = reason.startswith(tuple(f"{kind} " for kind in LOCATED))
         kind, _, where = reason.partition(" ") if located else (reason, "", "")
         grouped[kind] += n
         if where:

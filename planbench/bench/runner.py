@@ -19,6 +19,11 @@ Design (asv's and OMPL Benchmark's idea, our own code):
   once the verdict is in, so ``--jobs`` processes compute at a time.
 - **Long-lived workers, one run at a time each.** Runs of a planner marked ``fresh_process`` (a
   process-wide RNG, as in OMPL, or any global state) get a worker that has run nothing before.
+- **An answer counts only in time.** The plan phase is timed here, from the worker's "plan" message
+  to its result, each stamped with the moment this loop woke to read it (so that time this loop
+  spent on other slots is not charged to the run). A result later than ``time_limit`` +
+  :data:`~planbench.harness.HANDOFF_TOLERANCE` (by this clock or the worker's) is a ``timeout``
+  row with success false, its path and metrics kept (``checks["in_time"]`` false).
 - **Hard limits here, per phase.** Setup (problem loading, planner construction and ``setup()``):
   ``setup_timeout``; planning: ``time_limit + grace``; validation: ``validation_timeout`` [s]. Past
   its deadline the worker's whole process group (the planner's subprocesses included) or the
@@ -68,8 +73,9 @@ from planbench.bench.procs import OUTPUT_HEADER, OutputFile, kill_group
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
+from planbench.harness import answered_late, late_message
 from planbench.reactive.isolation import make_undumpable
-from planbench.validate import Evaluation
+from planbench.validate import CLAIMED_SUCCESS, IN_TIME, Evaluation
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +139,32 @@ def _check_planning_time(record: Record, observed: float | None) -> None:
         "the parent's time is recorded"
     )
     record["message"] = f"{record.get('message') or ''} [{note}]".strip()
+
+
+def _check_time_limit(record: Record, observed: float | None, time_limit: float) -> None:
+    """Make a static run that answered after its time limit a ``timeout`` that did not succeed,
+    whatever its path (kept, with its metrics, for inspection).
+
+    The answer's time is the later of the plan phase timed here and the worker's own measure
+    (which a planner could only lower, by patching the clock). A run that raised stays an ``error``.
+    """
+    evaluation = record.get("evaluation") or {}
+    if observed is None or evaluation.get("status") in ("error", "crash"):
+        return  # no answer reached this process (the worker was killed or died), or it raised
+    times = [t for t in (observed, evaluation.get("planning_time")) if type(t) is float and math.isfinite(t)]
+    checks = evaluation.get("checks")
+    checks = checks if isinstance(checks, dict) else {}
+    if not answered_late(max(times), time_limit) or (evaluation.get("status") == "timeout" and not checks):
+        return  # in time, or a timeout without a path or a verdict, which says why itself
+    path = "no path"
+    if checks:
+        valid = all(v for k, v in checks.items() if k not in (CLAIMED_SUCCESS, IN_TIME))
+        path = f"its path ({'valid' if valid else 'invalid'}) and metrics are kept, not counted"
+    late = late_message(max(times), time_limit)
+    evaluation.update(status="timeout", success=False, failure=f"timeout: {late}; {path}")
+    evaluation["checks"] = {**checks, IN_TIME: False}
+    if late not in str(record.get("message") or ""):  # the worker's harness may have said it already
+        record["message"] = f"{record.get('message') or ''} [{late}]".strip()
 
 
 def record_from(fields: dict[str, Any], evaluation: dict[str, Any] | None, validation_time: float) -> Record:
@@ -227,6 +259,9 @@ class Runner:
         """Closed-loop runs of slot ``i`` on the ``i``-th core this process may use (else on the core
         the simulation happens to be on when the run starts)."""
         self._cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [0]
+        self._woke = time.monotonic()
+        """When :meth:`_wait` last returned: the time stamp of every message read after it (it
+        arrived by then, or while this loop served other slots, which is not the run's time)."""
         self.keep_warm = False
         """Restart a slot's dead worker or validator at once even when no task is pending (the next
         :meth:`feed` is expected)."""
@@ -361,6 +396,8 @@ class Runner:
         record["elapsed"] = time.monotonic() - slot.dispatched
         _note_memory_limit(record, task)
         _check_planning_time(record, slot.timings.get("plan"))
+        if kind_of(task.kind).answer_in_time:
+            _check_time_limit(record, slot.timings.get("plan"), task.time_limit)
         slot.task, slot.fields, slot.phase, slot.deadline = None, None, "", math.inf
         if slot.channel is not None:
             slot.channel.close()
@@ -428,6 +465,7 @@ class Runner:
         if deadlines:
             timeout = min(timeout, max(0.0, min(deadlines) - time.monotonic()) + 0.01)
         multiprocessing.connection.wait(waitables, timeout)
+        self._woke = time.monotonic()
 
     # -- a run's life ------------------------------------------------------------------------------
 
@@ -510,7 +548,7 @@ class Runner:
             elif slot.task is None or run != slot.run or slot.phase not in ("setup", "plan"):
                 continue  # a late message of a run already recorded
             elif kind == "phase" and header.get("phase") == "plan" and slot.phase == "setup":
-                self._enter(slot, "plan", time.monotonic())
+                self._enter(slot, "plan", self._woke)
                 if slot.kind.channel:
                     self._start_simulation(slot)
             elif kind == "done" and (slot.phase == "setup" or not slot.kind.channel):
@@ -536,7 +574,7 @@ class Runner:
         if slot.kind.channel:  # only the simulation makes a closed loop's record
             return None
         slot.fields = fields
-        self._enter(slot, "validate", time.monotonic())
+        self._enter(slot, "validate", self._woke)
         if not slot.validator.usable:
             self._close(slot.validator)
             slot.validator = self._start("validator")
