@@ -15,10 +15,10 @@ from planbench.bench.db import ResultsDB
 from planbench.bench.executors import Executor
 from planbench.bench.probe import probe_planners
 from planbench.bench.runner import Record, Runner, failure_record
-from planbench.bench.suite import PlannerEntry, Suite, expand_problems, expand_scenarios, load_suite, parse_seeds
+from planbench.bench.kinds import expand, kind_of, registry_of
+from planbench.bench.suite import PlannerEntry, Suite, load_suite, parse_seeds
 from planbench.bench.task import RunTask
 from planbench.errors import InvalidSettingError, PlanbenchError, UnstorableValueError
-from planbench.registry import CONTROLLERS, REGISTRY
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[s
     cannot be used raises (an :class:`InvalidSettingError` for a bad setting), unless it is optional:
     then it is skipped, with the reason.
     """
-    kind = "controller" if suite.kind == "dynamic" else "planner"
+    kind = kind_of(suite.kind).entry
     answers = probe_planners([(e.planner, dict(e.settings), dict(e.text_settings)) for e in suite.planners], kind=kind)
     usable, skipped, versions = [], [], {}
     for entry, answer in zip(suite.planners, answers, strict=True):
@@ -129,7 +129,7 @@ def _version(planner: str, answer: dict[str, Any], kind: str = "static") -> str:
     """The distribution and version a registered planner (or controller) comes from (entry-point
     metadata, read without importing it), else the module the probe found it in."""
     family = planner.partition(":")[0]
-    registry = CONTROLLERS if kind == "dynamic" else REGISTRY
+    registry = registry_of(kind_of(kind))
     if family in registry.names():
         spec = registry.spec(family)
         return f"{spec.distribution} {spec.version}".strip()
@@ -160,7 +160,7 @@ def prepare(
         raise PlanbenchError(f"{suite.source}: no planner of the suite can be loaded: " + "; ".join(skipped))
     checked = {p.label: p for p in planners}  # settings parsed: what is stored and compared
     suite = suite.with_changes(planners=tuple(checked.get(p.label, p) for p in suite.planners))
-    refs = expand_scenarios(suite.problems) if suite.kind == "dynamic" else expand_problems(suite.problems)
+    refs = expand(kind_of(suite.kind), suite.problems)
     stored = db.suite_settings(suite.name)
     n_before = db.count(suite.name)
     if n_before and overwrite:

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["KINDS", "RunKind", "kind_of"]
+__all__ = ["KINDS", "RunKind", "expand", "kind_of", "registry_of"]
 
 Notify = Callable[[str], None]
 
@@ -30,9 +30,9 @@ class RunKind:
     """How a kind of run crosses the benchmark's processes."""
 
     name: str
-    controllers: bool
-    """Its ``planner`` entries are controllers (entry-point group ``planbench.controllers``) and its
-    ``problems`` scenarios."""
+    entry: str
+    """What its ``planner`` entries are: ``"planner"`` or ``"controller"`` (entry-point group
+    ``planbench.controllers``, and then its ``problems`` are scenarios)."""
     channel: bool
     """The worker and the validator talk directly during the run, and the validator's answer to
     the plan phase is the record (else: the worker's result is validated after the plan phase)."""
@@ -104,10 +104,24 @@ def _dynamic_judge(
     return fields, evaluation
 
 
+def registry_of(kind: RunKind) -> Any:
+    """The registry of ``kind``'s entries."""
+    from planbench.registry import CONTROLLERS, REGISTRY
+
+    return CONTROLLERS if kind.entry == "controller" else REGISTRY
+
+
+def expand(kind: RunKind, selectors: Any) -> list[Any]:
+    """The problem references of ``kind``'s selectors (problems or scenarios)."""
+    from planbench.bench.suite import expand_problems, expand_scenarios
+
+    return expand_scenarios(selectors) if kind.entry == "controller" else expand_problems(selectors)
+
+
 KINDS: dict[str, RunKind] = {
     "static": RunKind(
         "static",
-        controllers=False,
+        entry="planner",
         channel=False,
         fresh_worker=False,
         answer_in_time=True,
@@ -116,7 +130,7 @@ KINDS: dict[str, RunKind] = {
     ),
     "dynamic": RunKind(
         "dynamic",
-        controllers=True,
+        entry="controller",
         channel=True,
         fresh_worker=True,
         answer_in_time=False,

@@ -5,9 +5,13 @@
 - :mod:`.controller`: the controller interface (entry-point group ``planbench.controllers``).
 - :mod:`.checker`: certified collision checking of a control tick against moving obstacles.
 - :mod:`.runner`: the closed loop at a fixed control rate, with compute time charged.
+- :mod:`.remote`, :mod:`.isolation`, :mod:`.isolated`: the loop across a process boundary, the
+  controller's process confined, its CPU time charged from outside (as the benchmark runs it).
+- :mod:`.control_model`: the rules a run's record must keep (what the validator checks first).
 """
 
 from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.reactive.isolated import run_isolated
 from planbench.reactive.motion import Motion
 from planbench.reactive.scenario import CameraSettings, MovingObstacle, Scenario, SensingSettings
 
@@ -20,4 +24,5 @@ __all__ = [
     "Observation",
     "Scenario",
     "SensingSettings",
+    "run_isolated",
 ]

@@ -113,7 +113,9 @@ def _warm(controller: Any, scenario: Scenario) -> bool:
 
         p = scenario.problem
         rng = np.random.default_rng(0)
-        frame = Sensor(scenario.sensing, p.robot).capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, rng)
+        frame = _as_delivered(
+            Sensor(scenario.sensing, p.robot).capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, rng)
+        )
         controller.setup(control_task(scenario))
         controller.reset(np.array(p.start), rng)
         controller.update(frame)
@@ -121,6 +123,23 @@ def _warm(controller: Any, scenario: Scenario) -> bool:
     except Exception:  # the run will meet it again, as its own error
         pass
     return True
+
+
+def _as_delivered(frame: Any) -> Any:
+    """``frame`` with read-only arrays, as :class:`~planbench.reactive.remote.GridView` delivers
+    them (compiled code is specialised on whether an array is writable)."""
+    from dataclasses import replace
+
+    from planbench.reactive.remote import _grid_as_checked
+
+    data = frame.grid.data.view()
+    data.setflags(write=False)
+    points = None
+    if frame.points is not None:
+        points = frame.points.view()
+        points.setflags(write=False)
+    grid = _grid_as_checked(data, frame.grid.origin, frame.grid.resolution, frame.grid.outside)
+    return replace(frame, grid=grid, points=points)
 
 
 def simulate_remote(
@@ -139,7 +158,10 @@ def simulate_remote(
             port = RemoteController(sock, pid, scenario.problem.robot.nq)
         except ProcessLookupError as exc:
             raise ControllerGone(f"the controller's process is gone ({exc})") from exc
-        record = simulate(scenario, port, seed=seed, settings=settings)
+        try:
+            record = simulate(scenario, port, seed=seed, settings=settings)
+        finally:
+            port.close()
         if record.overrun:
             port.kill()
     finally:

@@ -7,9 +7,9 @@ one message and its answer per call, over a stream socket pair::
 
     kind (1 byte) | length (u32, little endian) | payload
 
-simulation -> controller: ``U`` an observation (its header as JSON, its arrays in a
-shared-memory file sent with it, :func:`write_observation`), ``S`` a step (``t`` and ``q`` as
-float64), ``E`` the end of the run. controller -> simulation: ``u`` update done,
+simulation -> controller: ``U`` an observation (its header as JSON and its points; its grid in
+one of :data:`GRID_SLOTS` shared-memory files, sent with the message the first time,
+:class:`GridRing`), ``S`` a step (``t`` and ``q`` as float64), ``E`` the end of the run. controller -> simulation: ``u`` update done,
 ``c`` the command (``nq`` float64), ``i`` the controller's ``info()`` as JSON, ``x`` a fault
 (UTF-8 text: the controller raised or returned something that is not a joint velocity).
 
@@ -40,6 +40,7 @@ import select
 import signal
 import socket
 import struct
+import sys
 import time
 from typing import Any
 
@@ -56,9 +57,10 @@ __all__ = [
     "Overrun",
     "RemoteController",
     "RemoteFault",
-    "read_observation",
+    "GRID_SLOTS",
+    "GridRing",
+    "GridView",
     "serve_controller",
-    "write_observation",
 ]
 
 _HEAD = struct.Struct("<cI")
@@ -102,7 +104,7 @@ def _send(sock: socket.socket, kind: bytes, payload: bytes = b"", fd: int | None
         sock.sendall(data[sent:])
 
 
-def _recv_exact(sock: socket.socket, n: int) -> bytes:
+def _recv_exact(sock: socket.socket, n: int) -> bytearray:
     buf = bytearray(n)
     view, got = memoryview(buf), 0
     while got < n:
@@ -110,17 +112,18 @@ def _recv_exact(sock: socket.socket, n: int) -> bytes:
         if k == 0:
             raise ControllerGone("the controller's process closed the connection")
         got += k
-    return bytes(buf)
+    view.release()
+    return buf
 
 
-def _recv(sock: socket.socket, limit: int) -> tuple[bytes, bytes]:
+def _recv(sock: socket.socket, limit: int) -> tuple[bytes, bytearray]:
     kind, length = _HEAD.unpack(_recv_exact(sock, _HEAD.size))
     if length > limit:
         raise RemoteFault(f"sent a message of {length} bytes (limit {limit})")
-    return kind, _recv_exact(sock, length) if length else b""
+    return kind, _recv_exact(sock, length) if length else bytearray()
 
 
-def _recv_with_fd(sock: socket.socket, limit: int) -> tuple[bytes, bytes, int | None]:
+def _recv_with_fd(sock: socket.socket, limit: int) -> tuple[bytes, bytearray, int | None]:
     """A message and the descriptor sent with it (None when none was)."""
     data, fds, _, _ = socket.recv_fds(sock, _HEAD.size, 1)
     if not data:
@@ -131,70 +134,117 @@ def _recv_with_fd(sock: socket.socket, limit: int) -> tuple[bytes, bytes, int | 
         for fd in fds:
             os.close(fd)
         raise RemoteFault(f"sent a message of {length} bytes (limit {limit})")
-    return kind, _recv_exact(sock, length) if length else b"", fds[0] if fds else None
+    return kind, _recv_exact(sock, length) if length else bytearray(), fds[0] if fds else None
 
 
 # -- observations --------------------------------------------------------------------------------
 
 
-def write_observation(obs: Observation) -> tuple[bytes, int]:
-    """An observation as a JSON header and a shared-memory file (``memfd``) holding the grid's
-    cells (float64, C order) then the points (float64, ``(N, 3)``).
-
-    Only the grid's occupied cells are written: the file starts as zeros, so a mostly free grid
-    (0.8 % of 2.9 M cells on the shipped scenarios) costs the simulation little, and the
-    controller reads its cells straight from the file, copying nothing (:func:`read_observation`)."""
-    grid = np.asarray(obs.grid.data, dtype=np.float64)
-    points = None if obs.points is None else np.ascontiguousarray(obs.points, dtype=np.float64)
-    n_points = 0 if points is None else points.size
-    header = {
-        "time": float(obs.time),
-        "frame": int(obs.frame),
-        "grid": {
-            "shape": list(grid.shape),
-            "origin": [float(x) for x in obs.grid.origin],
-            "resolution": float(obs.grid.resolution),
-            "outside": float(obs.grid.outside),
-        },
-        "points": None if points is None else list(points.shape),
-        "scene": None if obs.scene is None else obs.scene.to_dict(),
-    }
-    fd = os.memfd_create("planbench-frame", os.MFD_CLOEXEC)
-    try:
-        size = 8 * (grid.size + n_points)
-        os.ftruncate(fd, max(size, 8))
-        with mmap.mmap(fd, max(size, 8)) as mm:
-            cells = np.frombuffer(mm, dtype=np.float64, count=grid.size)
-            occupied = np.flatnonzero(grid)
-            cells[occupied] = grid.reshape(-1)[occupied]
-            if points is not None:
-                np.frombuffer(mm, dtype=np.float64, count=n_points, offset=8 * grid.size)[:] = points.reshape(-1)
-            del cells  # the map closes only once no array views it
-    except BaseException:
-        os.close(fd)
-        raise
-    return json.dumps(header).encode(), fd
+GRID_SLOTS = 4
+"""Shared grids per run: frame ``j`` is written into slot ``j % GRID_SLOTS``, so the arrays of an
+observation stay as delivered while the next ``GRID_SLOTS - 1`` frames arrive."""
 
 
-def read_observation(header: bytes, fd: int) -> Observation:
-    """The observation :func:`write_observation` wrote: arrays mapped copy-on-write from ``fd``
-    (writable, private to this process, nothing copied until written)."""
-    h = json.loads(header)
-    g = h["grid"]
-    shape = tuple(int(x) for x in g["shape"])
-    n_cells = int(np.prod(shape))
-    n_points = 0 if h["points"] is None else int(np.prod(h["points"]))
-    try:
-        mm = mmap.mmap(fd, max(8 * (n_cells + n_points), 8), access=mmap.ACCESS_COPY)
-    finally:
-        os.close(fd)
-    grid = np.frombuffer(mm, dtype=np.float64, count=n_cells).reshape(shape)
-    points = None
-    if h["points"] is not None:
-        points = np.frombuffer(mm, dtype=np.float64, count=n_points, offset=8 * n_cells).reshape(h["points"])
-    scene = None if h["scene"] is None else Scene.from_dict(h["scene"], "observation")
-    occupancy = _grid_as_checked(grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"])
-    return Observation(time=h["time"], grid=occupancy, frame=h["frame"], points=points, scene=scene)
+class GridRing:
+    """The simulation's side of the shared grids of one run (:data:`GRID_SLOTS` memfd files).
+
+    A slot is mapped once by each side; a new frame rewrites only the cells its slot held occupied
+    and the cells now occupied (a sensed grid is mostly free: 0.8 % of 2.9 M cells on the shipped
+    scenarios), so delivering a frame costs neither side a new mapping or its page faults."""
+
+    def __init__(self) -> None:
+        self._slots: list[tuple[int, mmap.mmap, np.ndarray] | None] = [None] * GRID_SLOTS
+        self._frames = 0
+
+    def write(self, obs: Observation) -> tuple[bytes, int | None]:
+        """The frame's message (header and points) and the slot's file descriptor when the
+        controller has not mapped that slot yet (None otherwise)."""
+        grid = np.asarray(obs.grid.data, dtype=np.float64)
+        j = self._frames % GRID_SLOTS
+        self._frames += 1
+        slot, new = self._slots[j], None
+        if slot is None or len(slot[1]) != max(8 * grid.size, 8):
+            if slot is not None:
+                self._close(j)
+            fd = os.memfd_create("planbench-grid", os.MFD_CLOEXEC)
+            os.ftruncate(fd, max(8 * grid.size, 8))
+            slot = (fd, mmap.mmap(fd, max(8 * grid.size, 8)), np.zeros(0, dtype=np.int64))
+            self._slots[j] = slot
+            new = fd
+        fd, mm, held = slot
+        cells = np.frombuffer(mm, dtype=np.float64, count=grid.size)
+        cells[held] = 0.0
+        occupied = np.flatnonzero(grid)
+        cells[occupied] = grid.reshape(-1)[occupied]
+        del cells  # the map closes only once no array views it
+        self._slots[j] = (fd, mm, occupied)
+        points = None if obs.points is None else np.ascontiguousarray(obs.points, dtype="<f8")
+        header = {
+            "time": float(obs.time),
+            "frame": int(obs.frame),
+            "slot": j,
+            "grid": {
+                "shape": list(grid.shape),
+                "origin": [float(x) for x in obs.grid.origin],
+                "resolution": float(obs.grid.resolution),
+                "outside": float(obs.grid.outside),
+            },
+            "points": None if points is None else list(points.shape),
+            "scene": None if obs.scene is None else obs.scene.to_dict(),
+        }
+        head = json.dumps(header).encode()
+        body = b"" if points is None else points.tobytes()
+        return struct.pack("<I", len(head)) + head + body, new
+
+    def _close(self, j: int) -> None:
+        slot = self._slots[j]
+        if slot is not None:
+            slot[1].close()
+            os.close(slot[0])
+            self._slots[j] = None
+
+    def close(self) -> None:
+        for j in range(GRID_SLOTS):
+            self._close(j)
+
+
+class GridView:
+    """The controller's side of the shared grids: each slot mapped read-only once."""
+
+    def __init__(self) -> None:
+        self._maps: dict[int, mmap.mmap] = {}
+
+    def read(self, message: bytes | bytearray, fd: int | None) -> Observation:
+        """The observation of a frame message; :class:`RemoteFault` when the controller still holds
+        arrays of the frame its slot held before (they were overwritten: it must copy what it keeps)."""
+        (n,) = struct.unpack_from("<I", message)
+        h = json.loads(message[4 : 4 + n])
+        g, j = h["grid"], int(h["slot"])
+        shape = tuple(int(x) for x in g["shape"])
+        n_cells = int(np.prod(shape))
+        if fd is not None:
+            old = self._maps.pop(j, None)
+            if old is not None:
+                old.close()
+            try:
+                self._maps[j] = mmap.mmap(fd, max(8 * n_cells, 8), flags=mmap.MAP_SHARED, prot=mmap.PROT_READ)
+            finally:
+                os.close(fd)
+        mm = self._maps[j]
+        if sys.getrefcount(mm) > 3:  # the dict, this name, the call's argument: nothing else
+            raise RemoteFault(
+                f"the controller still holds arrays of an observation {GRID_SLOTS} frames old, which the "
+                f"simulation has now overwritten: observation arrays are shared and stay as delivered for "
+                f"{GRID_SLOTS - 1} more frames; copy what you keep longer"
+            )
+        grid = np.frombuffer(mm, dtype=np.float64, count=n_cells).reshape(shape)
+        points = None
+        if h["points"] is not None:
+            count = int(np.prod(h["points"]))
+            points = np.frombuffer(message, dtype="<f8", count=count, offset=4 + n).reshape(h["points"])
+        scene = None if h["scene"] is None else Scene.from_dict(h["scene"], "observation")
+        occupancy = _grid_as_checked(grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"])
+        return Observation(time=h["time"], grid=occupancy, frame=h["frame"], points=points, scene=scene)
 
 
 def _grid_as_checked(data: np.ndarray, origin: np.ndarray, resolution: float, outside: float) -> OccupancyGrid:
@@ -214,13 +264,19 @@ def serve_controller(sock: socket.socket, controller: Any, nq: int, goal: Any) -
     """Answer the simulation's calls with ``controller`` until the run ends (``E``) or the
     connection closes. Runs in the controller's process: nothing here is trusted by the other side."""
     latest: Observation | None = None
+    grids = GridView()
     while True:
         try:
             kind, payload, fd = _recv_with_fd(sock, MAX_HEADER_BYTES)
         except (RemoteFault, OSError):
             return
-        if kind == b"U" and fd is not None:
-            latest = read_observation(payload, fd)
+        if kind == b"U":
+            latest = None
+            try:
+                latest = grids.read(payload, fd)
+            except RemoteFault as fault:
+                _send(sock, b"x", str(fault).encode())
+                continue
             try:
                 controller.update(latest)
             except Exception as exc:
@@ -269,6 +325,7 @@ class RemoteController:
         self.pid = pid
         self.nq = nq
         self.clock = ProcessClock(pid)
+        self.grids = GridRing()
         self._cpu = self.clock.read()
         self.handoff: list[float] = []
         self.wall: list[float] = []
@@ -277,11 +334,8 @@ class RemoteController:
         is left of the horizon)."""
 
     def update(self, observation: Observation) -> float:
-        header, fd = write_observation(observation)
-        try:
-            kind, _, charged = self._call(b"U", header, fd)
-        finally:
-            os.close(fd)
+        message, fd = self.grids.write(observation)
+        kind, _, charged = self._call(b"U", message, fd)
         if kind != b"u":
             raise RemoteFault(f"answered {kind!r} to an observation")
         return charged
@@ -308,6 +362,10 @@ class RemoteController:
             data = {"info_error": f"{type(exc).__name__}: {exc}"}
         return data if isinstance(data, dict) else {"info": data}
 
+    def close(self) -> None:
+        """Release the shared grids (the controller's maps keep their files until it unmaps them)."""
+        self.grids.close()
+
     def kill(self) -> None:
         """End the controller's process and its group (it is a session leader of its own)."""
         for send in (os.killpg, os.kill):
@@ -316,7 +374,7 @@ class RemoteController:
             except (ProcessLookupError, PermissionError):
                 pass
 
-    def _call(self, kind: bytes, payload: bytes, fd: int | None = None) -> tuple[bytes, bytes, float]:
+    def _call(self, kind: bytes, payload: bytes, fd: int | None = None) -> tuple[bytes, bytearray, float]:
         t0 = time.perf_counter()
         try:
             _send(self.sock, kind, payload, fd)
