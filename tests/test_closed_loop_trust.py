@@ -124,33 +124,37 @@ def test_a_record_that_breaks_the_control_model_is_an_invalid_row_naming_rule_an
     assert math.isnan(ev["min_clearance"])
 
 
-def test_shared_grids_deliver_every_frame_exactly_and_refuse_arrays_kept_past_their_slot():
-    import os
-
+def test_frames_reach_the_controller_exactly_and_arrays_kept_past_their_slot_are_refused():
     from planbench.reactive.remote import GRID_SLOTS, GridRing, GridView, RemoteFault
     from planbench.reactive.sensing import Sensor
 
-    scenario = load_scenario("dynamic:panda_swinging_fast_depth/0001")
-    p = scenario.problem
-    sensor, rng = Sensor(scenario.sensing, p.robot), np.random.default_rng(0)
-    frames = [sensor.capture(scenario.scene_at(t), np.array(p.start), t, j, rng) for j, t in enumerate(np.arange(7) / 30)]
-    ring, view = GridRing(), GridView()
-    kept = []
-    for j, frame in enumerate(frames):
-        message, fd = ring.write(frame)
-        assert (fd is not None) == (j < GRID_SLOTS)  # each slot's file is sent once
-        obs = view.read(message, None if fd is None else os.dup(fd))
-        assert np.array_equal(obs.grid.data, frame.grid.data) and np.array_equal(obs.points, frame.points)
-        assert obs.frame == frame.frame and obs.time == frame.time and not obs.grid.data.flags.writeable
-        if j == len(frames) - 1:
-            kept.append(obs.grid.data[10:20])  # a view of the last frame, kept on
-        del obs
-    for frame in frames[: GRID_SLOTS - 1]:  # the other slots: the kept view is still as delivered
-        view.read(ring.write(frame)[0], None)
-    assert np.array_equal(kept[0], frames[-1].grid.data[10:20])
-    message, _ = ring.write(frames[0])  # the kept view's slot, overwritten
-    with pytest.raises(RemoteFault, match="copy what you keep longer"):
-        view.read(message, None)
-    kept.clear()
-    assert np.array_equal(view.read(message, None).grid.data, frames[0].grid.data)
-    ring.close()
+    for name in ("dynamic:panda_swinging_fast_depth/0001", "dynamic:panda_swinging_fast_truth/0001"):
+        scenario = load_scenario(name)
+        p = scenario.problem
+        sensor, rng = Sensor(scenario.sensing, p.robot), np.random.default_rng(0)
+        frames = [
+            sensor.capture(scenario.scene_at(t), np.array(p.start), t, j, rng) for j, t in enumerate(np.arange(9) / 30)
+        ]
+        frames[5].grid.data[3, 4, 5] = 0.25  # a value other than 1 reaches the controller too
+        ring, view = GridRing(), GridView()
+        kept = []
+        for j, frame in enumerate(frames):
+            obs = view.read(ring.write(frame))
+            assert np.array_equal(obs.grid.data, frame.grid.data), (name, j)
+            assert (obs.points is None) == (frame.points is None)
+            if frame.points is not None:
+                assert np.array_equal(obs.points, frame.points)
+            assert obs.frame == frame.frame and obs.time == frame.time and not obs.grid.data.flags.writeable
+            if frame.scene is not None:
+                assert obs.scene.to_dict() == frame.scene.to_dict()
+            if j == len(frames) - 1:
+                kept.append(obs.grid.data)  # the last frame's grid, kept on
+            del obs
+        for frame in frames[: GRID_SLOTS - 1]:  # the other slots: the kept grid stays as delivered
+            view.read(ring.write(frame))
+        assert np.array_equal(kept[0], frames[-1].grid.data) and kept[0].any()
+        message = ring.write(frames[0])  # the kept grid's slot, rewritten
+        with pytest.raises(RemoteFault, match="copy what you keep longer"):
+            view.read(message)
+        kept.clear()
+        assert np.array_equal(view.read(message).grid.data, frames[0].grid.data)

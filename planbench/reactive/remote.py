@@ -7,9 +7,9 @@ one message and its answer per call, over a stream socket pair::
 
     kind (1 byte) | length (u32, little endian) | payload
 
-simulation -> controller: ``U`` an observation (its header as JSON and its points; its grid in
-one of :data:`GRID_SLOTS` shared-memory files, sent with the message the first time,
-:class:`GridRing`), ``S`` a step (``t`` and ``q`` as float64), ``E`` the end of the run. controller -> simulation: ``u`` update done,
+simulation -> controller: ``U`` an observation (a JSON header, the change from the grid its slot
+held four frames before, its points: :class:`GridRing`), ``S`` a step (``t`` and ``q`` as
+float64), ``E`` the end of the run. controller -> simulation: ``u`` update done,
 ``c`` the command (``nq`` float64), ``i`` the controller's ``info()`` as JSON, ``x`` a fault
 (UTF-8 text: the controller raised or returned something that is not a joint velocity).
 
@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import json
 import math
-import mmap
 import os
 import select
 import signal
@@ -66,8 +65,8 @@ __all__ = [
 _HEAD = struct.Struct("<cI")
 MAX_ANSWER_BYTES = 2**20
 """Largest answer the simulation reads [bytes] (a command is ``8 nq``; ``info`` JSON at most this)."""
-MAX_HEADER_BYTES = 2**26
-"""Largest message the controller's side reads [bytes] (an observation's header holds its scene)."""
+MAX_FRAME_BYTES = 2**28
+"""Largest message the controller's side reads [bytes] (a frame: its grid's change, points, scene)."""
 IDLE_WAIT = 10.0
 """[s] of wall time a call may go on without the controller consuming CPU before it is abandoned."""
 POLL = 0.05
@@ -94,14 +93,13 @@ class Overrun(Exception):
 # -- framing -----------------------------------------------------------------------------------
 
 
-def _send(sock: socket.socket, kind: bytes, payload: bytes = b"", fd: int | None = None) -> None:
-    data = _HEAD.pack(kind, len(payload)) + payload
-    if fd is None:
-        sock.sendall(data)
-        return
-    sent = socket.send_fds(sock, [data], [fd])  # the descriptor travels with the first byte
-    if sent < len(data):
-        sock.sendall(data[sent:])
+def _send(sock: socket.socket, kind: bytes, payload: bytes = b"") -> None:
+    head = _HEAD.pack(kind, len(payload))
+    if len(payload) < 65536:  # one system call for the per-tick messages
+        sock.sendall(head + payload)
+    else:
+        sock.sendall(head)
+        sock.sendall(payload)
 
 
 def _recv_exact(sock: socket.socket, n: int) -> bytearray:
@@ -123,66 +121,58 @@ def _recv(sock: socket.socket, limit: int) -> tuple[bytes, bytearray]:
     return kind, _recv_exact(sock, length) if length else bytearray()
 
 
-def _recv_with_fd(sock: socket.socket, limit: int) -> tuple[bytes, bytearray, int | None]:
-    """A message and the descriptor sent with it (None when none was)."""
-    data, fds, _, _ = socket.recv_fds(sock, _HEAD.size, 1)
-    if not data:
-        raise ControllerGone("the simulation closed the connection")
-    head = data + (_recv_exact(sock, _HEAD.size - len(data)) if len(data) < _HEAD.size else b"")
-    kind, length = _HEAD.unpack(head)
-    if length > limit:
-        for fd in fds:
-            os.close(fd)
-        raise RemoteFault(f"sent a message of {length} bytes (limit {limit})")
-    return kind, _recv_exact(sock, length) if length else bytearray(), fds[0] if fds else None
-
-
 # -- observations --------------------------------------------------------------------------------
 
 
 GRID_SLOTS = 4
-"""Shared grids per run: frame ``j`` is written into slot ``j % GRID_SLOTS``, so the arrays of an
-observation stay as delivered while the next ``GRID_SLOTS - 1`` frames arrive."""
+"""Grids kept per run on the controller's side: frame ``j`` is written into slot ``j %
+GRID_SLOTS``, so the arrays of an observation stay as delivered while the next
+``GRID_SLOTS - 1`` frames arrive."""
 
 
 class GridRing:
-    """The simulation's side of the shared grids of one run (:data:`GRID_SLOTS` memfd files).
+    """The simulation's side of a run's grids: what each of the controller's :data:`GRID_SLOTS`
+    slots holds, and the change that turns it into a new frame.
 
-    A slot is mapped once by each side; a new frame rewrites only the cells its slot held occupied
-    and the cells now occupied (a sensed grid is mostly free: 0.8 % of 2.9 M cells on the shipped
-    scenarios), so delivering a frame costs neither side a new mapping or its page faults."""
+    A frame is sent as the cells of its slot to clear and the cells to set (flat indices, values
+    unless all are 1), not as a grid: a sensed grid is mostly free (0.8 % of 2.9 M cells on the
+    shipped scenarios) and changes little from frame to frame, so the controller, which is charged
+    for receiving it, reads little and writes little."""
 
     def __init__(self) -> None:
-        self._slots: list[tuple[int, mmap.mmap, np.ndarray] | None] = [None] * GRID_SLOTS
+        self._held: list[tuple[tuple[int, ...], np.ndarray, np.ndarray] | None] = [None] * GRID_SLOTS
         self._frames = 0
 
-    def write(self, obs: Observation) -> tuple[bytes, int | None]:
-        """The frame's message (header and points) and the slot's file descriptor when the
-        controller has not mapped that slot yet (None otherwise)."""
+    def write(self, obs: Observation) -> bytes:
+        """The frame's message: a JSON header, then the change's arrays, then the points."""
         grid = np.asarray(obs.grid.data, dtype=np.float64)
         j = self._frames % GRID_SLOTS
         self._frames += 1
-        slot, new = self._slots[j], None
-        if slot is None or len(slot[1]) != max(8 * grid.size, 8):
-            if slot is not None:
-                self._close(j)
-            fd = os.memfd_create("planbench-grid", os.MFD_CLOEXEC)
-            os.ftruncate(fd, max(8 * grid.size, 8))
-            slot = (fd, mmap.mmap(fd, max(8 * grid.size, 8)), np.zeros(0, dtype=np.int64))
-            self._slots[j] = slot
-            new = fd
-        fd, mm, held = slot
-        cells = np.frombuffer(mm, dtype=np.float64, count=grid.size)
-        cells[held] = 0.0
-        occupied = np.flatnonzero(grid)
-        cells[occupied] = grid.reshape(-1)[occupied]
-        del cells  # the map closes only once no array views it
-        self._slots[j] = (fd, mm, occupied)
+        cells = np.flatnonzero(grid)
+        values = grid.reshape(-1)[cells]
+        held = self._held[j]
+        if held is None or held[0] != grid.shape:
+            clear, changed = np.zeros(0, dtype=np.int64), np.ones(len(cells), dtype=bool)
+            fresh = True
+        else:
+            _, old_cells, old_values = held
+            clear = np.setdiff1d(old_cells, cells, assume_unique=True)
+            at = np.searchsorted(old_cells, cells).clip(max=max(len(old_cells) - 1, 0))
+            same = (old_cells[at] == cells) & (old_values[at] == values) if len(old_cells) else np.zeros(len(cells), bool)
+            changed = ~same
+            fresh = False
+        self._held[j] = (grid.shape, cells, values)
+        set_cells, set_values = cells[changed], values[changed]
+        ones = bool(np.all(set_values == 1.0))
         points = None if obs.points is None else np.ascontiguousarray(obs.points, dtype="<f8")
         header = {
             "time": float(obs.time),
             "frame": int(obs.frame),
             "slot": j,
+            "fresh": fresh,
+            "clear": len(clear),
+            "set": len(set_cells),
+            "ones": ones,
             "grid": {
                 "shape": list(grid.shape),
                 "origin": [float(x) for x in obs.grid.origin],
@@ -190,61 +180,86 @@ class GridRing:
                 "outside": float(obs.grid.outside),
             },
             "points": None if points is None else list(points.shape),
-            "scene": None if obs.scene is None else obs.scene.to_dict(),
+            "scene": None if obs.scene is None else json.dumps(obs.scene.to_dict()),
         }
         head = json.dumps(header).encode()
-        body = b"" if points is None else points.tobytes()
-        return struct.pack("<I", len(head)) + head + body, new
-
-    def _close(self, j: int) -> None:
-        slot = self._slots[j]
-        if slot is not None:
-            slot[1].close()
-            os.close(slot[0])
-            self._slots[j] = None
-
-    def close(self) -> None:
-        for j in range(GRID_SLOTS):
-            self._close(j)
+        parts = [struct.pack("<I", len(head)), head, clear.astype("<i8").tobytes(), set_cells.astype("<i8").tobytes()]
+        if not ones:
+            parts.append(set_values.astype("<f8").tobytes())
+        if points is not None:
+            parts.append(points.tobytes())
+        return b"".join(parts)
 
 
 class GridView:
-    """The controller's side of the shared grids: each slot mapped read-only once."""
+    """The controller's side of a run's grids: :data:`GRID_SLOTS` arrays of its own memory, each
+    changed in place by the frames written into it (:class:`GridRing`)."""
 
     def __init__(self) -> None:
-        self._maps: dict[int, mmap.mmap] = {}
+        self._slots: dict[int, np.ndarray] = {}
 
-    def read(self, message: bytes | bytearray, fd: int | None) -> Observation:
+    def read(self, message: bytes | bytearray) -> Observation:
         """The observation of a frame message; :class:`RemoteFault` when the controller still holds
-        arrays of the frame its slot held before (they were overwritten: it must copy what it keeps)."""
+        arrays of the frame its slot held before (it must copy what it keeps longer)."""
         (n,) = struct.unpack_from("<I", message)
         h = json.loads(message[4 : 4 + n])
         g, j = h["grid"], int(h["slot"])
         shape = tuple(int(x) for x in g["shape"])
-        n_cells = int(np.prod(shape))
-        if fd is not None:
-            old = self._maps.pop(j, None)
-            if old is not None:
-                old.close()
-            try:
-                self._maps[j] = mmap.mmap(fd, max(8 * n_cells, 8), flags=mmap.MAP_SHARED, prot=mmap.PROT_READ)
-            finally:
-                os.close(fd)
-        mm = self._maps[j]
-        if sys.getrefcount(mm) > 3:  # the dict, this name, the call's argument: nothing else
+        at = 4 + n
+        clear = np.frombuffer(message, dtype="<i8", count=h["clear"], offset=at)
+        at += 8 * h["clear"]
+        cells = np.frombuffer(message, dtype="<i8", count=h["set"], offset=at)
+        at += 8 * h["set"]
+        if h["ones"]:
+            values: Any = 1.0
+        else:
+            values = np.frombuffer(message, dtype="<f8", count=h["set"], offset=at)
+            at += 8 * h["set"]
+        slot = self._slots.get(j)
+        if slot is not None and sys.getrefcount(slot) > 3:  # the dict, this name, the argument
             raise RemoteFault(
-                f"the controller still holds arrays of an observation {GRID_SLOTS} frames old, which the "
-                f"simulation has now overwritten: observation arrays are shared and stay as delivered for "
-                f"{GRID_SLOTS - 1} more frames; copy what you keep longer"
+                f"the controller still holds arrays of an observation {GRID_SLOTS} frames old, which this "
+                f"frame overwrites: observation arrays stay as delivered for {GRID_SLOTS - 1} more frames; "
+                "copy what you keep longer"
             )
-        grid = np.frombuffer(mm, dtype=np.float64, count=n_cells).reshape(shape)
+        if h["fresh"] or slot is None:
+            slot = np.empty(int(np.prod(shape)))
+            slot.fill(0.0)  # every page written now: reading a never-written page costs a fault each time
+            self._slots[j] = slot
+        slot[clear] = 0.0
+        slot[cells] = values
+        grid = slot.reshape(shape)
+        grid.flags.writeable = False
         points = None
         if h["points"] is not None:
             count = int(np.prod(h["points"]))
-            points = np.frombuffer(message, dtype="<f8", count=count, offset=4 + n).reshape(h["points"])
-        scene = None if h["scene"] is None else Scene.from_dict(h["scene"], "observation")
+            points = np.frombuffer(message, dtype="<f8", count=count, offset=at).reshape(h["points"])
         occupancy = _grid_as_checked(grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"])
-        return Observation(time=h["time"], grid=occupancy, frame=h["frame"], points=points, scene=scene)
+        return _delivered(h["time"], occupancy, h["frame"], points, h["scene"])
+
+
+class _DeliveredObservation(Observation):
+    """An :class:`Observation` whose scene (truth sensing) is parsed when first read: most
+    controllers never read it, and they are charged for receiving the frame."""
+
+    @property  # type: ignore[override]
+    def scene(self) -> Scene | None:
+        cached = self.__dict__.get("_scene")
+        if cached is None and self.__dict__["_scene_json"] is not None:
+            cached = Scene.from_dict(json.loads(self.__dict__["_scene_json"]), "observation")
+            self.__dict__["_scene"] = cached
+        return cached
+
+    @scene.setter
+    def scene(self, value: Scene | None) -> None:  # dataclasses.replace sets it
+        self.__dict__.update(_scene=value, _scene_json=None)
+
+
+def _delivered(t: float, grid: OccupancyGrid, frame: int, points: np.ndarray | None, scene: str | None) -> Observation:
+    obs = object.__new__(_DeliveredObservation)
+    for name, value in (("time", t), ("grid", grid), ("frame", frame), ("points", points), ("_scene_json", scene)):
+        obs.__dict__[name] = value
+    return obs
 
 
 def _grid_as_checked(data: np.ndarray, origin: np.ndarray, resolution: float, outside: float) -> OccupancyGrid:
@@ -267,13 +282,13 @@ def serve_controller(sock: socket.socket, controller: Any, nq: int, goal: Any) -
     grids = GridView()
     while True:
         try:
-            kind, payload, fd = _recv_with_fd(sock, MAX_HEADER_BYTES)
+            kind, payload = _recv(sock, MAX_FRAME_BYTES)
         except (RemoteFault, OSError):
             return
         if kind == b"U":
             latest = None
             try:
-                latest = grids.read(payload, fd)
+                latest = grids.read(payload)
             except RemoteFault as fault:
                 _send(sock, b"x", str(fault).encode())
                 continue
@@ -334,8 +349,7 @@ class RemoteController:
         is left of the horizon)."""
 
     def update(self, observation: Observation) -> float:
-        message, fd = self.grids.write(observation)
-        kind, _, charged = self._call(b"U", message, fd)
+        kind, _, charged = self._call(b"U", self.grids.write(observation))
         if kind != b"u":
             raise RemoteFault(f"answered {kind!r} to an observation")
         return charged
@@ -363,8 +377,7 @@ class RemoteController:
         return data if isinstance(data, dict) else {"info": data}
 
     def close(self) -> None:
-        """Release the shared grids (the controller's maps keep their files until it unmaps them)."""
-        self.grids.close()
+        """Nothing is held outside this process (kept for the port's life cycle)."""
 
     def kill(self) -> None:
         """End the controller's process and its group (it is a session leader of its own)."""
@@ -374,10 +387,10 @@ class RemoteController:
             except (ProcessLookupError, PermissionError):
                 pass
 
-    def _call(self, kind: bytes, payload: bytes, fd: int | None = None) -> tuple[bytes, bytearray, float]:
+    def _call(self, kind: bytes, payload: bytes) -> tuple[bytes, bytearray, float]:
         t0 = time.perf_counter()
         try:
-            _send(self.sock, kind, payload, fd)
+            _send(self.sock, kind, payload)
         except OSError as exc:
             raise ControllerGone(f"the controller's process is gone ({exc})") from exc
         self._wait(t0)
