@@ -64,7 +64,8 @@ class SlotActor:
     """One benchmark slot on a Ray node; ``run`` takes a task's wire bytes, returns its record's."""
 
     def __init__(self, threads_per_worker: int = 1) -> None:
-        self._runner = Runner(1, threads_per_worker=threads_per_worker)
+        # actors share a node's cores: a closed loop stays on the core its simulation starts on
+        self._runner = Runner(1, threads_per_worker=threads_per_worker, pin=False)
         self._runner.keep_warm = True  # a dead worker is replaced at once, before the next call
         self._runner.start()  # the slot starts (~1 s) while the driver is busy elsewhere
 

@@ -1,5 +1,10 @@
 """The worker process: receive runs, plan each, send back the raw result as data. It never validates.
 
+A closed-loop run (:mod:`planbench.bench.kinds`) makes the worker a controller's process instead:
+fresh, confined before the controller is imported, answering the simulation in the slot's
+validator over the socket it received with the run, and ended after it; it sends the parent only
+"planning starts", or an ``error`` when the controller could not be set up.
+
 Started by :mod:`planbench.bench.runner` with the ``spawn`` method, so it is a fresh interpreter
 that imports planners by name or ``"module:Attr"``. This is the only process where planner code
 runs, so nothing it says is trusted:

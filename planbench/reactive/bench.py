@@ -41,7 +41,7 @@ from planbench.reactive.runner import (
 from planbench.reactive.scenario import Scenario
 from planbench.validate import Evaluation
 
-__all__ = ["evaluate_record", "serve_run", "simulate_remote", "simulate_run"]
+__all__ = ["current_cpu", "evaluate_record", "serve_run", "simulate_remote", "simulate_run"]
 
 _STATUS = {"success": "success", "collision": "collision", "timeout": "timeout", "error": "error", "crash": "crash"}
 
@@ -147,10 +147,12 @@ def simulate_remote(
     cpu: int | None = None,
 ) -> tuple[RunRecord, list[float]]:
     """The closed loop against the controller of process ``pid`` over ``sock``, both pinned to core
-    ``cpu`` (None: left where they are): the run's record and each call's hand-off time [s]."""
+    ``cpu`` (None: the core this process is on now): the run's record and each call's hand-off
+    time [s]."""
     from planbench.reactive.remote import ControllerGone, RemoteController
 
     own = os.sched_getaffinity(0)
+    cpu = current_cpu() if cpu is None else cpu
     try:
         if cpu is not None:
             _pin(cpu, pid)
@@ -193,6 +195,15 @@ def simulate_run(
         "times": record.times,
     }
     return fields, evaluate_record(scenario, record, loop_time)
+
+
+def current_cpu() -> int | None:
+    """The core this process runs on now (None where it cannot be read)."""
+    try:
+        with open("/proc/self/stat") as f:
+            return int(f.read().rpartition(")")[2].split()[36])
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _pin(cpu: int, pid: int) -> None:

@@ -85,8 +85,6 @@ def run_isolated(
             raise ControllerSetupError(f"the process of controller {controller!r} died during setup") from None
         if phase != "plan":
             raise ControllerSetupError(f"controller {controller!r}: {phase}")
-        if cpu is None:
-            cpu = _current_cpu()
         record, handoff = simulate_remote(scenario, ours, proc.pid, seed=seed, settings=settings, cpu=cpu)
         return IsolatedRun(record, handoff)
     finally:
@@ -95,12 +93,3 @@ def run_isolated(
         if proc.is_alive():
             proc.kill()
             proc.join()
-
-
-def _current_cpu() -> int | None:
-    """The core this process runs on now (None where it cannot be read)."""
-    try:
-        with open("/proc/self/stat") as f:
-            return int(f.read().rpartition(")")[2].split()[36])
-    except (OSError, ValueError, IndexError):
-        return None

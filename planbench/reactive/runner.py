@@ -7,22 +7,25 @@ Time advances in control ticks of ``T = 1 / control_rate``. At the start of tick
    ``j / rate``) from the true scene at that time and the arm's configuration, and delivered
    ``latency`` later (on the first tick at or after it).
 2. **Control.** When the controller is free, it gets ``update(frame)`` for a newly delivered frame
-   and ``step(t, q, frame, goal)``; both are timed. Compute time is charged as on a robot: a
-   command ready within the period drives tick ``k``; one that takes ``c > T`` misses
-   ``ceil(c / T) - 1`` deadlines: the previous command is held during those ticks, the new one
-   drives the tick in which it became ready, and the controller starts again on the tick after.
-   ``timing="measured"`` charges the measured time; ``"ideal"`` charges nothing (a controller as
-   fast as you like); ``"replay"`` charges the compute times recorded by an earlier run, so a run
-   can be repeated exactly for debugging.
+   and ``step(t, q, frame, goal)``, through a :class:`ControllerPort` that says what each call is
+   charged. Compute time is charged as on a robot: a command ready within the period drives tick
+   ``k``; one that takes ``c > T`` misses ``ceil(c / T) - 1`` deadlines: the previous command is
+   held during those ticks, the new one drives the tick in which it became ready, and the
+   controller starts again on the tick after. ``timing="measured"`` charges what the port
+   measured (:class:`LocalPort`: this process's clock; the benchmark's
+   :class:`~planbench.reactive.remote.RemoteController`: the CPU time of the controller's own
+   process); ``"ideal"`` charges nothing (a controller as fast as you like); ``"replay"`` charges
+   the compute times recorded by an earlier run, so a run can be repeated exactly for debugging.
 3. **Motion.** The command is clipped to the robot's velocity limits, the arm moves ``q + T qd``,
    clamped to its joint limits (both recorded), and the tick is certified against the true, moving
    geometry (:class:`~planbench.reactive.checker.TickChecker`).
 
 The run ends at the first collision, when the end effector is within the problem's tolerances of
 the goal pose (success), at the horizon, or when the controller raises or returns garbage (an
-``error``: what was run until then is kept). :func:`evaluate_run` recomputes every verdict and
-metric from the recorded trajectory alone (the benchmark calls it in a process where no controller
-code ran).
+``error``: what was run until then is kept; a controller process that dies: a ``crash``).
+:func:`evaluate_run` recomputes every verdict and metric from the recorded trajectory alone (the
+benchmark calls it where the loop ran, a process where no controller code ran, after checking the
+record against the control model, :mod:`planbench.reactive.control_model`).
 """
 
 from __future__ import annotations
