@@ -161,6 +161,7 @@ def simulate_remote(
         except ProcessLookupError as exc:
             raise ControllerGone(f"the controller's process is gone ({exc})") from exc
         try:
+            port.prepare(_grid_shape(scenario))
             record = simulate(scenario, port, seed=seed, settings=settings)
         finally:
             port.close()
@@ -195,6 +196,16 @@ def simulate_run(
         "times": record.times,
     }
     return fields, evaluate_record(scenario, record, loop_time)
+
+
+def _grid_shape(scenario: Scenario) -> tuple[int, ...]:
+    """The shape of the scenario's observed grids (one for the whole run), from a frame of a sensor
+    and a generator of its own (the run's sensor and its noise are left as they are)."""
+    from planbench.reactive.sensing import Sensor
+
+    p = scenario.problem
+    frame = Sensor(scenario.sensing, p.robot).capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, np.random.default_rng(0))
+    return tuple(frame.grid.data.shape)
 
 
 def current_cpu() -> int | None:

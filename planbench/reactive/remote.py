@@ -7,9 +7,10 @@ one message and its answer per call, over a stream socket pair::
 
     kind (1 byte) | length (u32, little endian) | payload
 
-simulation -> controller: ``U`` an observation (a JSON header, the change from the grid its slot
+simulation -> controller: ``P`` the grid's shape, before the run (the controller's side
+allocates its grids, uncharged), ``U`` an observation (a JSON header, the change from the grid its slot
 held four frames before, its points: :class:`GridRing`), ``S`` a step (``t`` and ``q`` as
-float64), ``E`` the end of the run. controller -> simulation: ``u`` update done,
+float64), ``E`` the end of the run. controller -> simulation: ``p`` grids allocated, ``u`` update done,
 ``c`` the command (``nq`` float64), ``i`` the controller's ``info()`` as JSON, ``x`` a fault
 (UTF-8 text: the controller raised or returned something that is not a joint velocity).
 
@@ -143,6 +144,10 @@ class GridRing:
         self._held: list[tuple[tuple[int, ...], np.ndarray, np.ndarray] | None] = [None] * GRID_SLOTS
         self._frames = 0
 
+    def prepared(self, shape: tuple[int, ...]) -> None:
+        """The controller has allocated every slot of ``shape``, all free."""
+        self._held = [(tuple(shape), np.zeros(0, dtype=np.int64), np.zeros(0))] * GRID_SLOTS
+
     def write(self, obs: Observation) -> bytes:
         """The frame's message: a JSON header, then the change's arrays, then the points."""
         grid = np.asarray(obs.grid.data, dtype=np.float64)
@@ -198,6 +203,13 @@ class GridView:
     def __init__(self) -> None:
         self._slots: dict[int, np.ndarray] = {}
 
+    def prepare(self, shape: tuple[int, ...]) -> None:
+        """Allocate every slot of ``shape``, free, each page written once."""
+        for j in range(GRID_SLOTS):
+            slot = np.empty(int(np.prod(shape)))
+            slot.fill(0.0)  # every page written now: reading a never-written page costs a fault each time
+            self._slots[j] = slot
+
     def read(self, message: bytes | bytearray) -> Observation:
         """The observation of a frame message; :class:`RemoteFault` when the controller still holds
         arrays of the frame its slot held before (it must copy what it keeps longer)."""
@@ -222,9 +234,8 @@ class GridView:
                 f"frame overwrites: observation arrays stay as delivered for {GRID_SLOTS - 1} more frames; "
                 "copy what you keep longer"
             )
-        if h["fresh"] or slot is None:
-            slot = np.empty(int(np.prod(shape)))
-            slot.fill(0.0)  # every page written now: reading a never-written page costs a fault each time
+        if h["fresh"] or slot is None or slot.size != int(np.prod(shape)):
+            slot = np.zeros(int(np.prod(shape)))
             self._slots[j] = slot
         slot[clear] = 0.0
         slot[cells] = values
@@ -285,7 +296,10 @@ def serve_controller(sock: socket.socket, controller: Any, nq: int, goal: Any) -
             kind, payload = _recv(sock, MAX_FRAME_BYTES)
         except (RemoteFault, OSError):
             return
-        if kind == b"U":
+        if kind == b"P":
+            grids.prepare(tuple(int(x) for x in json.loads(payload)["shape"]))
+            _send(sock, b"p")
+        elif kind == b"U":
             latest = None
             try:
                 latest = grids.read(payload)
@@ -347,6 +361,19 @@ class RemoteController:
         self.budget = math.inf
         """[s] CPU time a call may consume before it is abandoned (the simulation sets it to what
         is left of the horizon)."""
+
+    def prepare(self, shape: tuple[int, ...]) -> None:
+        """Have the controller's process allocate its grids of ``shape`` before the run, uncharged
+        (writing 4 x 23 MB once would otherwise cost the first frames milliseconds each)."""
+        self.budget = IDLE_WAIT
+        kind, _, _ = self._call(b"P", json.dumps({"shape": list(shape)}).encode())
+        if kind != b"p":
+            raise RemoteFault(f"answered {kind!r} to the preparation of its grids")
+        self.grids.prepared(shape)
+        self._cpu = self.clock.read()
+        self.handoff.clear()
+        self.wall.clear()
+        self.budget = math.inf
 
     def update(self, observation: Observation) -> float:
         kind, _, charged = self._call(b"U", self.grids.write(observation))
