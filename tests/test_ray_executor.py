@@ -144,7 +144,6 @@ def test_the_cluster_stays_on_the_loopback_and_actors_run_on_their_main_thread(c
     assert outward == [], "Ray listens on an address other than 127.0.0.1"
 
 
-@pytest.mark.slow
 STEPS = """
 [suite]
 name = "smoke-steps"
@@ -160,6 +159,7 @@ settings = { max_steps = 3000 }
 """
 
 
+@pytest.mark.slow
 def test_the_smoke_suite_gives_the_same_rows_on_two_ray_nodes_as_locally(cluster, tmp_path):
     # the smoke suite's matrix-field runs cut by their 5 s limit end where the machine's load let
     # them get (different rows under load); a step budget ends them where the planner decides

@@ -575,47 +575,42 @@ class Runner:
             return None
         slot.fields = fields
         self._enter(slot, "validate", self._woke)
-        if not slot.validator.usable:
-            self._close(slot.validator)
-            slot.validator = self._start("validator")
-        request = {
-            "type": "validate",
-            "run": slot.run,
-            "problem_ref": slot.task.problem_ref,
-            "validation": slot.task.validation,
-            "kind": slot.task.kind,
-            "result": {k: v for k, v in fields.items() if k not in ("path", "times")},
-        }
-        try:
-            slot.validator.conn.send_bytes(encode(request, {"path": fields["path"], "times": fields["times"]}))
-        except OSError:
-            pass  # the validator died: its liveness check records the crash
+        result = {k: v for k, v in fields.items() if k not in ("path", "times")}
+        request = {"problem_ref": slot.task.problem_ref, "validation": slot.task.validation, "result": result}
+        self._ask_validator(slot, request, {"path": fields["path"], "times": fields["times"]})
         return None
 
     def _start_simulation(self, slot: _Slot) -> None:
         """Hand the validator a closed-loop run: the request, then its end of the socket pair."""
         task, channel = slot.task, slot.channel
         assert task is not None and channel is not None
-        if not slot.validator.usable:
-            self._close(slot.validator)
-            slot.validator = self._start("validator")
         request = {
-            "type": "validate",
-            "run": slot.run,
-            "kind": task.kind,
             "problem_ref": task.problem_ref,
             "seed": task.seed,
             "timing": task.timing,
             "pid": slot.worker.proc.pid,
             "cpu": self._cores[slot.index % len(self._cores)] if self.pin else None,
         }
-        try:
-            slot.validator.conn.send_bytes(encode(request))
-            send_handle(slot.validator.conn, channel.fileno(), slot.validator.proc.pid)
-        except OSError:
-            pass  # the validator died: its liveness check records the crash
+        self._ask_validator(slot, request, channel=channel)
         channel.close()
         slot.channel = None
+
+    def _ask_validator(
+        self, slot: _Slot, request: dict[str, Any], arrays: dict[str, Any] | None = None, channel: Any = None
+    ) -> None:
+        """Send the slot's validator (started anew if it is gone) the run's request, and ``channel``
+        after it when the run's kind has one."""
+        assert slot.task is not None
+        if not slot.validator.usable:
+            self._close(slot.validator)
+            slot.validator = self._start("validator")
+        header = {"type": "validate", "run": slot.run, "kind": slot.task.kind, **request}
+        try:
+            slot.validator.conn.send_bytes(encode(header, arrays))
+            if channel is not None:
+                send_handle(slot.validator.conn, channel.fileno(), slot.validator.proc.pid)
+        except OSError:
+            pass  # the validator died: its liveness check records the crash
 
     def _drain_validator(self, slot: _Slot) -> Record | None:
         try:
