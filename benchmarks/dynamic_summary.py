@@ -1,8 +1,10 @@
 """Tables of a closed-loop results file: success per controller by robot, speed, sensing and
-behaviour (95 % Wilson intervals), failure reasons, and compute times.
+behaviour (95 % Wilson intervals), failure reasons, compute times and the hand-off; or, with
+``--loaded``, how many verdicts of a run beside other load differ from a quiet run's.
 
     planbench bench --suite dynamic --out dynamic.db --jobs 2
     python benchmarks/dynamic_summary.py dynamic.db            # Markdown, as in docs/reactive.md
+    python benchmarks/dynamic_summary.py dynamic.db --loaded loaded.db
 
 Keys come from the shipped scenario names (``dynamic:<robot>_<behaviour>_<speed>_<sensing>/N``).
 """
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import json
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -89,19 +92,57 @@ def compute(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def handoff(rows: Sequence[dict[str, Any]]) -> str:
+    """Per controller, medians over runs of each run's hand-off median and p99 (the wall-clock round
+    trip of a call less the CPU time charged for it, measured by the simulation)."""
+    lines = ["| controller | hand-off median [µs] | hand-off p99 [µs] | calls per run |", "|---|---|---|---|"]
+    for c in sorted({r["planner"] for r in rows}):
+        infos = [json.loads(r["info"]) if isinstance(r["info"], str) else r["info"] for r in rows if r["planner"] == c]
+        got = [i for i in infos if isinstance(i, dict) and i.get("handoff_median") is not None]
+        if not got:
+            continue
+        m = np.median([i["handoff_median"] for i in got]) * 1e6
+        p = np.median([i["handoff_p99"] for i in got]) * 1e6
+        n = np.median([i["handoff_calls"] for i in got])
+        lines.append(f"| `{c}` | {m:.0f} | {p:.0f} | {n:.0f} |")
+    return "\n".join(lines)
+
+
+def compare(quiet: Sequence[dict[str, Any]], loaded: Sequence[dict[str, Any]]) -> str:
+    """Per controller, the runs of ``loaded`` whose verdict differs from the same scenario's in
+    ``quiet`` (matched by scenario and controller)."""
+    before = {(r["problem"], r["planner"]): bool(r["success"]) for r in quiet}
+    lines = ["| controller | runs compared | success quiet | success loaded | verdicts that differ |", "|---|---|---|---|---|"]
+    for c in sorted({r["planner"] for r in loaded}):
+        pairs = [(before[(r["problem"], c)], bool(r["success"])) for r in loaded if r["planner"] == c and (r["problem"], c) in before]
+        differ = sum(a != b for a, b in pairs)
+        lines.append(f"| `{c}` | {len(pairs)} | {sum(a for a, _ in pairs)} | {sum(b for _, b in pairs)} | {differ} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("db", nargs="+", help="results files (their closed-loop runs are pooled)")
+    parser.add_argument("--loaded", help="a results file of the same scenarios run beside other load: verdicts compared")
     args = parser.parse_args()
-    rows: list[dict[str, Any]] = []
-    for path in args.db:
-        with ResultsDB(path, read_only=True) as db:
-            rows += [r for r in db.rows() if r.get("deadline_misses") is not None]
+    rows = _rows(args.db)
+    if args.loaded:
+        print(f"### Verdicts beside load against quiet\n\n{compare(rows, _rows([args.loaded]))}")
+        return
     print(f"{len(rows)} closed-loop runs\n")
     for key in ("robot", "speed", "sensing", "behaviour"):
         print(f"### Success by {key}\n\n{by(rows, key)}\n")
     print(f"### Failure reasons\n\n{reasons(rows)}\n")
-    print(f"### Compute and motion (medians; compute over every run, the rest over successes)\n\n{compute(rows)}")
+    print(f"### Compute and motion (medians; compute over every run, the rest over successes)\n\n{compute(rows)}\n")
+    print(f"### Hand-off (medians over runs)\n\n{handoff(rows)}")
+
+
+def _rows(paths: Sequence[str]) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    for path in paths:
+        with ResultsDB(path, read_only=True) as db:
+            rows += [r for r in db.rows() if r.get("deadline_misses") is not None]
+    return rows
 
 
 if __name__ == "__main__":
