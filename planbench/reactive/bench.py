@@ -160,11 +160,8 @@ def simulate_remote(
             port = RemoteController(sock, pid, scenario.problem.robot.nq)
         except ProcessLookupError as exc:
             raise ControllerGone(f"the controller's process is gone ({exc})") from exc
-        try:
-            port.prepare(_grid_shape(scenario))
-            record = simulate(scenario, port, seed=seed, settings=settings)
-        finally:
-            port.close()
+        port.prepare(_grid_shape(scenario))
+        record = simulate(scenario, port, seed=seed, settings=settings)
         if record.overrun:
             port.kill()
     finally:

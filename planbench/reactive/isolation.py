@@ -42,7 +42,6 @@ __all__ = [
     "drop_capabilities",
     "forbid_new_processes",
     "make_undumpable",
-    "new_processes_forbidden",
 ]
 
 
@@ -186,18 +185,6 @@ def drop_capabilities() -> None:
 def make_undumpable() -> None:
     """Protect this process's memory from processes without ``CAP_SYS_PTRACE`` (same uid included)."""
     _libc().prctl(_PR_SET_DUMPABLE, 0, 0, 0, 0)
-
-
-def new_processes_forbidden(pid: int | str = "self") -> bool:
-    """Whether ``pid`` runs under a seccomp filter (the ``Seccomp`` line of its status is 2)."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("Seccomp:"):
-                    return line.split()[1] == "2"
-    except OSError:
-        return False
-    return False
 
 
 class ProcessClock:

@@ -403,9 +403,6 @@ class RemoteController:
             data = {"info_error": f"{type(exc).__name__}: {exc}"}
         return data if isinstance(data, dict) else {"info": data}
 
-    def close(self) -> None:
-        """Nothing is held outside this process (kept for the port's life cycle)."""
-
     def kill(self) -> None:
         """End the controller's process and its group (it is a session leader of its own)."""
         for send in (os.killpg, os.kill):
