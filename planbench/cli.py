@@ -196,7 +196,9 @@ def _plan_in_workers(args: argparse.Namespace, refs: Sequence[Any], settings: di
         for ref in refs
     ]
     records: dict[str, dict[str, Any]] = {}
-    Runner(1).run(tasks, lambda task, record: records.__setitem__(task.problem_id, record))
+    runner = Runner(1)
+    runner.warm_numba = False  # a cold cache: this command plans with numpy and warms it in the background
+    runner.run(tasks, lambda task, record: records.__setitem__(task.problem_id, record))
     return [records[ref.id] for ref in refs]
 
 

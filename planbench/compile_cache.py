@@ -20,11 +20,12 @@ import hashlib
 import importlib.util
 import os
 import platform
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["enabled", "is_warm", "marker_path", "warm_in_background", "warm_up"]
+__all__ = ["enabled", "is_warm", "marker_path", "use_private_cache", "warm_in_background", "warm_now", "warm_up"]
 
 KERNEL_MODULES = ("planbench.field._compiled", "planbench_plugins.ik_loop._compiled")
 """The modules whose functions numba compiles with ``cache=True``."""
@@ -101,6 +102,67 @@ def warm_in_background() -> None:
         )
     except OSError:  # no process to spare: the next command finds the cache cold again, nothing worse
         pass
+
+
+def use_private_cache(directory: str) -> int:
+    """Make numba cache to ``directory`` in this process, seeded with a copy of the shared cache of
+    planbench's kernels; the number of files copied.
+
+    For a sandboxed benchmark worker (:mod:`planbench.bench.sandbox`), which may write only to its
+    scratch folder: numba refuses to cache at all where it cannot write, and a shared cache a
+    plugin could write would let it plant compiled code in the next plugin's process. Call it
+    before the kernels' modules are imported (numba picks a function's cache place then).
+    """
+    from numba.core import caching, config
+
+    os.makedirs(directory, exist_ok=True)
+    copied = 0
+    user = os.environ.get("NUMBA_CACHE_DIR", "")
+    for src in _sources():
+        target = os.path.join(directory, caching._CacheLocator.get_suitable_cache_subpath(str(src)))
+        for shared in _shared_cache_dirs(src, user):
+            files = sorted(shared.glob(f"{src.stem}.*.nb[ic]"))
+            if not files:
+                continue
+            os.makedirs(target, exist_ok=True)
+            for f in files:
+                shutil.copy2(f, target)
+                copied += 1
+            break
+    os.environ["NUMBA_CACHE_DIR"] = directory
+    config.CACHE_DIR = directory
+    return copied
+
+
+def _shared_cache_dirs(src: Path, user: str = "") -> list[Path]:
+    """Where numba keeps ``src``'s cache outside a private one, in numba's order: the user's
+    ``NUMBA_CACHE_DIR``, next to the source, user-wide."""
+    from numba.core import caching
+    from numba.misc.appdirs import AppDirs
+
+    sub = caching._CacheLocator.get_suitable_cache_subpath(str(src))
+    wide = Path(AppDirs(appname="numba", appauthor=False).user_cache_dir) / sub
+    return [Path(user) / sub] if user else [src.parent / "__pycache__", wide]
+
+
+def warm_now(timeout: float = 600.0) -> bool:
+    """Fill the shared cache (:func:`warm_up`, in a child process) unless it is warm; whether it is
+    warm afterwards. The benchmark does this before its workers start: a sandboxed worker cannot
+    write the shared cache, so each would otherwise compile in its own (5-8 s per worker)."""
+    if is_warm():
+        return True
+    try:
+        subprocess.run(
+            [sys.executable, "-m", "planbench.compile_cache"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            timeout=timeout,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return is_warm()
 
 
 def main() -> None:

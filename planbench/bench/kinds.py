@@ -59,11 +59,18 @@ def _static_work(task: Any, notify: Notify, channel: socket.socket | None) -> di
 def _static_judge(
     request: dict[str, Any], arrays: dict[str, Any], channel: socket.socket | None
 ) -> tuple[None, dict[str, Any]]:
+    from planbench.bench.snapshot import SnapshotChanged, restore
     from planbench.bench.validator import validate_fields
     from planbench.bench.wire import clean_result
+    from planbench.validate import Evaluation
 
     fields = clean_result({**request["result"], "path": arrays.get("path"), "times": arrays.get("times")})
-    return None, validate_fields(request["problem_ref"], fields, request["validation"])
+    try:
+        problem = restore(request["snapshot"])
+    except SnapshotChanged as exc:  # the run's problem is not the one the benchmark read: no verdict
+        failure = f"error: {exc}; no verdict"
+        return None, Evaluation(False, failure, "error", fields["planning_time"], fields["setup_time"]).as_dict()
+    return None, validate_fields(problem, fields, request["validation"])
 
 
 def _dynamic_work(task: Any, notify: Notify, channel: socket.socket | None) -> dict[str, Any] | None:
@@ -85,13 +92,13 @@ def _dynamic_work(task: Any, notify: Notify, channel: socket.socket | None) -> d
 def _dynamic_judge(
     request: dict[str, Any], arrays: dict[str, Any], channel: socket.socket | None
 ) -> tuple[dict[str, Any], dict[str, Any]]:
+    from planbench.bench.snapshot import restore
     from planbench.bench.wire import clean_info
     from planbench.reactive.bench import simulate_run
-    from planbench.reactive.sets import load_scenario
 
     if channel is None:
         raise ValueError("a closed-loop run needs its channel to the controller")
-    scenario = load_scenario(request["problem_ref"])
+    scenario = restore(request["snapshot"])
     cpu = request.get("cpu")
     fields, evaluation = simulate_run(
         scenario, int(request["seed"]), str(request["timing"]), channel, int(request["pid"]), cpu

@@ -8,6 +8,9 @@ settings to the types of its ``Config`` (which needs the plugin's classes, hence
 it (its ``__init__`` may check settings too), and answers with data only
 (:mod:`planbench.bench.wire`): whether it loaded (else the error's text and kind, and a bad
 setting's data), the parsed settings, its module and whether it asks for a fresh process per run.
+It is contained like a worker: sandboxed to a scratch folder of its own
+(:mod:`planbench.bench.sandbox`) and in a cgroup that is killed with it, so a plugin's import can
+neither plant files for later processes nor leave a process behind.
 """
 
 from __future__ import annotations
@@ -15,10 +18,13 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import shutil
+import tempfile
 import time
 from typing import Any
 
-from planbench.bench.procs import detach, kill_group, limit_threads
+from planbench.bench import sandbox
+from planbench.bench.procs import Cgroups, detach, join_cgroup, kill_group, limit_threads
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadMessage, decode, encode
 from planbench.errors import InvalidSettingError, PlanbenchError
 from planbench.registry import CONTROLLERS, REGISTRY
@@ -58,8 +64,19 @@ def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str], kin
     }
 
 
-def _probe_main(conn: Any, entries: list[ProbeEntry], parent_pid: int, kind: str = "planner") -> None:
+def _probe_main(
+    conn: Any,
+    entries: list[ProbeEntry],
+    parent_pid: int,
+    kind: str = "planner",
+    scratch: str = "",
+    cgroup: str = "",
+    writable: tuple[str, ...] = (),
+) -> None:
     detach(parent_pid)
+    join_cgroup(cgroup)
+    if scratch:
+        sandbox.enter(scratch, True, tuple(writable))
     limit_threads(1)
     answers = [_probe_one(planner, settings, text, kind) for planner, settings, text in entries]
     conn.send_bytes(encode({"type": "probe", "answers": answers}))
@@ -78,12 +95,22 @@ def probe_planners(
     Raises :class:`PlanbenchError` when the probe dies, answers garbage, or takes over ``timeout`` s
     (a plugin whose import hangs). ``kind="controller"``: the entries are controllers.
     """
+    from planbench.bench.runner import WRITABLE_VARIABLE, _thread_environment
+
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=True)
+    scratch = tempfile.mkdtemp(prefix="planbench-probe-")
+    cgroups = Cgroups()
+    cgroup = cgroups.make("probe")
+    writable = tuple(p for p in os.environ.get(WRITABLE_VARIABLE, "").split(os.pathsep) if p)
     proc = ctx.Process(
-        target=_probe_main, args=(child, entries, os.getpid(), kind), daemon=True, name="planbench-probe"
+        target=_probe_main,
+        args=(child, entries, os.getpid(), kind, scratch, cgroup, writable),
+        daemon=True,
+        name="planbench-probe",
     )
-    proc.start()
+    with _thread_environment(1):
+        proc.start()
     child.close()
     try:
         deadline = time.monotonic() + timeout
@@ -104,5 +131,7 @@ def probe_planners(
         return answers
     finally:
         kill_group(proc.pid)
+        cgroups.close()
         proc.join(5)
         parent.close()
+        shutil.rmtree(scratch, ignore_errors=True)

@@ -13,9 +13,17 @@ Why each piece:
   changes) and then kills the whole group, so grandchildren die whether the worker was killed,
   crashed or exited. A thread in the worker could not do this: ``PDEATHSIG`` kills the worker
   before such a thread runs, and a planner holding the GIL would starve it.
+- A process group does not hold a planner's child that calls ``setsid``. Where the kernel lets
+  this process make cgroups (v2), each worker runs in a cgroup of its own (:class:`Cgroups`,
+  :func:`join_cgroup`), which no descendant can leave from inside the sandbox
+  (:mod:`planbench.bench.sandbox`: the cgroup files are not writable there); killing it
+  (``cgroup.kill``) kills every process in it, whatever it did to its session. The reaper does
+  that when the worker is gone, the parent when it ends a worker. Where there are no cgroups,
+  the worker is a child subreaper (orphans of its descendants become its children, not init's)
+  and the reaper tracks its descendants while it lives and kills them all after it.
 - :func:`kill_group` is how the parent ends a worker: ``killpg(pid, SIGKILL)`` (the worker, its
   reaper, the planner's children), then the process itself in case it had not reached
-  :func:`detach` yet.
+  :func:`detach` yet; then its cgroup.
 - :class:`OutputFile` is where a worker's fds 1 and 2 go. The parent trims it when it grows past
   :data:`OUTPUT_MAX_BYTES` (keeping the tail) and reads its tail into the run's row, so a planner
   that prints without end neither reaches the terminal nor fills the disk.
@@ -36,8 +44,11 @@ from planbench.field.threads import limit_threads as limit_compute_threads
 
 __all__ = [
     "THREAD_VARIABLES",
+    "Cgroups",
     "OutputFile",
+    "descendants",
     "detach",
+    "join_cgroup",
     "kill_group",
     "limit_threads",
     "process_alive",
@@ -47,6 +58,7 @@ __all__ = [
 
 
 PR_SET_PDEATHSIG = 1
+PR_SET_CHILD_SUBREAPER = 36
 OUTPUT_MAX_BYTES = 16 * 2**20
 """A worker's output file is cut back to its tail past this size [bytes]."""
 OUTPUT_KEEP_BYTES = 64 * 1024
@@ -89,14 +101,18 @@ def watch_parent(parent_pid: int, interval: float = 0.5) -> None:
 
 
 def start_reaper(interval: float = 0.1) -> int:
-    """Fork the group reaper (see the module docstring) and return its pid (0 where fork is missing).
+    """Fork the reaper (see the module docstring) and return its pid (0 where fork is missing).
 
-    Call it right after :func:`detach` and before any thread starts: the child is a copy of a
-    single-threaded interpreter that only sleeps and polls.
+    Call it right after :func:`detach` (and :func:`join_cgroup`) and before any thread starts: the
+    child is a copy of a single-threaded interpreter that only sleeps and polls.
     """
     if not hasattr(os, "fork"):  # pragma: no cover
         return 0
     worker = os.getpid()
+    cgroup = _own_cgroup()
+    if not cgroup:  # no cgroup: the worker keeps its descendants' orphans, the reaper tracks them
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
     pid = os.fork()
     if pid:
         return pid
@@ -104,12 +120,206 @@ def start_reaper(interval: float = 0.1) -> int:
         os.closerange(3, 65536)
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1):
             signal.signal(sig, signal.SIG_IGN)
+        tracked: dict[int, bytes] = {}
         while os.getppid() == worker:
-            time.sleep(interval)
+            if not cgroup:
+                tracked.update(descendants(worker))
+            time.sleep(interval if cgroup else 2.5 * interval)
+        if cgroup:
+            _write(os.path.join(cgroup, "cgroup.kill"), "1")  # this process too
+        _kill_tracked(tracked)
         _kill_own_group()
     finally:
         os._exit(0)
     return 0  # pragma: no cover
+
+
+def _start_time(pid: int) -> bytes | None:
+    """The start time of ``pid`` (field 22 of its stat), which tells it from a later process that
+    reuses the number; None when it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            stat = f.read()
+        return stat[stat.rindex(b")") + 2 :].split()[19]
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def descendants(root: int) -> dict[int, bytes]:
+    """Every live descendant of ``root``, with its start time (one pass over /proc)."""
+    parents: dict[int, int] = {}
+    for name in os.listdir("/proc"):
+        if not name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{name}/stat", "rb") as f:
+                stat = f.read()
+            parents[int(name)] = int(stat[stat.rindex(b")") + 2 :].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+    children: dict[int, list[int]] = {}
+    for pid, ppid in parents.items():
+        children.setdefault(ppid, []).append(pid)
+    out: dict[int, bytes] = {}
+    stack = list(children.get(root, ()))
+    while stack:
+        pid = stack.pop()
+        start = _start_time(pid)
+        if start is not None and pid not in out:
+            out[pid] = start
+            stack.extend(children.get(pid, ()))
+    return out
+
+
+def _kill_tracked(tracked: dict[int, bytes]) -> None:
+    """SIGKILL the tracked processes that are still the same processes, and their descendants,
+    until none is left (a process forked while this runs is caught on the next pass)."""
+    for _ in range(50):
+        alive = {pid: start for pid, start in tracked.items() if _start_time(pid) == start}
+        if not alive:
+            return
+        for pid in alive:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        tracked = {}
+        for pid in alive:
+            tracked.update(descendants(pid))
+
+
+def _write(path: str, text: str) -> bool:
+    try:
+        with open(path, "w") as f:
+            f.write(text)
+        return True
+    except OSError:
+        return False
+
+
+def _own_cgroup() -> str:
+    """The cgroup v2 directory this process is in when it is one :class:`Cgroups` made, else ""."""
+    try:
+        with open("/proc/self/cgroup") as f:
+            line = next((ln for ln in f if ln.startswith("0::")), "")
+    except OSError:
+        return ""
+    mount = _cgroup2_mount()
+    rel = line[3:].strip()
+    if not mount or f"/{Cgroups.PREFIX}" not in rel:
+        return ""
+    return os.path.join(mount, rel.lstrip("/"))
+
+
+def join_cgroup(path: str = "") -> bool:
+    """Move this process into the cgroup ``path`` (made by :class:`Cgroups` in the parent); its
+    later children start there. False (and nothing done) without one."""
+    return bool(path) and _write(os.path.join(path, "cgroup.procs"), "0")
+
+
+def _cgroup2_mount() -> str:
+    """Where the cgroup v2 hierarchy is mounted ("" when it is not)."""
+    try:
+        with open("/proc/self/mountinfo") as f:
+            for line in f:
+                left, _, right = line.partition(" - ")
+                if right.split(" ", 1)[0] == "cgroup2":
+                    return left.split()[4]
+    except OSError:
+        pass
+    return ""
+
+
+class Cgroups:
+    """The cgroups of one benchmark's workers: ``<own cgroup>/planbench-<pid>/worker-<n>``, or none
+    where this process may not make cgroups, or ``PLANBENCH_CGROUPS=0`` says not to (then
+    :attr:`base` is "" and every call does nothing)."""
+
+    PREFIX = "planbench-"
+
+    def __init__(self) -> None:
+        self.base = ""
+        if os.environ.get("PLANBENCH_CGROUPS") == "0":  # the fallback, on purpose (tests)
+            return
+        mount = _cgroup2_mount()
+        try:
+            with open("/proc/self/cgroup") as f:
+                rel = next((ln[3:].strip() for ln in f if ln.startswith("0::")), None)
+        except OSError:
+            rel = None
+        if not mount or rel is None:
+            return
+        parent = os.path.join(mount, rel.lstrip("/"))
+        _remove_stale(parent)
+        base = os.path.join(parent, f"{self.PREFIX}{os.getpid()}")
+        try:
+            os.makedirs(base, exist_ok=True)
+        except OSError:
+            return
+        if os.path.exists(os.path.join(base, "cgroup.kill")):
+            self.base = base
+        else:  # a kernel before 5.14: no cgroup.kill
+            with contextlib.suppress(OSError):
+                os.rmdir(base)
+
+    def make(self, name: str) -> str:
+        """A new cgroup for one worker ("" without cgroups)."""
+        if not self.base:
+            return ""
+        path = os.path.join(self.base, name)
+        try:
+            os.mkdir(path)
+        except FileExistsError:
+            pass
+        except OSError:
+            return ""
+        return path
+
+    @staticmethod
+    def kill(path: str) -> None:
+        """Kill every process in cgroup ``path`` and remove it once it is empty."""
+        if not path:
+            return
+        _write(os.path.join(path, "cgroup.kill"), "1")
+        _remove(path)
+
+    def close(self) -> None:
+        if self.base:
+            for name in os.listdir(self.base) if os.path.isdir(self.base) else []:
+                if os.path.isdir(os.path.join(self.base, name)):
+                    self.kill(os.path.join(self.base, name))
+            _remove(self.base)
+            self.base = ""
+
+
+def _remove(path: str, wait: float = 2.0) -> None:
+    """rmdir a cgroup, waiting up to ``wait`` s for its killed processes to be gone."""
+    end = time.monotonic() + wait
+    while True:
+        try:
+            os.rmdir(path)
+            return
+        except FileNotFoundError:
+            return
+        except OSError:
+            if time.monotonic() > end:
+                return
+            time.sleep(0.01)
+
+
+def _remove_stale(parent: str) -> None:
+    """Remove the cgroups of benchmarks that are gone (killed before they could)."""
+    try:
+        names = [n for n in os.listdir(parent) if n.startswith(Cgroups.PREFIX)]
+    except OSError:
+        return
+    for name in names:
+        pid = name[len(Cgroups.PREFIX) :]
+        if not pid.isdigit() or process_alive(int(pid)):
+            continue
+        base = os.path.join(parent, name)
+        for sub in os.listdir(base):
+            if os.path.isdir(os.path.join(base, sub)):
+                Cgroups.kill(os.path.join(base, sub))
+        _remove(base, wait=0.5)
 
 
 def _kill_own_group() -> None:

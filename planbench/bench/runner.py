@@ -69,7 +69,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from planbench.bench.kinds import RunKind, kind_of
-from planbench.bench.procs import OUTPUT_HEADER, OutputFile, kill_group
+from planbench.field.threads import THREAD_VARIABLES
+from planbench import compile_cache
+from planbench.bench import sandbox, snapshot
+from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
@@ -82,6 +85,10 @@ log = logging.getLogger(__name__)
 __all__ = ["Runner", "default_jobs", "failure_record", "record_from"]
 
 Record = dict[str, Any]
+WRITABLE_VARIABLE = "PLANBENCH_SANDBOX_WRITABLE"
+"""Environment variable: folders (``os.pathsep``-separated) that sandboxed plugins may write too,
+e.g. a plugin's own log folder. Each is the user's choice to trust every plugin of the benchmark
+with it; never the results file's folder."""
 RECV_TIMEOUT = 5.0
 """[s] a child that stops in the middle of a message for this long is treated as broken."""
 MAX_MESSAGES_PER_WAIT = 64
@@ -141,6 +148,24 @@ def _check_planning_time(record: Record, observed: float | None) -> None:
     record["message"] = f"{record.get('message') or ''} [{note}]".strip()
 
 
+def _charge_parent_time(record: Record, observed: float | None) -> None:
+    """Make a static run's planning time the plan phase this process timed; the worker's own
+    figure (planner code ran there, and could have patched its clock) is kept in ``info`` as
+    ``worker_planning_time``, for information only.
+
+    The phase runs from the worker's "planning starts" message to its result, each stamped when
+    this loop woke to read it: the planner's query, the harness's bookkeeping and the hand-off of
+    the result (tens of microseconds; ``docs/measurements.md``).
+    """
+    evaluation = record.get("evaluation") or {}
+    if observed is None or "planning_time" not in evaluation:
+        return
+    info = record.get("info")
+    if isinstance(info, dict):
+        info["worker_planning_time"] = evaluation["planning_time"]
+    evaluation["planning_time"] = observed
+
+
 def _check_time_limit(record: Record, observed: float | None, time_limit: float) -> None:
     """Make a static run that answered after its time limit a ``timeout`` that did not succeed,
     whatever its path (kept, with its metrics, for inspection).
@@ -198,6 +223,12 @@ class _Child:
     proc: Any
     conn: Any
     output: OutputFile
+    scratch: str = ""
+    """A worker's scratch folder: the one place its sandbox lets it write."""
+    cgroup: str = ""
+    """A worker's cgroup ("" without cgroups): killing it kills every process the plugin started."""
+    plugin: tuple[str, ...] | None = None
+    """The plugin (suite, label, planner) whose code this worker has run; it runs no other."""
     ready: bool = False
     runs: int = 0
     closed: bool = False
@@ -242,7 +273,12 @@ class Runner:
     on ``jobs`` worker slots."""
 
     def __init__(
-        self, jobs: int | None = None, start_method: str = "spawn", threads_per_worker: int = 1, pin: bool = True
+        self,
+        jobs: int | None = None,
+        start_method: str = "spawn",
+        threads_per_worker: int = 1,
+        pin: bool = True,
+        sandboxed: bool = True,
     ) -> None:
         self.jobs = default_jobs() if not jobs else int(jobs)
         self.threads = int(threads_per_worker)
@@ -262,6 +298,18 @@ class Runner:
         self._woke = time.monotonic()
         """When :meth:`_wait` last returned: the time stamp of every message read after it (it
         arrived by then, or while this loop served other slots, which is not the run's time)."""
+        self.sandboxed = sandboxed
+        """Workers write only to their scratch folders and signal no process outside
+        (:mod:`planbench.bench.sandbox`); where the kernel cannot, they run without, with a warning."""
+        self.writable = tuple(p for p in os.environ.get(WRITABLE_VARIABLE, "").split(os.pathsep) if p)
+        """Folders plugins may write besides their scratch folder (:data:`WRITABLE_VARIABLE`)."""
+        self._cgroups: Cgroups | None = None
+        self._snapshots: dict[tuple[str, str], dict[str, Any]] = {}
+        """(entry, reference) -> what the validators judge by (:func:`planbench.bench.snapshot.take`)."""
+        self._warned: set[str] = set()
+        self.warm_numba = True
+        """Fill numba's shared cache of planbench's kernels before the first worker starts (once per
+        install: 5-8 s), since sandboxed workers compile into caches of their own."""
         self.keep_warm = False
         """Restart a slot's dead worker or validator at once even when no task is pending (the next
         :meth:`feed` is expected)."""
@@ -289,6 +337,7 @@ class Runner:
         call on a warm slot); :meth:`close` ends them. An exception closes them too."""
         pending: deque[RunTask] = deque(tasks)
         try:
+            self._take_snapshots(pending)
             self._grow(min(self.jobs, len(pending)))
             slots = self._slots
             while pending or any(s.task is not None for s in slots):
@@ -301,6 +350,21 @@ class Runner:
             self.close()
             raise
 
+    def _take_snapshots(self, tasks: Sequence[RunTask]) -> None:
+        """Read every problem and scenario of ``tasks`` not read yet (:mod:`planbench.bench.snapshot`):
+        before any worker runs plugin code for them. One that cannot be read is the reason its
+        runs get no verdict (its worker cannot prepare the run either)."""
+        for task in tasks:
+            key = (kind_of(task.kind).entry, task.problem_ref)
+            if key not in self._snapshots:
+                try:
+                    self._snapshots[key] = snapshot.take(*key)
+                except Exception as exc:
+                    self._snapshots[key] = {"error": f"{type(exc).__name__}: {exc}"[:2000]}
+
+    def _snapshot_of(self, task: RunTask) -> dict[str, Any]:
+        return self._snapshots[(kind_of(task.kind).entry, task.problem_ref)]
+
     def close(self) -> None:
         """Stop every slot's processes and remove their output files."""
         slots, self._slots = self._slots, []
@@ -309,6 +373,9 @@ class Runner:
                 self._stop(slot.worker, idle=slot.task is None)
                 self._stop(slot.validator, idle=slot.phase != "validate" or slot.task is None)
         finally:
+            if self._cgroups is not None:
+                self._cgroups.close()
+                self._cgroups = None
             if self._tmp:
                 shutil.rmtree(self._tmp, ignore_errors=True)
                 self._tmp = ""
@@ -317,6 +384,21 @@ class Runner:
         if not self._tmp:
             self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
             make_undumpable()  # no confined controller may read or write this process's memory
+            if self.warm_numba:
+                compile_cache.warm_now()  # trusted code, before any plugin's; its workers copy it
+            self._cgroups = Cgroups()
+            if not self._cgroups.base:
+                self._warn(
+                    "cgroups",
+                    "this process cannot make cgroups (v2): a plugin's process that leaves its "
+                    "worker's session is found by tracking the worker's descendants instead",
+                )
+            if self.sandboxed and not sandbox.available():
+                self._warn(
+                    "sandbox",
+                    "the kernel offers no Landlock: plugins run WITHOUT the file-system sandbox and can "
+                    "write the problem, results and Python files (docs/benchmarking.md, threat model)",
+                )
         while len(self._slots) < n:
             self._slots.append(_Slot(self._start("worker"), self._start("validator"), index=len(self._slots)))
 
@@ -331,17 +413,20 @@ class Runner:
             return
         if not slot.worker.ready:
             return
-        fresh = pending[0].fresh_process or kind_of(pending[0].kind).fresh_worker
-        if (fresh or slot.worker.spent) and slot.worker.runs > 0:
-            self._stop(slot.worker, idle=True)
+        index = _next_for(slot.worker.plugin, pending)
+        task = pending[index]
+        fresh = task.fresh_process or kind_of(task.kind).fresh_worker
+        if slot.worker.runs > 0 and (fresh or slot.worker.spent or slot.worker.plugin != plugin_of(task)):
+            self._stop(slot.worker, idle=True)  # one plugin per process: a fresh one for the next
             slot.worker = self._start("worker")
             return
-        if not self._dispatch(slot, pending[0]):  # it died just now: the run goes to its successor
+        if not self._dispatch(slot, task):  # it died just now: the run goes to its successor
             self._kill(slot.worker)
             self._close(slot.worker)
             slot.worker = self._start("worker")
             return
-        pending.popleft()
+        slot.worker.plugin = plugin_of(task)
+        del pending[index]
 
     def _service(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         """Everything one slot needs after a wait: messages, deadlines, dead processes."""
@@ -381,6 +466,18 @@ class Runner:
         if more or slot.task is not None:
             slot.validator = self._start("validator")
 
+    def _warn(self, topic: str, message: str) -> None:
+        if topic not in self._warned:
+            self._warned.add(topic)
+            log.warning("%s", message)
+
+    def _check_sandbox(self, state: Any) -> None:
+        """Warn (once) when a worker that should be sandboxed says it is not."""
+        if self.sandboxed and not str(state).startswith("Landlock"):
+            self._warn("sandbox", f"plugins run WITHOUT the file-system sandbox: {str(state)[:300]}")
+        elif self.sandboxed and "NOT refused" in str(state):
+            self._warn("signals", f"the sandbox cannot refuse signals (kernel before 6.12): {state}")
+
     def _start_failed(self, child: _Child) -> None:
         self._start_failures += 1
         if self._start_failures > 3:
@@ -395,9 +492,11 @@ class Runner:
         assert task is not None
         record["elapsed"] = time.monotonic() - slot.dispatched
         _note_memory_limit(record, task)
-        _check_planning_time(record, slot.timings.get("plan"))
         if kind_of(task.kind).answer_in_time:
             _check_time_limit(record, slot.timings.get("plan"), task.time_limit)
+            _charge_parent_time(record, slot.timings.get("plan"))
+        else:
+            _check_planning_time(record, slot.timings.get("plan"))
         slot.task, slot.fields, slot.phase, slot.deadline = None, None, "", math.inf
         if slot.channel is not None:
             slot.channel.close()
@@ -415,17 +514,24 @@ class Runner:
         self._count += 1
         output = OutputFile(os.path.join(self._tmp, f"{kind}-{self._count}.out"))
         parent, child = self.ctx.Pipe(duplex=True)
-        target = worker_main if kind == "worker" else validator_main
+        args: tuple[Any, ...] = (child, output.path, os.getpid(), self.threads)
+        scratch = cgroup = ""
+        if kind == "worker":
+            scratch = os.path.join(self._tmp, f"scratch-{self._count}")
+            os.mkdir(scratch, 0o700)
+            cgroup = self._cgroups.make(f"worker-{self._count}") if self._cgroups is not None else ""
+            args += (scratch, self.sandboxed, cgroup, self.writable)
         proc = self.ctx.Process(  # type: ignore[attr-defined]
-            target=target,
-            args=(child, output.path, os.getpid(), self.threads),
+            target=worker_main if kind == "worker" else validator_main,
+            args=args,
             daemon=True,
             name=f"planbench-{kind}-{self._count}",
         )
-        proc.start()
+        with _thread_environment(self.threads):
+            proc.start()
         child.close()
         _set_recv_timeout(parent, RECV_TIMEOUT)
-        return _Child(kind, proc, parent, output)
+        return _Child(kind, proc, parent, output, scratch=scratch, cgroup=cgroup)
 
     def _kill(self, child: _Child, dump_stack: bool = False) -> None:
         pid = child.proc.pid
@@ -434,6 +540,7 @@ class Runner:
                 os.kill(pid, signal.SIGUSR1)
                 child.proc.join(0.3)
         kill_group(pid)
+        Cgroups.kill(child.cgroup)
         child.proc.join(5)
 
     def _stop(self, child: _Child, idle: bool) -> None:
@@ -451,6 +558,9 @@ class Runner:
             return
         child.closed = True
         kill_group(child.proc.pid)  # a dead worker's group may still hold the planner's children
+        Cgroups.kill(child.cgroup)  # and its cgroup those that left the group
+        if child.scratch:
+            shutil.rmtree(child.scratch, ignore_errors=True)
         with contextlib.suppress(OSError):
             child.conn.close()
         child.proc.join(5)
@@ -545,12 +655,17 @@ class Runner:
             kind, run = header.get("type"), header.get("run")
             if kind == "ready":
                 slot.worker.ready = True
+                self._check_sandbox(header.get("sandbox"))
             elif slot.task is None or run != slot.run or slot.phase not in ("setup", "plan"):
                 continue  # a late message of a run already recorded
             elif kind == "phase" and header.get("phase") == "plan" and slot.phase == "setup":
-                self._enter(slot, "plan", self._woke)
+                now = time.monotonic()
+                self._enter(slot, "plan", now if slot.kind.answer_in_time else self._woke)
                 if slot.kind.channel:
                     self._start_simulation(slot)
+                elif slot.kind.answer_in_time:  # the worker waits for this: the phase starts now
+                    with contextlib.suppress(OSError):  # a dead worker is found by its liveness check
+                        slot.worker.conn.send_bytes(encode({"type": "go", "run": slot.run}))
             elif kind == "done" and (slot.phase == "setup" or not slot.kind.channel):
                 return self._on_result(slot, header, arrays)  # (a closed loop's record is the simulation's)
         return None
@@ -576,7 +691,7 @@ class Runner:
         slot.fields = fields
         self._enter(slot, "validate", self._woke)
         result = {k: v for k, v in fields.items() if k not in ("path", "times")}
-        request = {"problem_ref": slot.task.problem_ref, "validation": slot.task.validation, "result": result}
+        request = {"snapshot": self._snapshot_of(slot.task), "validation": slot.task.validation, "result": result}
         self._ask_validator(slot, request, {"path": fields["path"], "times": fields["times"]})
         return None
 
@@ -585,7 +700,7 @@ class Runner:
         task, channel = slot.task, slot.channel
         assert task is not None and channel is not None
         request = {
-            "problem_ref": task.problem_ref,
+            "snapshot": self._snapshot_of(task),
             "seed": task.seed,
             "timing": task.timing,
             "pid": slot.worker.proc.pid,
@@ -694,6 +809,38 @@ class Runner:
         if limit > 0 and child.kind == "worker" and code is not None and code < 0:
             msg += f" (its memory limit was {limit:g} MiB: a failed allocation in C code can end a process this way)"
         return failure_record("crash", msg, _with_output("", child.output.tail()))
+
+
+def plugin_of(task: RunTask) -> tuple[str, ...]:
+    """What a worker may run code of: one planner label of one suite (a plugin's code, with one
+    set of settings), so that nothing a plugin does to its process reaches another's runs."""
+    return (task.suite, task.label, task.planner)
+
+
+def _next_for(plugin: tuple[str, ...] | None, pending: deque[RunTask]) -> int:
+    """The index of the next task for a worker that has run ``plugin``: the first of that plugin
+    (its warm worker goes on), else the first of all."""
+    if plugin is not None:
+        for i, task in enumerate(pending):
+            if plugin_of(task) == plugin:
+                return i
+    return 0
+
+
+@contextlib.contextmanager
+def _thread_environment(threads: int) -> Any:
+    """The thread-pool variables set while a child starts, so that its libraries start no pool
+    threads on import: the worker must hold a single thread when it enters its sandbox."""
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update({name: str(threads) for name in THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def _fields_from(header: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:

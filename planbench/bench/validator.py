@@ -10,11 +10,15 @@ It also runs the closed loop of a ``dynamic`` run (:mod:`planbench.bench.kinds`)
 against the controller in the run's worker, over a socket pair the parent hands both of them.
 The process is marked undumpable, so a confined controller cannot reach into its memory.
 
+It never reads a problem or scenario file: the parent sends the problem's or scenario's data as
+it read it before any plugin ran (:mod:`planbench.bench.snapshot`), and the files that data
+points to (robot, meshes, clouds) are checked against their hashes from then.
+
 Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
-- in: ``{"type": "validate", "run": id, "kind": "static", "problem_ref": ..., "validation":
+- in: ``{"type": "validate", "run": id, "kind": "static", "snapshot": ..., "validation":
   {...}, "result": {...}}`` with the result's ``path`` and ``times`` arrays, already checked by
-  the parent; or ``{"type": "validate", "run": id, "kind": "dynamic", "problem_ref": ...,
+  the parent; or ``{"type": "validate", "run": id, "kind": "dynamic", "snapshot": ...,
   "seed": n, "timing": ..., "pid": the controller's, "cpu": core or null}`` followed by the
   socket (``SCM_RIGHTS``);
 - out: ``{"type": "ready"}`` once imports are done, then per run

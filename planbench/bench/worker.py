@@ -44,17 +44,20 @@ import resource
 import signal
 import socket
 import sys
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Mapping
 from multiprocessing.reduction import recv_handle
 from typing import Any
 
+from planbench.bench import sandbox
 from planbench.bench.kinds import kind_of
 from planbench.bench.procs import (
     THREAD_VARIABLES,
     OutputFile,
     detach,
+    join_cgroup,
     limit_threads,
     start_reaper,
     watch_parent,
@@ -238,17 +241,39 @@ def _out_of_memory(fields: dict[str, Any]) -> bool:
     return ran_out_of_memory(message if isinstance(message, str) else "", tb if isinstance(tb, str) else "")
 
 
-def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) -> None:
+class _Stopped(Exception):
+    """The parent ended the run instead of letting planning start."""
+
+
+def _await_go(conn: Any, run: Any) -> None:
+    """Block until the parent says planning may start (it stamps the phase's start just before)."""
+    header, _ = decode(conn.recv_bytes())
+    if header.get("type") != "go" or header.get("run") != run:
+        raise _Stopped(f"expected the parent's go for run {run}, got {str(header)[:80]}")
+
+
+def worker_main(
+    conn: Any,
+    output_path: str,
+    parent_pid: int,
+    threads: int = 1,
+    scratch: str = "",
+    sandboxed: bool = False,
+    cgroup: str = "",
+    writable: tuple[str, ...] = (),
+) -> None:
     """Entry point of a worker process (see the module docstring)."""
     detach(parent_pid)
-    start_reaper()  # before any thread starts
+    join_cgroup(cgroup)  # before the reaper is forked, so that it and every later process is in the cgroup
+    start_reaper()  # before any thread starts, and outside the sandbox: the plugin cannot signal it
+    OutputFile(output_path).open_for_child()
+    state = sandbox.enter(scratch or tempfile.mkdtemp(prefix="planbench-scratch-"), sandboxed, tuple(writable))
     watch_parent(parent_pid)
     limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    OutputFile(output_path).open_for_child()
     faulthandler.enable()
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the parent asks where a run hangs
-    _send(conn, {"type": "ready", "pid": os.getpid()})
+    _send(conn, {"type": "ready", "pid": os.getpid(), "sandbox": state})
     while True:
         try:
             header, _ = decode(conn.recv_bytes())
@@ -267,10 +292,13 @@ def worker_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) 
             return
         _set_memory_limit(task.memory_limit)
 
-        def notify(phase: str, run: Any = run) -> None:
-            _send(conn, {"type": "phase", "run": run, "phase": phase})
-
         kind = kind_of(task.kind)
+
+        def notify(phase: str, run: Any = run, wait: bool = kind.answer_in_time) -> None:
+            _send(conn, {"type": "phase", "run": run, "phase": phase})
+            if wait:  # the parent's clock starts the plan phase: planning starts on its word
+                _await_go(conn, run)
+
         try:
             fields = kind.work(task, notify, channel)
         except Exception as exc:  # planbench's own fault, or a planner that broke it: still a row
