@@ -124,6 +124,7 @@ def start_reaper(interval: float = 0.1) -> int:
         while os.getppid() == worker:
             if not cgroup:
                 tracked.update(descendants(worker))
+                tracked.pop(os.getpid(), None)
             time.sleep(interval if cgroup else 2.5 * interval)
         if cgroup:
             _write(os.path.join(cgroup, "cgroup.kill"), "1")  # this process too
@@ -184,6 +185,7 @@ def _kill_tracked(tracked: dict[int, bytes]) -> None:
         tracked = {}
         for pid in alive:
             tracked.update(descendants(pid))
+        tracked.pop(os.getpid(), None)
 
 
 def _write(path: str, text: str) -> bool:

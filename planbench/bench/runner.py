@@ -305,6 +305,8 @@ class Runner:
         """Folders plugins may write besides their scratch folder (:data:`WRITABLE_VARIABLE`)."""
         self._cgroups: Cgroups | None = None
         self._snapshots: dict[tuple[str, str], dict[str, Any]] = {}
+        self._hooks: dict[str, tuple[int, int, int]] = {}
+        """The interpreter's start-up hooks when the first slot started (:func:`startup_hooks`)."""
         """(entry, reference) -> what the validators judge by (:func:`planbench.bench.snapshot.take`)."""
         self._warned: set[str] = set()
         self.warm_numba = True
@@ -386,6 +388,7 @@ class Runner:
             make_undumpable()  # no confined controller may read or write this process's memory
             if self.warm_numba:
                 compile_cache.warm_now()  # trusted code, before any plugin's; its workers copy it
+            self._hooks = startup_hooks()
             self._cgroups = Cgroups()
             if not self._cgroups.base:
                 self._warn(
@@ -466,6 +469,18 @@ class Runner:
         if more or slot.task is not None:
             slot.validator = self._start("validator")
 
+    def _check_hooks(self) -> None:
+        """Refuse to start a validator once the interpreter's start-up hooks changed: a plugin
+        without a sandbox could have planted one to run in every later verdict's process."""
+        now = startup_hooks()
+        if now != self._hooks:
+            changed = sorted(p for p in set(now) | set(self._hooks) if now.get(p) != self._hooks.get(p))
+            raise PlanbenchError(
+                f"the Python installation's start-up hooks changed during the benchmark ({', '.join(changed[:3])}): "
+                "a plugin may have planted code to run in every new process, so no validator is started "
+                "from this installation; remove the file(s), check the plugins, and run again with --resume"
+            )
+
     def _warn(self, topic: str, message: str) -> None:
         if topic not in self._warned:
             self._warned.add(topic)
@@ -511,6 +526,8 @@ class Runner:
         from planbench.bench.validator import validator_main
         from planbench.bench.worker import worker_main
 
+        if kind == "validator":
+            self._check_hooks()
         self._count += 1
         output = OutputFile(os.path.join(self._tmp, f"{kind}-{self._count}.out"))
         parent, child = self.ctx.Pipe(duplex=True)
@@ -809,6 +826,28 @@ class Runner:
         if limit > 0 and child.kind == "worker" and code is not None and code < 0:
             msg += f" (its memory limit was {limit:g} MiB: a failed allocation in C code can end a process this way)"
         return failure_record("crash", msg, _with_output("", child.output.tail()))
+
+
+def startup_hooks() -> dict[str, tuple[int, int, int]]:
+    """The files every new interpreter runs at start-up (``*.pth``, ``sitecustomize``,
+    ``usercustomize`` in the site folders and on ``PYTHONPATH``) -> (inode, size, mtime)."""
+    import site
+
+    folders = [*site.getsitepackages(), site.getusersitepackages()]
+    folders += [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    out: dict[str, tuple[int, int, int]] = {}
+    for folder in folders:
+        try:
+            names = os.listdir(folder)
+        except OSError:
+            continue
+        for name in names:
+            if name.endswith(".pth") or name in ("sitecustomize.py", "usercustomize.py"):
+                path = os.path.join(folder, name)
+                with contextlib.suppress(OSError):
+                    st = os.stat(path)
+                    out[path] = (st.st_ino, st.st_size, st.st_mtime_ns)
+    return out
 
 
 def plugin_of(task: RunTask) -> tuple[str, ...]:
