@@ -571,7 +571,8 @@ def _open_for_lock(path: Path) -> int:
     try:
         fd = os.open(path, flags, 0o644)
     except OSError as exc:
-        raise ResultsFileError(path, f"cannot open: {exc.strerror}; check the path and its folder's permissions") from exc
+        why = f"cannot open: {exc.strerror}; check the path and its folder's permissions"
+        raise ResultsFileError(path, why) from exc
     try:
         _refuse_links(path, os.fstat(fd))
     except ResultsFileError:
