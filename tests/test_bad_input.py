@@ -341,10 +341,10 @@ class _Failing:
 def test_outputs_may_not_replace_the_results_file(results, tmp_path, capsys):
     db = _copy(results, tmp_path / "r.db")
     before = _sha(db)
-    _refused(["export", str(db), "--format", "planner-arena", "--out", str(db)], capsys, "results database itself")
-    _refused(["report", str(db), "--csv", str(db)], capsys, "results database itself")
+    _refused(["export", str(db), "--format", "planner-arena", "--out", str(db)], capsys, "itself")
+    _refused(["report", str(db), "--csv", str(db)], capsys, "itself")
     other = _copy(results, tmp_path / "other.db")
-    _refused(["export", str(db), "--format", "planner-arena", "--out", str(other)], capsys, "is a planbench results")
+    _refused(["export", str(db), "--format", "planner-arena", "--out", str(other)], capsys, "is a SQLite database")
     assert _sha(other) == _sha(results)
     _refused(["report", str(db), "--markdown", str(tmp_path / "no" / "t.md")], capsys, "cannot write")
     assert _sha(db) == before
