@@ -23,6 +23,7 @@ from planbench.bench.suite import check_seconds, check_seed, expand_problems
 from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
 from planbench.harness import DEFAULT_TIME_LIMIT
+from planbench.outputs import check_output
 from planbench.planner import PlanResult, PlanStatus
 from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
@@ -221,6 +222,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     check_seed(args.seed)
     setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
     refs = expand_problems([args.problem])
+    for out in (args.json, args.plot, args.replay):
+        if out:
+            check_output(out)
     planner = setup.build()
     _numpy_while_cold(planner)
     if args.replay and len(refs) != 1:
@@ -301,7 +305,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from planbench.replay import replay_run
 
-    out = replay_run(args.db, args.run, args.out)
+    out = replay_run(args.db, args.run, check_output(args.out, [args.db]))
     print(f"replay written to {out} (open it in a browser)")
     return 0
 

@@ -137,6 +137,15 @@ class ResultsLockedError(ResultsFileError):
         )
 
 
+class OutputFileError(PlanbenchError):
+    """An output path a command must not write: a results file, or another SQLite database."""
+
+    def __init__(self, path: object, problem: str) -> None:
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
 class UnstorableValueError(ResultsFileError, ValueError):
     """A run field whose value SQLite cannot store faithfully (an int beyond 64 bits, an object).
 

@@ -23,6 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.errors import PlanbenchError
+from planbench.outputs import check_output
 
 __all__ = ["MAX_FRAMES", "replay_html", "replay_row", "replay_run", "write_replay"]
 
@@ -121,7 +122,7 @@ def replay_html(
 
 def write_replay(out: str | Path, problem: Any, path: np.ndarray, times: np.ndarray | None = None, **kw: Any) -> Path:
     """Write :func:`replay_html` to ``out``; returns the file."""
-    target = Path(out)
+    target = check_output(out)
     target.write_text(replay_html(problem, path, times, **kw))
     return target
 

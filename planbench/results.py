@@ -26,6 +26,7 @@ import numpy as np
 
 from planbench.bench.db import ResultsDB
 from planbench.errors import PlanbenchError
+from planbench.outputs import check_output
 
 __all__ = ["JSON_COLUMNS", "load", "write_parquet"]
 
@@ -81,6 +82,6 @@ def write_parquet(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
             v = d.get(name)
             d[name] = v if v is None or isinstance(v, str) else json.dumps(v)
         table.append(d)
-    out = Path(path)
+    out = check_output(path)
     pandas.DataFrame(table).to_parquet(out, index=False)
     return out

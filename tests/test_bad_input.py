@@ -341,10 +341,10 @@ class _Failing:
 def test_outputs_may_not_replace_the_results_file(results, tmp_path, capsys):
     db = _copy(results, tmp_path / "r.db")
     before = _sha(db)
-    _refused(["export", str(db), "--format", "planner-arena", "--out", str(db)], capsys, "results database itself")
-    _refused(["report", str(db), "--csv", str(db)], capsys, "results database itself")
+    _refused(["export", str(db), "--format", "planner-arena", "--out", str(db)], capsys, "itself")
+    _refused(["report", str(db), "--csv", str(db)], capsys, "itself")
     other = _copy(results, tmp_path / "other.db")
-    _refused(["export", str(db), "--format", "planner-arena", "--out", str(other)], capsys, "is a planbench results")
+    _refused(["export", str(db), "--format", "planner-arena", "--out", str(other)], capsys, "is a SQLite database")
     assert _sha(other) == _sha(results)
     _refused(["report", str(db), "--markdown", str(tmp_path / "no" / "t.md")], capsys, "cannot write")
     assert _sha(db) == before
@@ -420,8 +420,9 @@ def test_a_second_writer_is_refused_with_the_holder_and_the_lock_dies_with_it(tm
         os.kill(holder.pid, signal.SIGKILL)  # kill -9: the kernel drops the flock
         holder.wait(10)
     with ResultsDB(db) as db2, db2.lock_for_writing():
-        assert json.loads(db2.lock_path.read_text())["pid"] == os.getpid()
-    assert not db2.lock_path.exists()
+        holder_path = db2.holder_path
+        assert json.loads(holder_path.read_text())["pid"] == os.getpid()
+    assert not holder_path.exists()
 
 
 NOISY_SUITE = """
@@ -447,9 +448,8 @@ def test_two_bench_processes_on_one_file(tmp_path):
     args = [*PLANBENCH, "bench", "--suite", str(suite), "--out", str(db), "--jobs", "1", "--no-progress"]
     first = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        lock = tmp_path / "r.db.lock"
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not (lock.exists() and lock.read_text()):
+        while time.monotonic() < deadline and not list(tmp_path.glob(".planbench-writer-*")):
             time.sleep(0.05)
         second = subprocess.run([*args, "--resume"], env=env, capture_output=True, text=True, timeout=120)
         assert first.poll() is None, "the first benchmark ended before the second started"
@@ -459,7 +459,7 @@ def test_two_bench_processes_on_one_file(tmp_path):
     finally:
         if first.poll() is None:
             first.kill()
-    assert not lock.exists()
+    assert not list(tmp_path.glob(".planbench-writer-*"))
     with ResultsDB(db, read_only=True) as ro:
         assert ro.count() == 3
     third = subprocess.run([*args, "--resume"], env=env, capture_output=True, text=True, timeout=120)
@@ -469,4 +469,4 @@ def test_two_bench_processes_on_one_file(tmp_path):
 def test_a_bench_refused_before_any_run_leaves_no_results_file(tmp_path, capsys):
     out = tmp_path / "new.db"
     _refused(["bench", "--suite", "smoke", "--problems", "mbm:box/9990-9999", "--out", str(out)], capsys, "9990")
-    assert not out.exists() and not Path(f"{out}-wal").exists() and not Path(f"{out}.lock").exists()
+    assert not list(tmp_path.iterdir())  # nor its journal nor the writer's description

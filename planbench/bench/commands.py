@@ -29,7 +29,8 @@ from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
 from planbench.cli import parse_setting, settings_text
-from planbench.errors import InvalidConfigError, PlanbenchError, ResultsFileError
+from planbench.errors import InvalidConfigError, PlanbenchError
+from planbench.outputs import check_output
 from planbench.results import write_parquet
 
 log = logging.getLogger(__name__)
@@ -298,25 +299,6 @@ class _Progress:
             self.bar = None
 
 
-def _output(path: str | Path, db: str | Path) -> Path:
-    """An output path that is neither the results file itself nor another planbench results file
-    (the writers replace what is there)."""
-    out = Path(path)
-    if out.resolve() == Path(db).resolve():
-        raise InvalidConfigError(f"{out} is the results database itself; choose another output file")
-    if out.is_file() and _is_results_file(out):
-        raise InvalidConfigError(f"{out} is a planbench results database; choose another output file")
-    return out
-
-
-def _is_results_file(path: Path) -> bool:
-    try:
-        with ResultsDB(path, read_only=True):
-            return True
-    except ResultsFileError:
-        return False
-
-
 @contextlib.contextmanager
 def _writing(path: str | Path) -> Iterator[None]:
     """Turn a failure to write ``path`` (a missing folder, no permission, a full disk) into a
@@ -331,7 +313,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     console = Console()
     outputs = [x for x in (args.markdown, args.csv, args.plots, args.html) if x]
     for out in outputs:
-        _output(out, args.db)
+        check_output(out, [args.db])
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
         if rows and ((args.plots or args.html) and metrics_for(rows) is DYNAMIC_METRICS or args.replays):
@@ -392,7 +374,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         "csv": db_path.with_suffix(".csv").as_posix(),
         "parquet": db_path.with_suffix(".parquet").as_posix(),
     }[args.format]
-    out = _output(args.out or default, db_path)
+    out = check_output(args.out or default, [db_path])
     arrays = args.format == "parquet" or (args.format == "csv" and args.paths)
     with ResultsDB(db_path, read_only=True) as db:
         rows = db.rows(args.suite, with_arrays=arrays)

@@ -25,8 +25,11 @@ is recorded with one INSERT in its own transaction, so a kill leaves either the 
 Who may open a file how:
 
 - ``planbench bench`` opens it writable and holds :meth:`ResultsDB.lock_for_writing` (an
-  ``flock`` on ``<file>.lock``) for the whole benchmark, so a second ``bench`` on the same file
-  refuses at start and names the first, instead of redoing its runs and colliding on the key.
+  ``flock`` on the file itself, so on its inode, whatever name reaches it) for the whole benchmark,
+  so a second ``bench`` on the same file refuses at start and names the first, instead of redoing
+  its runs and colliding on the key. A writable open refuses a symbolic link and a file with more
+  than one hard link: SQLite names its ``-wal`` journal after the path, so two names of one file
+  would be two journals, and runs written through one of them would be lost.
 - ``report`` and ``export`` open it read-only (``ResultsDB(path, read_only=True)``): nothing is
   created or migrated, the file stays byte-identical; migrations of older files are applied to
   the rows as they are read. A file without planbench's ``meta`` table is refused.
@@ -52,6 +55,7 @@ import os
 import platform
 import socket
 import sqlite3
+import stat
 import sys
 import urllib.parse
 from collections.abc import Callable, Iterable, Iterator
@@ -208,6 +212,8 @@ class ResultsDB:
     def __init__(self, path: str | Path, create: bool = True, read_only: bool = False) -> None:
         self.path = Path(path)
         self.read_only = read_only
+        self._fd = -1  # writable: an fd of the file, for the writer's lock (see _open_writable)
+        self._holder: Path | None = None  # while locked: the file describing this process
         self.versions = package_versions()
         self.host = socket.gethostname()
         if self.path.exists() and not self.path.is_file():
@@ -227,6 +233,13 @@ class ResultsDB:
             raise
 
     def _open_writable(self) -> None:
+        """Open an fd of the file first (refusing links), then SQLite's connection.
+
+        The fd carries the writer's ``flock``. It is closed only after the connection (in
+        :meth:`close`): closing any fd of a file drops every POSIX lock this process holds on it,
+        SQLite's own included (an idle WAL connection holds one).
+        """
+        self._fd = _open_for_lock(self.path)
         self.conn = sqlite3.connect(str(self.path), timeout=30.0)
         self.conn.row_factory = sqlite3.Row
         self._require_planbench(allow_empty=True)
@@ -270,6 +283,13 @@ class ResultsDB:
         if conn is not None:
             with contextlib.suppress(sqlite3.Error):
                 conn.close()
+        self._close_fd()
+
+    def _close_fd(self) -> None:
+        self._unlock()
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
 
     def _create(self) -> None:
         with self.conn:
@@ -299,26 +319,59 @@ class ResultsDB:
     # -- the writer's lock ------------------------------------------------------------------------
 
     @property
-    def lock_path(self) -> Path:
-        return self.path.with_name(self.path.name + ".lock")
+    def holder_path(self) -> Path:
+        """The file describing the lock's holder: keyed by the inode, so that a second writer that
+        reached the file by another name (a renamed file, a bind mount) still finds it."""
+        return self.path.parent / f".planbench-writer-{os.fstat(self._fd).st_ino}"
 
     @contextlib.contextmanager
     def lock_for_writing(self) -> Iterator[None]:
-        """Hold the exclusive writer's lock of this file (``<file>.lock``) and check its pages.
+        """Hold the exclusive writer's lock of this file and check its pages.
 
         A second ``planbench bench`` on the same file raises :class:`ResultsLockedError` naming the
-        holder (pid, host, start time, command) before it does any work. The lock is an ``flock``:
-        the kernel drops it when the holder exits, kill -9 included, so a stale lock file never
-        blocks anyone. ``PRAGMA quick_check`` runs under the lock, so a damaged file is refused
-        before any run is planned rather than when a record meets a bad page.
+        holder (pid, host, start time, command) before it does any work. The lock is an ``flock`` on
+        the results file itself (its inode, not its name), independent of SQLite's POSIX locks; the
+        kernel drops it when the holder exits, kill -9 included, so it never blocks anyone after.
+        ``PRAGMA quick_check`` runs under the lock, so a damaged file is refused before any run is
+        planned rather than when a record meets a bad page.
         """
         self._require_writable()
-        fd = _acquire_lock(self.path, self.lock_path)
+        if self._fd < 0:  # pragma: no cover (not POSIX): no lock, as before
+            yield
+            return
+        _refuse_links(self.path, os.fstat(self._fd))  # a link made since the file was opened
+        self._require_same_file()
+        holder = self.holder_path
+        _acquire_lock(self.path, self._fd, holder)
+        self._holder = holder
         try:
             self.check_integrity()
             yield
         finally:
-            _release_lock(fd, self.lock_path)
+            self._unlock()
+
+    def _unlock(self) -> None:
+        """Remove the holder's description while still holding the lock, then drop the lock (the
+        fd stays open until the connection is closed, see :meth:`_open_writable`)."""
+        if self._holder is None:
+            return
+        with contextlib.suppress(OSError):
+            self._holder.unlink()
+        self._holder = None
+        if self._fd >= 0:
+            import fcntl
+
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+
+    def _require_same_file(self) -> None:
+        """Refuse when the path no longer names the file this object opened (replaced meanwhile)."""
+        try:
+            now = os.stat(self.path, follow_symlinks=False)
+        except FileNotFoundError:
+            now = None
+        mine = os.fstat(self._fd)
+        if now is None or (now.st_dev, now.st_ino) != (mine.st_dev, mine.st_ino):
+            raise ResultsFileError(self.path, "was replaced or removed while opening it; run the command again")
 
     @_sqlite_errors
     def check_integrity(self) -> None:
@@ -334,6 +387,7 @@ class ResultsDB:
 
     def close(self) -> None:
         self.conn.close()
+        self._close_fd()  # after the connection: see _open_writable
 
     def __enter__(self) -> ResultsDB:
         return self
@@ -486,58 +540,80 @@ def _all_columns() -> list[tuple[str, str]]:
     return list(_RUN_COLS[:5]) + _evaluation_columns() + list(_RUN_COLS[5:])
 
 
-def _acquire_lock(db_path: Path, lock_path: Path) -> int:
-    """An open fd holding ``flock(LOCK_EX)`` on ``lock_path``, with this process described in it."""
+def _refuse_links(path: Path, st: os.stat_result) -> None:
+    """Refuse a symbolic link and a file with several hard links: SQLite keeps a ``-wal`` journal
+    per name, so writing one file through two names loses the runs of one of them."""
+    if stat.S_ISLNK(st.st_mode):
+        raise ResultsFileError(
+            path,
+            f"is a symbolic link (to {os.readlink(path)}); planbench writes a results file only by its "
+            f"real path: give --out {path.resolve()}",
+        )
+    if st.st_nlink > 1:
+        raise ResultsFileError(
+            path,
+            f"has {st.st_nlink} hard links (other names for the same file); two names mean two SQLite "
+            f"journals and lost runs. Remove the other names, or copy the file (cp {path} copy.db) and "
+            "write the copy",
+        )
+
+
+def _open_for_lock(path: Path) -> int:
+    """An fd of the results file (created when missing), never through a symbolic link, or -1
+    where there is no ``flock`` (not POSIX)."""
     try:
-        import fcntl  # POSIX only: imported where it is used, so the module loads anywhere
-    except ImportError:  # pragma: no cover (not POSIX): no lock, as before
+        import fcntl  # noqa: F401  (POSIX only: imported where it is used, so the module loads anywhere)
+    except ImportError:  # pragma: no cover
         return -1
-    for _ in range(5):
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise ResultsFileError(db_path, f"cannot create its lock file {lock_path}: {exc.strerror}") from exc
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            holder = _read_holder(fd)
-            os.close(fd)
-            raise ResultsLockedError(db_path, holder) from exc
-        try:  # a holder that just ended may have removed the file we opened: lock the one at the path
-            same = os.fstat(fd).st_ino == os.stat(lock_path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            _write_holder(fd)
-            return fd
+    with contextlib.suppress(FileNotFoundError):
+        _refuse_links(path, os.lstat(path))
+    flags = os.O_RDONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        why = f"cannot open: {exc.strerror}; check the path and its folder's permissions"
+        raise ResultsFileError(path, why) from exc
+    try:
+        _refuse_links(path, os.fstat(fd))
+    except ResultsFileError:
         os.close(fd)
-    raise ResultsFileError(db_path, f"could not take its lock {lock_path}: it keeps being replaced")
+        raise
+    return fd
 
 
-def _write_holder(fd: int) -> None:
+def _acquire_lock(db_path: Path, fd: int, holder_path: Path) -> None:
+    """Take ``flock(LOCK_EX)`` on the results file's fd and describe this process in
+    ``holder_path``; :class:`ResultsLockedError` naming the holder when another one has it."""
+    import fcntl
+
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError as exc:
+        raise ResultsLockedError(db_path, _read_holder(holder_path)) from exc
+    except OSError as exc:
+        raise ResultsFileError(db_path, f"cannot lock it ({exc.strerror}); put it on a local file system") from exc
+    _write_holder(holder_path)
+
+
+def _write_holder(holder_path: Path) -> None:
+    """Describe this process in ``holder_path`` (written whole, then renamed: never half read)."""
     started = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     info = {"pid": os.getpid(), "host": socket.gethostname(), "started": started, "command": " ".join(sys.argv)[:500]}
-    data = json.dumps(info).encode()
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, data, 0)
+    part = holder_path.with_name(f"{holder_path.name}.{os.getpid()}")
+    try:
+        part.write_text(json.dumps(info))
+        os.replace(part, holder_path)
+    except OSError as exc:  # the lock holds without its description
+        log.warning("%s: cannot describe the writer's lock (%s)", holder_path, exc)
 
 
-def _read_holder(fd: int) -> str:
+def _read_holder(holder_path: Path) -> str:
     """The lock holder as text: pid, host, start time and command line."""
     try:
-        info = json.loads(os.pread(fd, 4096, 0).decode(errors="replace"))
+        info = json.loads(holder_path.read_text(errors="replace"))
         return f"pid {info['pid']} on host {info['host']}, started {info['started']}: {info['command']}"
     except (OSError, ValueError, KeyError, TypeError):
         return "a process that has not written its details yet"
-
-
-def _release_lock(fd: int, lock_path: Path) -> None:
-    """Remove the lock file while still holding it, then drop the lock (see :func:`_acquire_lock`)."""
-    if fd < 0:
-        return
-    with contextlib.suppress(OSError):
-        os.unlink(lock_path)
-    os.close(fd)
 
 
 def _float_columns() -> set[str]:

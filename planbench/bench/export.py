@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from planbench.outputs import check_output, csv_cell
 from planbench.planner import PlanStatus
 
 __all__ = ["RUN_PROPERTIES", "write_ompl_logs", "write_planner_arena", "write_runs_csv", "experiments"]
@@ -172,7 +173,7 @@ def write_ompl_logs(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for exp in experiments(rows):
-        f = out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", exp["name"]) + ".log")
+        f = check_output(out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", exp["name"]) + ".log"))
         f.write_text(ompl_log(exp))
         files.append(f)
     return files
@@ -197,8 +198,9 @@ def _column(name: str) -> str:
 
 
 def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
-    """A Planner Arena database at ``path`` (replaced if it exists); see the module docstring."""
-    out = Path(path)
+    """A Planner Arena database at ``path`` (a file there is replaced, never a SQLite database:
+    :func:`~planbench.outputs.check_output`); see the module docstring."""
+    out = check_output(path)
     if out.exists():
         out.unlink()
     conn = sqlite3.connect(str(out))
@@ -252,17 +254,18 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Pat
 
 def write_runs_csv(rows: Sequence[dict[str, Any]], path: str | Path, paths: bool = False) -> Path:
     """Every run as a CSV row: all database columns (SI units, empty for NaN); ``paths``: with the
-    ``path`` and ``times`` arrays as JSON lists (rows read ``with_arrays``), else without them."""
-    out = Path(path)
+    ``path`` and ``times`` arrays as JSON lists (rows read ``with_arrays``), else without them.
+    Text that a spreadsheet would run as a formula is escaped (:func:`~planbench.outputs.csv_cell`)."""
+    out = check_output(path)
     fields = [k for k in (rows[0] if rows else {}) if paths or k not in ("path", "times")]
     with out.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
+        writer = csv.writer(f)
+        writer.writerow([csv_cell(k) for k in fields])
         for r in rows:
             d = {k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
             if paths:
                 for name in ("path", "times"):
                     a = r.get(name)
                     d[name] = "" if a is None else json.dumps(np.asarray(a, dtype=float).tolist())
-            writer.writerow(d)
+            writer.writerow([csv_cell(d.get(k, "")) for k in fields])
     return out

@@ -19,6 +19,7 @@ from typing import Any
 
 from planbench.bench.plots import write_plots
 from planbench.bench.report import FAILURE_STATUSES, METRICS, Metric, _cells, _headers, metrics_for, summarize
+from planbench.outputs import check_output
 
 __all__ = ["write_html", "render_html"]
 
@@ -159,7 +160,7 @@ def write_html(
 ) -> Path:
     """Write :func:`render_html` to ``path``; ``replays``: also a replay page per run with a path,
     in the folder ``<path stem>_replays/`` beside it, linked from the table of runs."""
-    out = Path(path)
+    out = check_output(path)
     links: dict[int, str] = {}
     if replays:
         from planbench.replay import replay_row

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from planbench.bench.report import DYNAMIC_METRICS, Metric, metrics_for, wilson_interval
+from planbench.outputs import check_output
 
 __all__ = ["write_plots", "time_to_success"]
 
@@ -63,7 +64,7 @@ FORMATS = ("png", "pdf", "svg")
 
 def _save(fig: Any, path: Path) -> None:
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
+    fig.savefig(check_output(path), dpi=150)
     _pyplot().close(fig)
 
 

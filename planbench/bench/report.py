@@ -26,6 +26,8 @@ from rich.table import Table
 from rich.text import Text
 from scipy.stats import binomtest
 
+from planbench.outputs import csv_cell
+
 __all__ = [
     "DYNAMIC_METRICS",
     "METRICS",
@@ -255,14 +257,17 @@ def to_markdown(
 
 
 def to_csv(summary: Sequence[dict[str, Any]]) -> str:
-    """The summary as CSV with one column per statistic, SI units (no display scaling)."""
+    """The summary as CSV with one column per statistic, SI units (no display scaling); text that a
+    spreadsheet would run as a formula (a planner label) is escaped (:func:`~planbench.outputs.csv_cell`)."""
     if not summary:
         return ""
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(summary[0]), lineterminator="\n")
-    writer.writeheader()
+    fields = list(summary[0])
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow([csv_cell(k) for k in fields])
     for s in summary:
-        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else v) for k, v in s.items()})
+        cells = (s.get(k, "") for k in fields)
+        writer.writerow([csv_cell("" if isinstance(v, float) and math.isnan(v) else v) for v in cells])
     return buf.getvalue()
 
 

@@ -15,6 +15,7 @@ from planbench.field import full_field, surface_grid
 from planbench.field.bench import add_arguments, run_from_args
 from planbench.field.kernels import PROFILES, TAPERS, KernelSpec
 from planbench.occupancy import OccupancyGrid
+from planbench.outputs import check_output
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +95,7 @@ def cmd_field(args: argparse.Namespace) -> int:
     from planbench.field.plots import parse_slice, plot_field_slice
 
     axis, value = parse_slice(args.slice)
+    check_output(args.out)
     problem = planbench.load_problems(args.problem)[0]
     kernels = _spec(args).build(args.resolution)
     grid = OccupancyGrid.from_scene(problem.scene, args.resolution, padding=kernels.reach, outside=args.outside)
@@ -114,6 +116,7 @@ def cmd_field(args: argparse.Namespace) -> int:
 def cmd_kernel(args: argparse.Namespace) -> int:
     from planbench.field.plots import plot_kernel, plot_profiles  # matplotlib on use, as in cmd_field
 
+    check_output(args.out)
     if args.profile == "all":
         plot_profiles(reach=args.reach, resolution=args.resolution, out=args.out)
     else:

@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 from planbench.field.full import MatrixField
 from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.occupancy import OccupancyGrid
+from planbench.outputs import check_output
 
 __all__ = ["plot_profiles", "plot_kernel", "plot_field_slice", "parse_slice"]
 
@@ -28,7 +29,7 @@ AXES = "xyz"
 def _save(fig: Figure, out: str | Path | None) -> Figure:
     if out is not None:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=120)
+        fig.savefig(check_output(out), dpi=120)
     return fig
 
 
