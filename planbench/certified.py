@@ -69,8 +69,9 @@ class CertificationSettings:
     """How paths are certified. Lengths in m."""
 
     required_clearance: float = 0.0
-    """Smallest distance [m] allowed between the robot and an obstacle or itself along a path.
-    0: touching is not colliding, any penetration is. Negative values tolerate shallow penetration."""
+    """Smallest distance [m] allowed between the robot and an obstacle or itself along a path, on
+    top of ``distance_accuracy``: with 0, a configuration closer than that (touching included) is a
+    collision. Negative values tolerate shallow penetration."""
     distance_accuracy: float = 1e-6
     """Subtracted from every computed distance [m] before it certifies anything (GJK's tolerance)."""
     resolution: float = 1e-6

@@ -68,7 +68,8 @@ class ValidationSettings:
 
     required_clearance: float = 0.0
     """Smallest distance [m] allowed between the robot and an obstacle, or between two of its links,
-    anywhere along the path. 0: touching is not colliding, penetration is."""
+    anywhere along the path, on top of the certified checker's 1 um tolerance: with 0, touching
+    (closer than 1 um) is a collision (:class:`planbench.certified.CertificationSettings`)."""
     clearance_gap: float = 1e-3
     """The certified lower bound of the path's clearance is refined to within this [m] of the
     smallest distance found (a measurement setting; it never changes a verdict)."""
@@ -88,9 +89,9 @@ class ValidationSettings:
     max_validation_states: int = 250_000
     """Interpolated configurations [count] validating one path may need, estimated from the path
     before any is built (:func:`validation_states`); a path that needs more is refused. Validation
-    time and memory grow with it (the end-effector length, toppra's spline): at the default, at
-    most about 15 s and 0.5 GiB. The shipped planners' MotionBenchMaker paths need up to 15,000
-    (25,000 for a field planner stopped at its step limit)."""
+    time and memory grow with it (the end-effector length, toppra's spline): at the default, about
+    10 s and 0.3 GiB. The shipped planners' MotionBenchMaker paths need up to 15,000 (25,000 for a
+    field planner stopped at its step limit)."""
     validation_memory_limit: float = 2048.0
     """Address space [MiB] one validation may add to the benchmark's validator process (``RLIMIT_AS``
     at its size when the validation starts plus this); a validation that runs out is refused, the
@@ -189,7 +190,7 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
             f"path needs {needed:.3g} interpolated states to validate ({len(path)} waypoints, about one state "
             f"per {settings.ee_resolution:g} rad of joint motion), above the validation limit of "
             f"{settings.max_validation_states:.3g} (ValidationSettings.max_validation_states): return a path "
-            "with less joint motion or fewer waypoints, or raise the limit in the suite's [validation] table"
+            "with less joint motion or fewer waypoints, or raise the limit in the suite's [validation] table",
         )
 
     failures: list[str] = []
