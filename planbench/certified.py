@@ -57,6 +57,10 @@ from planbench.robot import _link_of
 
 __all__ = ["CertifiedChecker", "CertificationSettings", "PathVerdict"]
 
+CUM_TABLE_FLOATS = 2**22
+"""Largest table of motion-bound prefix sums (pairs x waypoints, 32 MiB) a path keeps for all its
+pairs at once; a longer path computes a pair's row when the search needs it."""
+
 _CHECKERS: weakref.WeakKeyDictionary[Any, dict[Any, CertifiedChecker]] = weakref.WeakKeyDictionary()
 
 
@@ -65,8 +69,9 @@ class CertificationSettings:
     """How paths are certified. Lengths in m."""
 
     required_clearance: float = 0.0
-    """Smallest distance [m] allowed between the robot and an obstacle or itself along a path.
-    0: touching is not colliding, any penetration is. Negative values tolerate shallow penetration."""
+    """Smallest distance [m] allowed between the robot and an obstacle or itself along a path, on
+    top of ``distance_accuracy``: with 0, a configuration closer than that (touching included) is a
+    collision. Negative values tolerate shallow penetration."""
     distance_accuracy: float = 1e-6
     """Subtracted from every computed distance [m] before it certifies anything (GJK's tolerance)."""
     resolution: float = 1e-6
@@ -209,6 +214,12 @@ class CertifiedChecker:
             checker = per_problem[settings] = cls(problem.robot, problem.scene, settings)
         return checker
 
+    @staticmethod
+    def forget(problem: Any) -> None:
+        """Drop the checkers cached for ``problem``: after a check that ran out of memory, whose
+        buffers may be half-built, the next one starts from a fresh checker."""
+        _CHECKERS.pop(problem, None)
+
     # -- distances ---------------------------------------------------------------------------------
 
     def _new_sample(self, u: float, q: np.ndarray) -> _Sample:
@@ -289,7 +300,13 @@ class CertifiedChecker:
         # linear in |dq|, so it is the weights times each joint's prefix sum of |dq|
         joint_travel = np.zeros((path.shape[1], len(path)))
         np.cumsum(np.abs(self._delta).T, axis=1, out=joint_travel[:, 1:])
-        self._cum = self.motion_weights @ joint_travel
+        self._travel = joint_travel
+        # every pair's row at once while the table is small; a long path's rows one at a time, so
+        # memory grows with the waypoints, not with waypoints x pairs
+        small = self.n_pairs * len(path) <= CUM_TABLE_FLOATS
+        self._cum = self.motion_weights @ joint_travel if small else None
+        # each pair's bound over the whole path
+        self._total = self._cum[:, -1] if self._cum is not None else self.motion_weights @ joint_travel[:, -1]
         self._cum_lists: dict[int, list[float]] = {}
         self._samples: dict[float, _Sample] = {}
         self._deepest = {}
@@ -325,12 +342,16 @@ class CertifiedChecker:
 
     def _motion(self, k: int, u0: float, u1: float) -> float:
         """Pair ``k``'s motion bound [m] along the path from ``u0`` to ``u1``."""
+        if self._cum is None:  # a long path: the joints' travel between u0 and u1, weighted
+            return float(self.motion_weights[k] @ (_cum_at(self._travel.T, u1) - _cum_at(self._travel.T, u0)))
         return _cum_at(self._cum_list(k), u1) - _cum_at(self._cum_list(k), u0)
 
     def _cum_list(self, k: int) -> Any:
         """Pair ``k``'s prefix sums of motion bounds: a list for short paths (fastest scalar access
-        in the search), the array row itself for long ones (converting thousands of waypoints per
-        pair costs more than the search reads)."""
+        in the search), an array row for long ones (converting thousands of waypoints per pair
+        costs more than the search reads), computed afresh when the table is not kept."""
+        if self._cum is None:
+            return self.motion_weights[k] @ self._travel
         if self._cum.shape[1] > 256:
             return self._cum[k]
         cum = self._cum_lists.get(k)
@@ -409,7 +430,7 @@ class CertifiedChecker:
         # required clearance plus the distance accuracy. The ends are checked on their own too, so
         # a waypoint is judged the same whether it ends a segment or lies inside a path.
         need = floor + acc
-        d0, d1, m = self._bound(start, k), self._bound(end, k), float(self._cum[k, -1])
+        d0, d1, m = self._bound(start, k), self._bound(end, k), float(self._total[k])
         if d0 >= need and d1 >= need and d0 + d1 - m >= 2 * need:  # most pairs: the whole path at once
             if obstacle_pair:
                 self._leaf(k, start, end, d0, d1, m)
@@ -517,13 +538,14 @@ class CertifiedChecker:
         return float(min(lower, found)), float(found)
 
 
-def _cum_at(cum: Any, u: float) -> float:
-    """A piecewise-linear prefix sum at path parameter ``u`` (``cum`` a list or an array row)."""
+def _cum_at(cum: Any, u: float) -> Any:
+    """A piecewise-linear prefix sum at path parameter ``u`` (``cum`` a list or an array row: a
+    float; rows of prefix sums, one per waypoint: a vector)."""
     i = int(u)
     a = cum[i]
     if u != i:
         a = a + (u - i) * (cum[i + 1] - a)
-    return float(a)
+    return a if isinstance(a, np.ndarray) else float(a)
 
 
 def _distance(gm: Any, gd: Any, k: int) -> float:

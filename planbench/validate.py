@@ -5,6 +5,8 @@ problem's TRUE geometry (the scene's primitives and the robot's collision meshes
 voxel grid) and the robot's limits, and success means every check holds:
 
 - the path is an (N, nq) array of finite values starting at the problem's start;
+- validating it needs at most ``max_validation_states`` interpolated configurations, counted from the
+  path before any is built (:func:`validation_states`), so a huge path costs no more than counting;
 - every waypoint is inside the joint limits (so is every point between them: the limits are a box);
 - every segment (linear interpolation in joint space) is *proven* free of collisions with the scene
   and of self-collisions, by :class:`planbench.certified.CertifiedChecker`: distance-based
@@ -45,6 +47,8 @@ __all__ = [
     "ValidationSettings",
     "Evaluation",
     "evaluate",
+    "not_validated",
+    "validation_states",
     "verdict_checker",
 ]
 
@@ -64,7 +68,8 @@ class ValidationSettings:
 
     required_clearance: float = 0.0
     """Smallest distance [m] allowed between the robot and an obstacle, or between two of its links,
-    anywhere along the path. 0: touching is not colliding, penetration is."""
+    anywhere along the path, on top of the certified checker's 1 um tolerance: with 0, touching
+    (closer than 1 um) is a collision (:class:`planbench.certified.CertificationSettings`)."""
     clearance_gap: float = 1e-3
     """The certified lower bound of the path's clearance is refined to within this [m] of the
     smallest distance found (a measurement setting; it never changes a verdict)."""
@@ -81,16 +86,28 @@ class ValidationSettings:
     """Slack on joint position limits [rad] (float round-off at a limit is not a violation)."""
     velocity_tolerance: float = 1e-6
     """Relative slack on velocity limits (|qd| <= vmax * (1 + tol))."""
+    max_validation_states: int = 250_000
+    """Interpolated configurations [count] validating one path may need, estimated from the path
+    before any is built (:func:`validation_states`); a path that needs more is refused. Validation
+    time and memory grow with it (the end-effector length, toppra's spline): at the default, about
+    10 s and 0.3 GiB. The shipped planners' MotionBenchMaker paths need up to 15,000 (25,000 for a
+    field planner stopped at its step limit)."""
+    validation_memory_limit: float = 2048.0
+    """Address space [MiB] one validation may add to the benchmark's validator process (``RLIMIT_AS``
+    at its size when the validation starts plus this); a validation that runs out is refused, the
+    failure naming this limit. 0: no limit. Set only in a validator process, never in a caller's."""
 
     def __post_init__(self) -> None:
-        for name in ("required_clearance", "clearance_gap", "ee_resolution"):
+        for name in ("required_clearance", "clearance_gap", "ee_resolution", "validation_memory_limit"):
             v = getattr(self, name)
             if not math.isfinite(v):
                 raise ValueError(f"{name} must be finite, got {v}")
         if not (self.clearance_gap > 0 and self.ee_resolution > 0):
             raise ValueError("clearance_gap [m] and ee_resolution [rad] must be > 0")
-        if self.max_distance_queries < 1 or self.clearance_samples < 1:
-            raise ValueError("max_distance_queries and clearance_samples must be >= 1")
+        if self.validation_memory_limit < 0:
+            raise ValueError("validation_memory_limit [MiB] must be >= 0 (0: no limit)")
+        if self.max_distance_queries < 1 or self.clearance_samples < 1 or self.max_validation_states < 1:
+            raise ValueError("max_distance_queries, clearance_samples and max_validation_states must be >= 1")
 
     def certification(self, measure_clearance: bool = True) -> CertificationSettings:
         return CertificationSettings(
@@ -157,20 +174,24 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
 
     planner_checks = _reported_checks(result)
 
-    def unusable(failure: str, n_waypoints: int = 0) -> Evaluation:
-        return Evaluation(
-            False, failure, status, planning_time, setup_time, n_waypoints=n_waypoints, collision_checks=planner_checks
-        )
-
     path = result.path
     if path is None or len(path) == 0:
         reason = result.status.value if result.status is not PlanStatus.SUCCESS else "no path returned"
-        return unusable(f"{reason}: {result.message}" if result.message else reason)
+        return not_validated(result, f"{reason}: {result.message}" if result.message else reason)
     if path.shape[1] != robot.nq:
-        return unusable(f"path has {path.shape[1]} columns, robot plans {robot.nq} joints", len(path))
+        return not_validated(result, f"path has {path.shape[1]} columns, robot plans {robot.nq} joints")
     if not np.all(np.isfinite(path)):
         bad = int(np.flatnonzero(~np.all(np.isfinite(path), axis=1))[0])
-        return unusable(f"path has NaN or infinite values (waypoint {bad})", len(path))
+        return not_validated(result, f"path has NaN or infinite values (waypoint {bad})")
+    needed = validation_states(path, settings.ee_resolution)
+    if needed > settings.max_validation_states:
+        return not_validated(
+            result,
+            f"path needs {needed:.3g} interpolated states to validate ({len(path)} waypoints, about one state "
+            f"per {settings.ee_resolution:g} rad of joint motion), above the validation limit of "
+            f"{settings.max_validation_states:.3g} (ValidationSettings.max_validation_states): return a path "
+            "with less joint motion or fewer waypoints, or raise the limit in the suite's [validation] table",
+        )
 
     failures: list[str] = []
     checks: dict[str, bool] = {}
@@ -217,8 +238,6 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
     checks["collision_free"] = verdict.free
     if not verdict.free:
         failures.append(verdict.describe() if verdict.segment >= 0 else verdict.reason)
-    dense, _ = metrics.densify(path, settings.ee_resolution)
-    ee_points = np.array([robot.frame_pose(q).translation for q in dense])
 
     final = path[-1]
     pos_err, rot_err = pose_error(robot, final, problem.goal.pose)
@@ -253,7 +272,7 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         setup_time=setup_time,
         n_waypoints=len(path),
         joint_path_length=metrics.joint_path_length(path),
-        ee_path_length=metrics.polyline_length(ee_points),
+        ee_path_length=_ee_path_length(robot, path, settings.ee_resolution),
         min_clearance=float(verdict.clearance_found),
         min_clearance_bound=float(verdict.clearance_lower),
         mean_clearance=_mean_clearance(checker, path, settings.clearance_samples) if verdict.free else math.nan,
@@ -274,6 +293,60 @@ def evaluate(problem: Problem, result: PlanResult, settings: ValidationSettings 
         penetration_depth=verdict.depth,
         checks=checks,
     )
+
+
+EE_CHUNK = 65_536
+"""Segments, or interpolated states, handled at once when a path is counted or its end-effector
+length measured, so that memory stays flat however long the path is."""
+
+
+def not_validated(result: PlanResult, failure: str) -> Evaluation:
+    """The evaluation of a result whose path is not validated (none, unusable, or too costly to
+    check): never a success, with the planner's claimed status and ``failure`` saying why."""
+    return Evaluation(
+        False,
+        failure,
+        result.status.value,
+        float(result.planning_time),
+        float(result.setup_time),
+        n_waypoints=0 if result.path is None else len(result.path),
+        collision_checks=_reported_checks(result),
+    )
+
+
+def validation_states(path: np.ndarray, ee_resolution: float) -> float:
+    """Configurations :func:`evaluate` interpolates along ``path`` (an (N, nq) array), counted from
+    its joint motion without building any: one per ``ee_resolution`` of each segment's largest
+    joint motion (at least one per segment: the end-effector length), plus one per
+    :data:`metrics.TIMING_SPACING` of joint-space length (toppra's spline for
+    ``duration_limited``). The certification's own work is bounded by its distance-query budget.
+    Counted :data:`EE_CHUNK` segments at a time, so it needs little memory beside the path; a float,
+    ``inf`` for a path of huge values."""
+    path = np.asarray(path, dtype=float)
+    ee = length = 0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i in range(0, len(path) - 1, EE_CHUNK):
+            delta = np.abs(np.diff(path[i : i + EE_CHUNK + 1], axis=0))
+            ee += float(np.maximum(1.0, np.ceil(delta.max(axis=1) / ee_resolution)).sum())
+            length += float(np.sqrt(np.einsum("ij,ij->i", delta, delta)).sum())
+    timing = length / metrics.TIMING_SPACING
+    return float(min(len(path), 1) + ee + math.ceil(timing)) if math.isfinite(timing) else math.inf
+
+
+def _ee_path_length(robot: Any, path: np.ndarray, resolution: float) -> float:
+    """End-effector path length [m] through :func:`metrics.densify`'s states, built a block of
+    segments (about :data:`EE_CHUNK` states) at a time rather than all at once."""
+    steps = np.maximum(1, np.ceil(np.abs(np.diff(path, axis=0)).max(axis=1, initial=0.0) / resolution))
+    ends = np.cumsum(steps)  # states up to the end of each segment (densify's, or one more)
+    length, i = 0.0, 0
+    while True:
+        before = ends[i - 1] if i else 0.0
+        j = max(i + 1, int(np.searchsorted(ends, before + EE_CHUNK, side="right")))  # segments i .. j-1
+        dense, _ = metrics.densify(path[i : j + 1], resolution)
+        length += metrics.polyline_length(np.array([robot.frame_pose(q).translation for q in dense]))
+        if j >= len(path) - 1:
+            return length
+        i = j
 
 
 def _claimed_failure(result: PlanResult) -> str:

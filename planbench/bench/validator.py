@@ -30,10 +30,13 @@ Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import socket
 import time
 import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
 from multiprocessing.reduction import recv_handle
 from typing import Any
 
@@ -41,10 +44,11 @@ from planbench.bench.kinds import kind_of
 
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
 from planbench.bench.wire import decode, encode
+from planbench.certified import CertifiedChecker
 from planbench.datasets import load_problem
 from planbench.planner import PlanResult, PlanStatus
 from planbench.reactive.isolation import make_undumpable
-from planbench.validate import ValidationSettings, evaluate
+from planbench.validate import ValidationSettings, evaluate, not_validated
 
 __all__ = ["validate_fields", "validator_main"]
 
@@ -68,7 +72,48 @@ def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, 
         planning_time=fields["planning_time"],
         setup_time=fields["setup_time"],
     )
-    return evaluate(problem, result, ValidationSettings(**validation)).as_dict()
+    settings = ValidationSettings(**validation)
+    limit = settings.validation_memory_limit if _IN_VALIDATOR else 0.0
+    size = _address_space_mib()
+    try:
+        with _address_space_limit(size + limit if limit > 0 else 0.0):
+            return evaluate(problem, result, settings).as_dict()
+    except MemoryError:
+        CertifiedChecker.forget(problem)  # its buffers may be half-built
+        where = (
+            f"past the validator's limit of {size:.0f} + {limit:g} MiB (ValidationSettings.validation_memory_limit); "
+            "raise it in the suite's [validation] table, or return a shorter path"
+            if limit > 0
+            else "(no memory limit was set)"
+        )
+        return not_validated(result, f"not validated: validation ran out of memory, {where}").as_dict()
+
+
+# -- bounded validation: the validator's address space during one validation -----------------------
+
+_IN_VALIDATOR = False
+"""Set by :func:`validator_main`: only a validator process limits its own address space, never the
+process of another caller of :func:`validate_fields` (:func:`planbench.bench.worker.run_one`)."""
+
+
+def _address_space_mib() -> float:
+    """This process's address space [MiB] (imports such as numpy, coal, pinocchio and toppra
+    reserve far more than validation touches, so a limit is set above it, not absolutely)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[0]) * resource.getpagesize() / 2**20
+
+
+@contextmanager
+def _address_space_limit(mib: float) -> Iterator[None]:
+    """``RLIMIT_AS`` at ``mib`` MiB (never above the current limit) while in the block; 0: unchanged."""
+    saved = resource.getrlimit(resource.RLIMIT_AS)
+    if mib > 0:
+        lower = [x for x in saved if x != resource.RLIM_INFINITY]
+        resource.setrlimit(resource.RLIMIT_AS, (min([int(mib * 2**20), *lower]), saved[1]))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, saved)
 
 
 def _answer(conn: Any, msg: dict[str, Any], arrays: dict[str, Any]) -> bytes:
@@ -96,6 +141,8 @@ def _answer(conn: Any, msg: dict[str, Any], arrays: dict[str, Any]) -> bytes:
 
 def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 1) -> None:
     """Entry point of a validator process (see the module docstring)."""
+    global _IN_VALIDATOR
+    _IN_VALIDATOR = True
     detach(parent_pid)
     make_undumpable()  # no confined controller may read or write this process's memory
     watch_parent(parent_pid)
