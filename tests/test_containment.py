@@ -39,6 +39,8 @@ from typing import Any
 
 import pytest
 
+from planbench.bench.runner import WRITABLE_VARIABLE
+
 import planbench
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive
@@ -217,6 +219,10 @@ class Bench:
         path = [str(self.site), str(ROOT), os.environ.get("PYTHONPATH", "")]
         self.env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in path if p), **{TAG: self.tag})
         self.env.pop(HOOK_DIR, None)
+        self.out = tmp / "plugin-out"
+        """The one folder besides their scratch that the plugins may write (they say their pids there)."""
+        self.out.mkdir()
+        self.env[WRITABLE_VARIABLE] = str(self.out)
 
     def write_suite(self, name: str, planners: list[dict[str, Any]], **kw: Any) -> Path:
         path = self.tmp / f"{name}.toml"
@@ -293,6 +299,8 @@ def stable(row: dict[str, Any]) -> dict[str, Any]:
             continue
         if k == "message" and isinstance(v, str):
             v = TIME_NOTE.sub("", v)
+        elif k == "info" and isinstance(v, str) and v.startswith("{"):
+            v = {ik: iv for ik, iv in json.loads(v).items() if ik != "worker_planning_time"}  # a time
         elif isinstance(v, float) and math.isnan(v):
             v = "nan"
         elif hasattr(v, "tolist"):
@@ -546,7 +554,7 @@ def test_processes_a_plugin_starts_die_with_the_benchmark(bench, baseline):
     """The escaper starts ``sleep 300`` in a session of its own (out of the worker's process group),
     kills the worker's reaper and starts another ``sleep 300`` in the group. Once planbench
     bench has returned, none of them runs."""
-    pid_file = bench.tmp / "pids.json"
+    pid_file = bench.out / "pids.json"
     settings = {"pid_file": str(pid_file), "kill_reaper": True}
     attacker = {"label": "a-escaper", "planner": "containment-escaper", "settings": settings}
     suite, db = bench.write_suite("escape", [attacker, STRAIGHT], problems=(TABLE,)), bench.tmp / "escape.db"
@@ -562,7 +570,7 @@ def test_processes_a_plugin_starts_die_when_the_benchmark_is_killed(bench):
     """As above, but the escaper then hangs and the benchmark is killed (SIGKILL) mid-run: its worker,
     the reaper's victims and the escaped session die with it."""
     require_sandbox("only the kernel can end a process that left the worker's session once the benchmark is gone")
-    pid_file = bench.tmp / "pids.json"
+    pid_file = bench.out / "pids.json"
     settings = {"pid_file": str(pid_file), "kill_reaper": True, "hang": True}
     attacker = {"label": "a-escaper", "planner": "containment-escaper", "settings": settings}
     suite = bench.write_suite("escape-kill", [attacker], problems=(TABLE,), time_limit=60.0)
