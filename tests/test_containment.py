@@ -39,11 +39,10 @@ from typing import Any
 
 import pytest
 
-from planbench.bench.runner import WRITABLE_VARIABLE
-
 import planbench
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive
+from planbench.bench.runner import WRITABLE_VARIABLE
 
 pytestmark = pytest.mark.slow
 

@@ -17,11 +17,20 @@ Design (asv's and OMPL Benchmark's idea, our own code):
   planner, computes the verdict. A planner that patches planbench, numpy or coal in its worker
   therefore changes neither its own verdict nor a later run's. The slot takes its next run only
   once the verdict is in, so ``--jobs`` processes compute at a time.
-- **Long-lived workers, one run at a time each.** Runs of a planner marked ``fresh_process`` (a
+- **One plugin per worker, one run at a time.** A worker runs code of one planner label of one
+  suite in its lifetime (:func:`plugin_of`); a slot takes the next run of its worker's plugin
+  first and replaces the worker when none is left. Runs of a planner marked ``fresh_process`` (a
   process-wide RNG, as in OMPL, or any global state) get a worker that has run nothing before.
-- **An answer counts only in time.** The plan phase is timed here, from the worker's "plan" message
-  to its result, each stamped with the moment this loop woke to read it (so that time this loop
-  spent on other slots is not charged to the run). A result later than ``time_limit`` +
+- **Contained.** Before any plugin code, a worker enters a Landlock sandbox that leaves it only its
+  scratch folder to write and no process outside to signal (:mod:`planbench.bench.sandbox`), in a
+  cgroup of its own that is killed with it (:class:`~planbench.bench.procs.Cgroups`). Validators
+  judge by the problems and scenarios as this process read them before any worker started
+  (:mod:`planbench.bench.snapshot`), and none starts once the interpreter's start-up hooks changed.
+- **An answer counts only in time.** The plan phase is timed here: after setup the worker says so
+  and waits for the go, stamped here just before it is sent; the result is stamped with the moment
+  this loop woke to read it (so that time this loop spent on other slots is not charged to the
+  run). That is the run's planning time (the worker's own figure is kept in ``info``). A result
+  later than ``time_limit`` +
   :data:`~planbench.harness.HANDOFF_TOLERANCE` (by this clock or the worker's) is a ``timeout``
   row with success false, its path and metrics kept (``checks["in_time"]`` false).
 - **Hard limits here, per phase.** Setup (problem loading, planner construction and ``setup()``):
@@ -63,19 +72,19 @@ import struct
 import tempfile
 import time
 from collections import deque
-from multiprocessing.reduction import send_handle
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from multiprocessing.reduction import send_handle
 from typing import Any
 
-from planbench.bench.kinds import RunKind, kind_of
-from planbench.field.threads import THREAD_VARIABLES
 from planbench import compile_cache
 from planbench.bench import sandbox, snapshot
+from planbench.bench.kinds import RunKind, kind_of
 from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
+from planbench.field.threads import THREAD_VARIABLES
 from planbench.harness import answered_late, late_message
 from planbench.reactive.isolation import make_undumpable
 from planbench.validate import CLAIMED_SUCCESS, IN_TIME, Evaluation

@@ -56,7 +56,11 @@ class SandboxUnavailable(OSError):
 
 
 class _RulesetAttr(ctypes.Structure):
-    _fields_ = [("handled_access_fs", ctypes.c_uint64), ("handled_access_net", ctypes.c_uint64), ("scoped", ctypes.c_uint64)]
+    _fields_ = [
+        ("handled_access_fs", ctypes.c_uint64),
+        ("handled_access_net", ctypes.c_uint64),
+        ("scoped", ctypes.c_uint64),
+    ]
 
 
 class _PathBeneathAttr(ctypes.Structure):
@@ -144,7 +148,7 @@ def restrict(writable: Iterable[str]) -> Restriction:
             _add_path(ruleset, path, rights)
         for device in WRITABLE_DEVICES:
             with contextlib.suppress(FileNotFoundError):
-                _add_path(ruleset, device, _WRITE_FILE | (_TRUNCATE if abi >= 3 else 0) | (_IOCTL_DEV if abi >= 5 else 0))
+                _add_path(ruleset, device, rights & _FILE_RIGHTS)
         if _libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0:
             raise _fail("no_new_privs")
         if _libc.syscall(_RESTRICT_SELF, ruleset, 0) != 0:

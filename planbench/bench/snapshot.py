@@ -120,9 +120,11 @@ def restore(snapshot: dict[str, Any]) -> Any:
         try:
             now = _hash(path)  # not the cache: a plugin could restore the size and mtime
         except OSError as exc:
-            raise SnapshotChanged(f"{ref}: {path} cannot be read since the benchmark read it ({exc.strerror})") from None
+            gone = f"{ref}: {path} cannot be read since the benchmark read it ({exc.strerror})"
+            raise SnapshotChanged(gone) from None
         if now != digest:
-            raise SnapshotChanged(f"{ref}: {path} changed after the benchmark read it (sha256 {digest[:12]} -> {now[:12]})")
+            change = f"sha256 {digest[:12]} -> {now[:12]}"
+            raise SnapshotChanged(f"{ref}: {path} changed after the benchmark read it ({change})")
     if snapshot["entry"] == "controller":
         from planbench.reactive.scenario import Scenario
 

@@ -20,6 +20,10 @@ runs, so nothing it says is trusted:
   returned into plain values or names the field it cannot keep (an integer past 64 bits, an
   exception as ``message``, an object in ``info``, an ``info`` of megabytes, a path of the wrong
   shape); such a run is sent as an ``error`` naming the field. The parent checks again.
+- **Contained before the first plugin import** (:func:`planbench.bench.sandbox.enter`): its
+  scratch folder is its current folder, ``TMPDIR`` and numba's cache, and the only place it may
+  write; it signals no process outside its sandbox; it joined its cgroup before forking its reaper.
+  It runs code of one plugin only (the parent sees to it).
 - **Process hygiene** (:mod:`planbench.bench.procs`): a session of its own (its group is its pid,
   so the parent's ``killpg`` takes a planner's subprocesses too), ``PR_SET_PDEATHSIG`` and a
   parent watch so it dies with the benchmark (kill -9 included), and a forked reaper that kills
