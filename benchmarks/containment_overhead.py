@@ -50,6 +50,39 @@ def bench(tree: Path, args: list[str], jobs: int) -> tuple[float, int, float, in
     return wall, workers, statistics.median(overhead), len(rows)
 
 
+ENTER = """
+import json, tempfile, time
+from planbench.bench import procs, sandbox
+t0 = time.perf_counter()
+cgroups = procs.Cgroups()
+path = cgroups.make("probe-cost")
+t1 = time.perf_counter()
+state = sandbox.enter(tempfile.mkdtemp(), True)
+t2 = time.perf_counter()
+cgroups.close()
+print(json.dumps({"cgroup": t1 - t0, "enter": t2 - t1, "state": state}))
+"""
+
+
+def entry_cost(repeats: int) -> None:
+    """What a worker pays to enter its containment: make its cgroup (in the parent), seed its numba
+    cache and enter the sandbox (in the worker), medians of fresh processes."""
+    import json
+
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    env.update({name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
+    runs = []
+    for _ in range(repeats):
+        out = subprocess.run([sys.executable, "-c", ENTER], env=env, capture_output=True, text=True, check=True)
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    cgroup = statistics.median(r["cgroup"] for r in runs)
+    enter = statistics.median(r["enter"] for r in runs)
+    print(
+        f"worker containment, {repeats} fresh processes (medians): cgroup {1000 * cgroup:.1f} ms, "
+        f"sandbox entry with numba cache seed {1000 * enter:.1f} ms ({runs[0]['state']})"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--base", type=Path, required=True, help="a checkout of the commit before containment")
@@ -57,6 +90,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args()
     trees = {"baseline": args.base.resolve(), "contained": ROOT}
+    entry_cost(max(5, args.repeats))
     for name, suite in SUITES.items():
         for tree in trees.values():  # warm numba's cache and the OS's file cache, untimed
             bench(tree, suite, args.jobs)

@@ -423,6 +423,7 @@ def test_a_plugin_that_writes_into_the_results_file_changes_no_row(bench, baseli
     makes its own rows successes and the others' failures, and inserts rows ahead of the runs
     to come (its own as successes, the others' as failures, an invented planner). No stored row
     changes; a later --resume works and changes nothing."""
+    require_sandbox("only the kernel can keep a plugin from writing a file its user may write")
     attacker = {"label": "z-writer", "planner": "containment-writer"}
     rows, suite, db = bench.run_suite("writer", [STRAIGHT, attacker])
     assert_contained(rows, baseline, "z-writer", (STRAIGHT,), PROBLEMS)
@@ -436,6 +437,7 @@ def test_a_plugin_that_writes_into_the_results_file_changes_no_row(bench, baseli
 def test_a_plugin_that_holds_the_results_file_locked_stalls_nothing(bench, baseline):
     """The lock holder takes an exclusive SQLite transaction on the --out file in a thread that
     outlives its run (120 s). The benchmark still ends, in its usual time, with every row."""
+    require_sandbox("only the kernel can keep a plugin from locking a file its user may write")
     attacker = {"label": "a-lock-holder", "planner": "containment-lock-holder", "settings": {"hold": 120.0}}
     rows, suite, db = bench.run_suite("lock", [attacker, STRAIGHT], problems=(BOX,))
     assert_contained(rows, baseline, "a-lock-holder", (STRAIGHT,), (BOX,))
@@ -504,6 +506,7 @@ def test_a_start_up_hook_and_a_killed_validator_forge_no_verdict(bench, baseline
 
     Whatever the plugin manages to write into site-packages is removed at the end (the hook does
     nothing outside this test's processes: it needs PLANBENCH_CONTAINMENT_HOOK)."""
+    require_sandbox("without it the benchmark stops at the planted hook (tests/test_sandbox.py)")
     hook_dir = bench.tmp / "hook"
     hook_dir.mkdir()
     hook_file = bench.tmp / "containment_hook.py"

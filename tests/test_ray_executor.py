@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 import planbench.cli as cli
+from planbench.bench.runner import WRITABLE_VARIABLE
 from planbench.bench.benchmark import run_benchmark, select
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive
@@ -76,13 +77,20 @@ def _wait_gone(pids: set[int] | list[int], seconds: float = 20.0) -> list[int]:
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def plugin_out(tmp_path_factory):
+    """A folder the plugins of the cluster's runs may write (their sandbox lets them)."""
+    return tmp_path_factory.mktemp("plugin-out")
+
+
+@pytest.fixture(scope="module")
+def cluster(plugin_out):
     """A local Ray cluster of two simulated nodes (1 CPU each), this process connected to it."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'planbench[ray]')")
     from ray.cluster_utils import Cluster
 
     path = os.environ.get("PYTHONPATH", "")
     os.environ["PYTHONPATH"] = os.pathsep.join([str(TESTS), path]) if path else str(TESTS)
+    os.environ[WRITABLE_VARIABLE] = str(plugin_out)  # inherited by the nodes, their actors and workers
     before = _ray_pids()
     c = None
     try:
@@ -96,6 +104,7 @@ def cluster():
         if c is not None:
             c.shutdown()
         os.environ["PYTHONPATH"] = path
+        os.environ.pop(WRITABLE_VARIABLE, None)
         if not path:
             del os.environ["PYTHONPATH"]
         started = _ray_pids() - before
@@ -110,6 +119,9 @@ def _rows(db_path: Path) -> list[dict]:
 
 def _comparable(row: dict) -> dict:
     out = {k: v for k, v in row.items() if k not in NOT_COMPARED and k not in ("path", "times")}
+    info = json.loads(out["info"]) if isinstance(out.get("info"), str) else out.get("info")
+    if isinstance(info, dict):  # the worker's own planning time is a time too
+        out["info"] = {k: v for k, v in info.items() if k != "worker_planning_time"}
     for k in ("path", "times"):  # bit for bit
         out[k] = None if row[k] is None else (row[k].shape, np.ascontiguousarray(row[k], "<f8").tobytes())
     return {k: ("nan" if isinstance(v, float) and np.isnan(v) else v) for k, v in out.items()}
@@ -223,8 +235,8 @@ def test_errors_timeouts_and_crashes_are_the_local_rows(cluster, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_killed_driver_leaves_no_process_behind_and_resume_completes(cluster, tmp_path):
-    pid_file = tmp_path / "pids.json"
+def test_a_killed_driver_leaves_no_process_behind_and_resume_completes(cluster, plugin_out, tmp_path):
+    pid_file = plugin_out / "pids.json"
     hang = (
         '[[planners]]\nlabel = "hangs"\nplanner = "bench_adversarial_planners:HangingPlanner"\n'
         f'settings = {{ pid_file = "{pid_file}" }}\n'

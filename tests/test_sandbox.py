@@ -85,7 +85,7 @@ def test_the_sandbox_is_inherited_by_children_and_cannot_be_lifted(tmp_path):
         from planbench.bench import sandbox
         sandbox.enter({str(scratch)!r}, True)
         sandbox.restrict(["/"])  # a second ruleset only narrows
-        code = "open({str(tmp_path / 'child.txt')!r}, 'w')"
+        code = "open({str(tmp_path / "child.txt")!r}, 'w')"
         child = subprocess.run([sys.executable, "-c", code], capture_output=True)
         print(json.dumps({{"child_rc": child.returncode}}))
         """
