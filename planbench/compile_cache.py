@@ -24,6 +24,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 __all__ = ["enabled", "is_warm", "marker_path", "use_private_cache", "warm_in_background", "warm_now", "warm_up"]
 
@@ -89,17 +90,18 @@ def warm_up() -> None:
     path.write_text("numba's cache holds planbench's kernels for this key\n")
 
 
+def _compile_command() -> tuple[list[str], dict[str, Any]]:
+    """The command that runs :func:`main`, and the keywords that discard its input and output."""
+    quiet = {name: subprocess.DEVNULL for name in ("stdin", "stdout", "stderr")}
+    return [sys.executable, "-m", "planbench.compile_cache"], quiet
+
+
 def warm_in_background() -> None:
     """Start :func:`warm_up` in a detached, low-priority process (output discarded); at most one
     runs at a time (a lock file next to the marker)."""
     try:
-        subprocess.Popen(
-            [sys.executable, "-m", "planbench.compile_cache"],
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,  # outlives the command that started it, untouched by its Ctrl-C
-        )
+        # start_new_session: it outlives the command that started it, untouched by its Ctrl-C
+        subprocess.Popen(*_compile_command(), start_new_session=True)
     except OSError:  # no process to spare: the next command finds the cache cold again, nothing worse
         pass
 
@@ -152,14 +154,8 @@ def warm_now(timeout: float = 600.0) -> bool:
     if is_warm():
         return True
     try:
-        subprocess.run(
-            [sys.executable, "-m", "planbench.compile_cache"],
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            timeout=timeout,
-            check=False,
-        )
+        args, quiet = _compile_command()
+        subprocess.run(args, timeout=timeout, check=False, **quiet)
     except (OSError, subprocess.TimeoutExpired):
         return False
     return is_warm()
