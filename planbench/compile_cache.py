@@ -113,15 +113,14 @@ def use_private_cache(directory: str) -> int:
     For a sandboxed benchmark worker (:mod:`planbench.bench.sandbox`), which may write only to its
     scratch folder: numba refuses to cache at all where it cannot write, and a shared cache a
     plugin could write would let it plant compiled code in the next plugin's process. Call it
-    before the kernels' modules are imported (numba picks a function's cache place then).
+    before the kernels' modules are imported (numba picks a function's cache place then). It does
+    not import numba (150 ms), which a worker of a planner without numba code never needs.
     """
-    from numba.core import caching, config
-
     os.makedirs(directory, exist_ok=True)
     copied = 0
     user = os.environ.get("NUMBA_CACHE_DIR", "")
     for src in _sources():
-        target = os.path.join(directory, caching._CacheLocator.get_suitable_cache_subpath(str(src)))
+        target = os.path.join(directory, cache_subpath(src))
         for shared in _shared_cache_dirs(src, user):
             files = sorted(shared.glob(f"{src.stem}.*.nb[ic]"))
             if not files:
@@ -131,19 +130,26 @@ def use_private_cache(directory: str) -> int:
                 shutil.copy2(f, target)
                 copied += 1
             break
-    os.environ["NUMBA_CACHE_DIR"] = directory
-    config.CACHE_DIR = directory
+    os.environ["NUMBA_CACHE_DIR"] = directory  # what numba reads when it is imported
+    config = sys.modules.get("numba.core.config")
+    if config is not None:  # imported already
+        config.CACHE_DIR = directory  # type: ignore[attr-defined]
     return copied
+
+
+def cache_subpath(src: Path | str) -> str:
+    """The folder numba gives ``src``'s cache in a cache directory: the source folder's name and the
+    SHA-1 of its absolute path (numba's ``_CacheLocator.get_suitable_cache_subpath``, written out so
+    that a worker needs no numba import to find it; a test holds the two equal)."""
+    folder = os.path.dirname(os.path.abspath(src))
+    return "_".join([os.path.split(folder)[-1], hashlib.sha1(folder.encode()).hexdigest()])
 
 
 def _shared_cache_dirs(src: Path, user: str = "") -> list[Path]:
     """Where numba keeps ``src``'s cache outside a private one, in numba's order: the user's
-    ``NUMBA_CACHE_DIR``, next to the source, user-wide."""
-    from numba.core import caching
-    from numba.misc.appdirs import AppDirs
-
-    sub = caching._CacheLocator.get_suitable_cache_subpath(str(src))
-    wide = Path(AppDirs(appname="numba", appauthor=False).user_cache_dir) / sub
+    ``NUMBA_CACHE_DIR``, next to the source, user-wide (``$XDG_CACHE_HOME/numba``)."""
+    sub = cache_subpath(src)
+    wide = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba" / sub
     return [Path(user) / sub] if user else [src.parent / "__pycache__", wide]
 
 

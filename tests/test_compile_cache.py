@@ -67,3 +67,11 @@ def test_the_numpy_plan_is_the_numba_plan_to_rounding():
         backend.prefer(None)
     assert a.path.shape == b.path.shape
     assert abs(a.path - b.path).max() < 1e-6
+
+
+def test_a_workers_private_cache_is_found_where_numba_looks_for_it(tmp_path):
+    """The cache folder planbench computes without importing numba is numba's own."""
+    from numba.core import caching
+
+    for src in compile_cache._sources():
+        assert compile_cache.cache_subpath(src) == caching._CacheLocator.get_suitable_cache_subpath(str(src))
