@@ -30,6 +30,7 @@ from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_pr
 from planbench.bench.task import RunTask
 from planbench.cli import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError, ResultsFileError
+from planbench.files import check_output
 from planbench.results import write_parquet
 
 log = logging.getLogger(__name__)
@@ -298,10 +299,10 @@ class _Progress:
             self.bar = None
 
 
-def _output(path: str | Path, db: str | Path) -> Path:
+def _output(path: str | Path, db: str | Path, folder: bool = False) -> Path:
     """An output path that is neither the results file itself nor another planbench results file
-    (the writers replace what is there)."""
-    out = Path(path)
+    (the writers replace what is there), nor, for a file, a folder or a FIFO nobody reads."""
+    out = Path(path) if folder else check_output(path)
     if out.resolve() == Path(db).resolve():
         raise InvalidConfigError(f"{out} is the results database itself; choose another output file")
     if out.is_file() and _is_results_file(out):
@@ -329,9 +330,11 @@ def _writing(path: str | Path) -> Iterator[None]:
 
 def cmd_report(args: argparse.Namespace) -> int:
     console = Console()
-    outputs = [x for x in (args.markdown, args.csv, args.plots, args.html) if x]
-    for out in outputs:
-        _output(out, args.db)
+    for out in (args.markdown, args.csv, args.html):
+        if out:
+            _output(out, args.db)
+    if args.plots:
+        _output(args.plots, args.db, folder=True)
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
         if rows and ((args.plots or args.html) and metrics_for(rows) is DYNAMIC_METRICS or args.replays):
@@ -392,7 +395,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         "csv": db_path.with_suffix(".csv").as_posix(),
         "parquet": db_path.with_suffix(".parquet").as_posix(),
     }[args.format]
-    out = _output(args.out or default, db_path)
+    out = _output(args.out or default, db_path, folder=args.format == "ompl-log")
     arrays = args.format == "parquet" or (args.format == "csv" and args.paths)
     with ResultsDB(db_path, read_only=True) as db:
         rows = db.rows(args.suite, with_arrays=arrays)
