@@ -22,7 +22,7 @@ import planbench
 from planbench.bench.suite import check_seconds, check_seed, expand_problems
 from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
-from planbench.files import check_output
+from planbench.files import check_output, release_outputs
 from planbench.harness import DEFAULT_TIME_LIMIT
 from planbench.planner import PlanResult, PlanStatus
 from planbench.registry import CONTROLLERS, REGISTRY
@@ -451,6 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("planbench: interrupted", file=sys.stderr)
         return 130
+    finally:
+        release_outputs()
 
 
 if __name__ == "__main__":

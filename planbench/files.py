@@ -22,7 +22,17 @@ from typing import Any
 
 from planbench.errors import PlanbenchError
 
-__all__ = ["MAX_TEXT_BYTES", "InputFileError", "check_output", "kind_of", "read_json", "read_text", "regular_file"]
+__all__ = [
+    "MAX_TEXT_BYTES",
+    "InputFileError",
+    "check_output",
+    "kind_of",
+    "read_bytes",
+    "read_json",
+    "read_text",
+    "regular_file",
+    "release_outputs",
+]
 
 MAX_TEXT_BYTES = 64 << 20
 """[B] The largest problem, scene, scenario, suite or robot settings file read (64 MiB). Shipped
@@ -152,13 +162,26 @@ def check_output(path: str | Path, what: str = "output", folder_made: bool = Fal
         raise PlanbenchError(f"cannot write {p}: it is a folder; give a file name")
     if stat.S_ISFIFO(st.st_mode):
         try:
-            fd = os.open(p, os.O_WRONLY | os.O_NONBLOCK)
+            fd = os.open(p, os.O_WRONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
         except OSError as exc:
             if exc.errno == errno.ENXIO:
                 raise PlanbenchError(f"cannot write {p}: it is a FIFO (named pipe) that no process reads") from None
             raise PlanbenchError(f"cannot write {p}: {exc.strerror or exc}") from None
-        os.close(fd)
+        _HELD.append(fd)  # closing it now would end the reader's input before planbench writes
     return p
+
+
+_HELD: list[int] = []
+
+
+def release_outputs() -> None:
+    """Close the FIFOs :func:`check_output` opened to see that they have a reader (the command's
+    end: their reader then sees the end of its input once planbench's own writes are done)."""
+    while _HELD:
+        try:
+            os.close(_HELD.pop())
+        except OSError:
+            pass
 
 
 def _size(n: int) -> str:
