@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from planbench.datasets import load_problem
-from planbench.errors import PlanbenchError, ProblemFileError, ScenarioFileError
+from planbench.errors import PlanbenchError, ProblemFileError, ResourceLimitError, ScenarioFileError
 from planbench.files import InputFileError, read_json
 from planbench.problem import Problem
 from planbench.reactive.motion import Motion
@@ -42,6 +42,10 @@ __all__ = ["CameraSettings", "MovingObstacle", "Scenario", "SensingSettings", "S
 
 SCENARIO_FORMAT = "planbench-scenario/1"
 SENSING_MODELS = ("truth", "depth")
+MAX_TICKS = 1_000_000
+"""The most control ticks, and the most sensor frames, of one run (100 Hz for 2.8 hours; the shipped
+scenarios have 2000): a run allocates its path and commands for every tick before it starts, and
+captures every frame due at a tick (a 1e12 Hz sensor filled 7.7 GB before the run's time limit)."""
 MAX_CAMERA_PIXELS = 1 << 22
 """The most pixels of one simulated depth camera (4 million, 2048 x 2048): each frame casts one ray per pixel."""
 
@@ -234,6 +238,12 @@ class Scenario:
             raise ValueError(f"control_rate must be > 0 [Hz], got {self.control_rate}")
         if not (math.isfinite(self.horizon) and self.horizon > 0):
             raise ValueError(f"horizon must be > 0 [s], got {self.horizon}")
+        for what, rate in (("control ticks", self.control_rate), ("sensor frames", self.sensing.rate)):
+            if self.horizon * rate > MAX_TICKS:
+                raise ResourceLimitError(
+                    f"a horizon of {self.horizon:g} s at {rate:g} Hz is {self.horizon * rate:.3g} {what}, more than "
+                    f"the {MAX_TICKS:,} of a run (planbench.reactive.scenario.MAX_TICKS)"
+                )
         from planbench.occupancy import grid_shape
         from planbench.reactive.sensing import default_bounds
 
