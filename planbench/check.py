@@ -45,7 +45,9 @@ def _check_main(conn: Any, name: str, kind: str, parent_pid: int) -> None:
     try:
         if kind == "controller":
             from planbench.reactive.conformance import check_controller
+            from planbench.registry import CONTROLLERS
 
+            CONTROLLERS.resolve(name)  # an unknown name is an error (exit code 2), not a finding
             findings = [f"{f.check}: {f.message}" for f in check_controller(name)]
         else:
             from planbench.conformance import check_planner

@@ -22,6 +22,7 @@ import planbench
 from planbench.bench.suite import check_seconds, check_seed, expand_problems
 from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
+from planbench.files import check_writable, release_outputs
 from planbench.harness import DEFAULT_TIME_LIMIT
 from planbench.outputs import check_output
 from planbench.planner import PlanResult, PlanStatus
@@ -232,6 +233,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.plot and (len(refs) != 1 or not hasattr(planner, "plot_result")):
         why = "one problem" if len(refs) != 1 else f"a planner with a figure; {args.planner!r} has none"
         raise PlanbenchError(f"--plot needs {why}")
+    for option, out in (("--json", args.json), ("--plot", args.plot), ("--replay", args.replay)):
+        if out is not None:  # before planning: a folder or a FIFO nobody reads would fail or block at the end
+            check_writable(out, option, folder_made=option == "--plot")
     console = Console()
     rows = []
     paths = []  # (path, times, the planner's message) per problem, for --json
@@ -305,6 +309,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from planbench.replay import replay_run
 
+    check_writable(args.out, "--out")
     out = replay_run(args.db, args.run, check_output(args.out, [args.db]))
     print(f"replay written to {out} (open it in a browser)")
     return 0
@@ -452,6 +457,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("planbench: interrupted", file=sys.stderr)
         return 130
+    finally:
+        release_outputs()
 
 
 if __name__ == "__main__":

@@ -105,7 +105,7 @@ def load_problems(selector: str | Path) -> list[Problem]:
         if not files:
             raise PlanbenchError(f"{path}: folder holds no problem .json files")
         return _unique_ids([(Problem.load(f), str(f)) for f in files])
-    if path.is_file():
+    if path.is_file() or (path.exists() and text.endswith(".json")):  # a FIFO or a device: named by Problem.load
         return [Problem.load(path)]
     names = ["mbm", "mbm:*", *(f"mbm:{f}" for f in mbm_families()), "gen:*", *(f"gen:{s}" for s in shipped_sets())]
     names += ["examples", *(f"examples:{n}" for n in example_names())]

@@ -73,6 +73,13 @@ class InvalidConfigError(PlanbenchError, ValueError):
     """A setting outside its domain; says which setting and what is allowed."""
 
 
+class ResourceLimitError(PlanbenchError, ValueError):
+    """Input that would make planbench allocate more than a documented limit (an occupancy grid's
+    cells, a point cloud's points, a kernel's cells): raised before allocating, with the figure
+    the input asks for and the limit (a ValueError, so that a scene or problem loader names the
+    file it came from)."""
+
+
 class InvalidSettingError(InvalidConfigError):
     """A planner setting that cannot be used, however it was given (Python keywords, ``--set``, a
     suite file): names the planner, the setting, the value given and what is accepted.

@@ -53,6 +53,7 @@ import functools
 import hashlib
 import json
 import math
+import sys
 import time
 import zlib
 from collections import Counter
@@ -66,7 +67,7 @@ import pinocchio as pin
 
 from planbench.collision import CollisionChecker, fresh_geometry_data
 from planbench.datasets import GEN_SEED, problem_from_record, shipped_problems, shipped_sets
-from planbench.errors import PlanbenchError, UnknownNameError
+from planbench.errors import InvalidConfigError, PlanbenchError, UnknownNameError
 from planbench.harness import plan
 from planbench.problem import Problem
 from planbench.robot import Robot, load_robot
@@ -742,10 +743,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         "the straight line, write solvability.json there and print a table",
     )
     args = ap.parse_args(argv)
-    if args.solvability:
+    try:
+        return _main(args)
+    except PlanbenchError as exc:
+        print(f"python -m planbench.generate: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("python -m planbench.generate: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.out.is_dir():
+        raise InvalidConfigError(f"--out {args.out} is not a folder")
+    if args.solvability is not None:
+        if not (math.isfinite(args.solvability) and args.solvability > 0):
+            raise InvalidConfigError(f"--solvability must be a finite number of seconds > 0, got {args.solvability}")
+        manifest = _read_json(args.out / "manifest.json", "its generated set's manifest")
+        if not isinstance(manifest, dict) or not isinstance(manifest.get("sets"), dict):
+            raise PlanbenchError(f"{args.out / 'manifest.json'}: not a planbench generated-set manifest")
         rows: dict[str, dict[str, Any]] = {}
-        for name in json.loads((args.out / "manifest.json").read_text())["sets"]:
-            data = json.loads((args.out / f"{name}.json").read_text())
+        for name in manifest["sets"]:
+            data = _read_json(args.out / f"{name}.json", "a generated set")
             problems = [problem_from_record(rec, data) for rec in data["problems"]]
             rows.update(solvability(problems, args.solvability))
         summary = _summary(rows)
@@ -759,5 +778,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     for family in families:
         if family not in _FAMILIES:
             raise UnknownNameError("generator family", family, FAMILIES)
-    write_set(args.out, args.robots.split(","), families, args.n, args.seed)
+    if args.n < 1:
+        raise InvalidConfigError(f"-n must be >= 1 (problems per robot and family), got {args.n}")
+    if not 0 <= args.seed < 2**63:
+        raise InvalidConfigError(f"--seed must be an integer with 0 <= seed < 2**63, got {args.seed}")
+    robots = args.robots.split(",")
+    for name in robots:
+        load_robot(name)  # an unknown robot before any generating
+    write_set(args.out, robots, families, args.n, args.seed)
     return 0
+
+
+def _read_json(path: Path, what: str) -> Any:
+    from planbench.files import InputFileError, read_json
+
+    try:
+        return read_json(path)
+    except InputFileError as exc:
+        raise PlanbenchError(f"{exc} ({what}; generate one with --out first)") from None

@@ -30,12 +30,43 @@ from typing import Any
 
 import numpy as np
 
+from planbench.errors import ResourceLimitError
 from planbench.overlap import cubes_overlap_boxes
 from planbench.scene import Scene
 
-__all__ = ["OccupancyGrid", "merge_cells", "scene_grid"]
+__all__ = ["MAX_GRID_CELLS", "OccupancyGrid", "grid_shape", "merge_cells", "scene_grid"]
 
 RULES = ("any", "center", "fraction")
+MAX_GRID_CELLS = 1 << 26
+"""The most cells an occupancy grid may have (67 million, e.g. 406^3: 512 MiB as float64, and
+the matrix field of such a grid takes several GiB more). A grid over an arm's workspace (a 2.6 m
+cube) has 2.2 million cells at 0.02 m and 140 million at 0.005 m... which is refused: choose a
+coarser resolution, or bounds around the robot. The count is computed from the bounds and the
+resolution before anything is allocated (:func:`grid_shape`), so a far-away obstacle or a tiny
+resolution is a :class:`~planbench.errors.ResourceLimitError` naming the figure, not a
+``MemoryError``."""
+
+
+def grid_shape(lower: np.ndarray, upper: np.ndarray, resolution: float) -> tuple[int, int, int]:
+    """Cells per axis of a grid covering [lower, upper] at ``resolution`` [m/cell] (rounded up);
+    :class:`~planbench.errors.ResourceLimitError` past :data:`MAX_GRID_CELLS`."""
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution must be > 0 [m/cell], got {resolution}")
+    if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+        raise ValueError(f"grid bounds must be finite, got {lower} and {upper}")
+    cells = np.maximum(1.0, np.ceil((upper - lower) / resolution - 1e-9))
+    total = float(np.prod(cells))
+    if not total <= MAX_GRID_CELLS:
+        extent = " x ".join(f"{x:.3g}" for x in upper - lower)
+        counts = " x ".join(f"{x:.0f}" for x in cells)
+        raise ResourceLimitError(
+            f"an occupancy grid over {extent} m at {resolution:g} m per cell would have {counts} = {total:.3g} "
+            f"cells, more than the {MAX_GRID_CELLS:,} planbench allocates (planbench.occupancy.MAX_GRID_CELLS): "
+            "use a coarser resolution, or check for an obstacle far from the robot"
+        )
+    return tuple(int(x) for x in cells)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,8 +134,9 @@ class OccupancyGrid:
         upper = np.asarray(upper, dtype=float)
         if np.any(upper <= lower):
             raise ValueError(f"grid bounds must have upper > lower, got {lower} and {upper}")
-        shape = np.maximum(1, np.ceil((upper - lower) / resolution - 1e-9).astype(int))
-        return cls(np.zeros(tuple(shape), dtype=dtype), lower, resolution, outside)
+        if not 0.0 <= outside <= 1.0:  # before allocating
+            raise ValueError(f"outside occupancy must be in [0, 1], got {outside}")
+        return cls(np.zeros(grid_shape(lower, upper, resolution), dtype=dtype), lower, resolution, outside)
 
     @classmethod
     def from_scene(

@@ -21,11 +21,18 @@ the points on a surface (a cloud thinned to one point per ``2 r`` cube loses not
 Files: ``.npz`` with an array ``points`` (N, 3), or PLY (ASCII or binary, the vertices' x, y, z;
 read with trimesh). Points are in the obstacle's frame, which is the robot's base frame unless the
 obstacle has a pose.
+
+Limits, checked before anything is allocated: a cloud file must be a regular file of at most
+:data:`MAX_FILE_BYTES`, and hold at most :data:`MAX_POINTS` points. The count is read from the
+file's header (the ``.npy`` header inside the ``.npz``, the PLY header) and compared with the
+bytes the file holds, so a small compressed file that claims a huge array, or a header that
+claims more points than follow it, is refused as such.
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import zipfile
 from dataclasses import dataclass, field
@@ -34,16 +41,24 @@ from typing import Any
 
 import numpy as np
 
+from planbench.errors import PlanbenchError
+from planbench.files import InputFileError, regular_file
 from planbench.overlap import cubes_overlap_boxes
 
-__all__ = ["PointCloudError", "VoxelCloud", "load_cloud", "read_points", "write_points"]
+__all__ = ["MAX_FILE_BYTES", "MAX_POINTS", "PointCloudError", "VoxelCloud", "load_cloud", "read_points", "write_points"]
 
 SUFFIXES = (".npz", ".ply")
+MAX_POINTS = 10_000_000
+"""The most points a cloud file may hold (240 MB as float64; voxelising 10 million peaks at 1.0 GB RSS, 15 s).
+A depth camera gives 0.3 million per frame; a denser cloud loses nothing when thinned to one point
+per cube of edge ``2 r`` (module docstring)."""
+MAX_FILE_BYTES = 1 << 30
+"""[B] The largest cloud file read (1 GiB: 10 million points as ASCII PLY are about 300 MB)."""
 _OFFSET = 1 << 20  # lattice indices are stored as 21-bit unsigned fields of one int64 key
 _LIMIT = 1 << 15  # octomap's 16-level tree spans +-2^15 cells around the origin
 
 
-class PointCloudError(ValueError):
+class PointCloudError(PlanbenchError, ValueError):
     """A point-cloud file or its points cannot be used (a ValueError, so scene loading reports it
     as a :class:`~planbench.errors.ProblemFileError` naming the file)."""
 
@@ -55,9 +70,12 @@ def read_points(path: str | Path) -> np.ndarray:
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
         raise PointCloudError(f"point cloud {p}: unsupported file type {p.suffix!r}; use .npz or .ply")
-    if not p.is_file():
-        raise PointCloudError(f"point cloud {p}: file not found")
-    pts = _read_npz(p) if suffix == ".npz" else _read_ply(p)
+    try:
+        size = regular_file(p, MAX_FILE_BYTES).st_size
+    except InputFileError as exc:
+        why = "file not found" if exc.problem.endswith("no such file") else exc.problem
+        raise PointCloudError(f"point cloud {p}: {why}") from None
+    pts = _read_npz(p) if suffix == ".npz" else _read_ply(p, size)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise PointCloudError(f"point cloud {p}: points must be an (N, 3) array, got shape {pts.shape}")
     if len(pts) == 0:
@@ -72,6 +90,7 @@ def read_points(path: str | Path) -> np.ndarray:
 
 
 def _read_npz(p: Path) -> np.ndarray:
+    _check_npz(p)
     try:
         with np.load(p, allow_pickle=False) as f:
             if not hasattr(f, "files"):
@@ -88,9 +107,112 @@ def _read_npz(p: Path) -> np.ndarray:
     return arr.astype(np.float64, copy=False)
 
 
-def _read_ply(p: Path) -> np.ndarray:
+def _check_npz(p: Path) -> None:
+    """Refuse a .npz whose ``points`` header claims a shape, type or size that cannot be used,
+    before numpy decompresses it (a few MB of deflated zeros can claim gigabytes)."""
+    with open(p, "rb") as f:
+        if f.read(6) == b"\x93NUMPY":
+            raise PointCloudError(f"point cloud {p}: a .npz archive is expected, found a single .npy array")
+    try:
+        with zipfile.ZipFile(p) as z:
+            names = z.namelist()
+            if "points.npy" not in names:
+                held = sorted(n.removesuffix(".npy") for n in names)
+                raise PointCloudError(f"point cloud {p}: no array 'points' in the .npz (holds {held})")
+            info = z.getinfo("points.npy")
+            with z.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+                if version not in read_header:
+                    raise ValueError(f"unsupported .npy format version {version}")
+                shape, _, dtype = read_header[version](member)
+                offset = member.tell()
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, PointCloudError):
+            raise
+        raise PointCloudError(f"point cloud {p}: not a readable .npz file ({exc})") from exc
+    if dtype.hasobject or dtype.kind not in "iuf":
+        raise PointCloudError(f"point cloud {p}: 'points' must be numeric (real numbers), got dtype {dtype}")
+    if len(shape) != 2 or shape[1] != 3:
+        raise PointCloudError(f"point cloud {p}: points must be an (N, 3) array, got shape {shape}")
+    _check_count(p, shape[0])
+    need = shape[0] * 3 * dtype.itemsize
+    if info.file_size - offset < need:
+        raise PointCloudError(
+            f"point cloud {p}: truncated: its header claims {shape[0]:,} points ({need:,} bytes), "
+            f"the archive holds {max(0, info.file_size - offset):,} bytes of them"
+        )
+
+
+def _check_count(p: Path, n: int) -> None:
+    if n > MAX_POINTS:
+        raise PointCloudError(
+            f"point cloud {p}: holds {n:,} points, more than the {MAX_POINTS:,} planbench reads "
+            "(planbench.pointcloud.MAX_POINTS); thin it to one point per cube of edge 2 r (nothing is lost)"
+        )
+
+
+_PLY_SIZES = {
+    **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
+    **dict.fromkeys(("short", "ushort", "int16", "uint16"), 2),
+    **dict.fromkeys(("int", "uint", "float", "int32", "uint32", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+
+
+def _check_ply(p: Path, size: int) -> None:
+    """Refuse a PLY whose header is missing, claims a negative or too large vertex count, or
+    claims more vertices than the bytes after it can hold (before trimesh allocates for them)."""
+    with open(p, "rb") as f:
+        head = f.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise PointCloudError(
+            f"point cloud {p}: not a readable PLY file (no 'ply ... end_header' header in its first 64 kB)"
+        )
+    body = end + len(b"end_header")
+    body += 2 if head[body : body + 2] == b"\r\n" else 1
+    lines = head[:end].decode("ascii", errors="replace").splitlines()
+    fmt, elements = "", []  # (name, count, [property sizes; None for a list])
+    for line in lines:
+        words = line.split()
+        if words[:1] == ["format"] and len(words) >= 2:
+            fmt = words[1]
+        elif words[:1] == ["element"] and len(words) == 3:
+            try:
+                count = int(words[2])
+            except ValueError:
+                raise PointCloudError(
+                    f"point cloud {p}: not a readable PLY file (element count {words[2]!r})"
+                ) from None
+            if count < 0:
+                raise PointCloudError(f"point cloud {p}: not a readable PLY file (element {words[1]} count {count})")
+            elements.append((words[1], count, []))
+        elif words[:1] == ["property"] and elements:
+            elements[-1][2].append(
+                None if words[1:2] == ["list"] else _PLY_SIZES.get(words[1] if len(words) > 1 else "")
+            )
+    vertex = [e for e in elements if e[0] == "vertex"]
+    if not vertex:
+        raise PointCloudError(f"point cloud {p}: no vertices in the PLY file")
+    _, count, props = vertex[0]
+    _check_count(p, count)
+    before = elements[: elements.index(vertex[0])]
+    if fmt.startswith("binary") and all(None not in e[2] for e in (*before, vertex[0])):
+        need = sum(c * sum(s) for _, c, s in (*before, vertex[0]))  # type: ignore[arg-type]
+    else:  # ASCII (or variable-length records): at least one digit and a separator per value
+        need = count * 2 * max(1, len(props))
+    if size - body < need:
+        raise PointCloudError(
+            f"point cloud {p}: truncated: its header claims {count:,} vertices (at least {need:,} bytes), "
+            f"the file holds {max(0, size - body):,} bytes after the header"
+        )
+
+
+def _read_ply(p: Path, size: int) -> np.ndarray:
     import trimesh
 
+    _check_ply(p, size)
     try:
         loaded = trimesh.load(str(p), file_type="ply", process=False)
     except Exception as exc:  # trimesh raises many types on a bad file: report them all as one
@@ -138,6 +260,11 @@ class VoxelCloud:
         """The cubes of edge ``cell`` [m] holding the (N, 3) ``points`` [m]."""
         if not (math.isfinite(cell) and cell > 0):
             raise PointCloudError(f"cell size must be > 0 [m], got {cell}")
+        if len(points) > MAX_POINTS:
+            raise PointCloudError(
+                f"{len(points):,} points are more than the {MAX_POINTS:,} planbench voxelises "
+                "(planbench.pointcloud.MAX_POINTS)"
+            )
         pts = np.asarray(points, dtype=float)
         idx = np.floor(pts / cell).astype(np.int64)
         if len(idx) and np.abs(idx + 0.5).max() >= _LIMIT:
@@ -274,9 +401,11 @@ class VoxelCloud:
         hi = np.ceil((centres + half - origin) / resolution - tol).astype(np.int64)  # exclusive
         span = int((hi - lo).max())
         axis_aligned = bool(np.allclose(R, np.eye(3), atol=1e-12))
-        steps = np.stack(np.meshgrid(*[np.arange(span)] * 3, indexing="ij"), -1).reshape(-1, 3)
-        for off in steps:  # a few offsets: a cube spans at most `span` grid cells per axis
-            idx = lo + off
+        if span**3 > max(64, len(centres)):  # cubes larger than grid cells: fewer cubes than offsets
+            self._cover_per_cube(out, lo, hi, i0, i1, centres, R, axis_aligned, origin, resolution)
+            return out
+        for off in itertools.product(range(span), repeat=3):  # a cube spans at most `span` cells per axis
+            idx = lo + np.array(off)
             keep = np.all((idx < hi) & (idx >= i0) & (idx < i1), axis=1)
             if not keep.any():
                 continue
@@ -286,6 +415,38 @@ class VoxelCloud:
                 idx = idx[cubes_overlap_boxes(grid_centres, 0.5 * resolution, centres[keep], R, np.full(3, h), 1e-9)]
             out[tuple((idx - i0).T)] = 1.0
         return out
+
+    def _cover_per_cube(
+        self,
+        out: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        i0: np.ndarray,
+        i1: np.ndarray,
+        centres: np.ndarray,
+        R: np.ndarray,
+        axis_aligned: bool,
+        origin: np.ndarray,
+        resolution: float,
+    ) -> None:
+        """:meth:`cover` one cube at a time (cubes of many grid cells): its block of grid cells
+        at once when the cloud is axis-aligned, else tested in slabs of at most ~1M cells."""
+        a, b = np.maximum(lo, i0), np.minimum(hi, i1)
+        for k in np.flatnonzero(np.all(b > a, axis=1)):
+            (x0, y0, z0), (x1, y1, z1) = a[k], b[k]
+            if axis_aligned:
+                out[x0 - i0[0] : x1 - i0[0], y0 - i0[1] : y1 - i0[1], z0 - i0[2] : z1 - i0[2]] = 1.0
+                continue
+            yz = np.stack(np.meshgrid(np.arange(y0, y1), np.arange(z0, z1), indexing="ij"), -1).reshape(-1, 2)
+            step = max(1, (1 << 20) // len(yz))
+            for x in range(x0, x1, step):
+                xs = np.arange(x, min(x + step, x1))
+                idx = np.column_stack([np.repeat(xs, len(yz)), np.tile(yz, (len(xs), 1))])
+                grid_centres = origin + (idx + 0.5) * resolution
+                hit = cubes_overlap_boxes(
+                    grid_centres, 0.5 * resolution, centres[k], R, np.full(3, 0.5 * self.cell), 1e-9
+                )
+                out[tuple((idx[hit] - i0).T)] = 1.0
 
 
 def _unkey(keys: np.ndarray) -> np.ndarray:
@@ -325,8 +486,8 @@ def load_cloud(path: str | Path, radius: float) -> VoxelCloud:
         raise PointCloudError(f"point radius must be > 0 [m], got {radius}")
     p = Path(path)
     try:
-        st = p.stat()
-    except OSError:
-        read_points(p)  # raises the right error (not found, bad suffix)
+        st = regular_file(p)
+    except InputFileError:
+        read_points(p)  # raises the right error (not found, not a regular file, bad suffix)
         raise
     return _cached_cloud(str(p.resolve()), st.st_mtime_ns, st.st_size, 2.0 * float(radius))

@@ -388,7 +388,7 @@ def _load_problem_robot(name: Any, overrides: dict[str, Any], source: str, base_
             settings = settings_from_dict(name, f"{source}: robot", base_dir)
             return robot_from_settings(settings.replace(**overrides) if overrides else settings)
         if base_dir is not None and name.endswith(".toml") and not Path(name).is_absolute():
-            if (base_dir / name).is_file():
+            if (base_dir / name).exists():  # a FIFO or a folder too: load_robot names what it is
                 name = str(base_dir / name)
         return load_robot(name, **overrides)
     except PlanbenchError as exc:

@@ -42,6 +42,7 @@ import pinocchio as pin
 
 import planbench_robots
 from planbench.errors import RobotFileError, UnknownNameError
+from planbench.files import MAX_TEXT_BYTES, InputFileError, read_text, regular_file
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -154,9 +155,9 @@ def _point3(p: Any) -> tuple[float, float, float]:
 
 def _read_settings(path: Path) -> RobotSettings:
     try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise RobotFileError(path, f"cannot read: {exc.strerror}") from exc
+        raw = tomllib.loads(read_text(path))
+    except InputFileError as exc:
+        raise RobotFileError(path, exc.problem) from None
     except tomllib.TOMLDecodeError as exc:
         raise RobotFileError(path, f"not valid TOML: {exc}") from exc
     return settings_from_dict(raw, str(path), path.parent)
@@ -210,8 +211,11 @@ class Robot:
     def __init__(self, settings: RobotSettings) -> None:
         self.settings = settings
         src = settings.source
-        if not settings.urdf.is_file():
-            raise RobotFileError(settings.urdf, f"URDF file not found (robot {settings.name!r})")
+        try:
+            regular_file(settings.urdf, MAX_TEXT_BYTES)
+        except InputFileError as exc:
+            why = "URDF file not found" if exc.problem.endswith("no such file") else f"URDF file: {exc.problem}"
+            raise RobotFileError(settings.urdf, f"{why} (robot {settings.name!r})") from None
         share = example_robot_data_dir().parent
         try:
             full, geom = pin.buildModelsFromUrdf(
@@ -242,6 +246,8 @@ class Robot:
             jid = full.getJointId(jname)
             if full.joints[jid].nq != 1:
                 raise RobotFileError(src, f"fixed joint {jname!r} is not a 1-dof joint")
+            if not np.isfinite(value):
+                raise RobotFileError(src, f"fixed joint {jname!r} must be held at a finite value, got {value}")
             q_ref[full.joints[jid].idx_q] = value
             locked.append(jid)
         if locked:
@@ -279,8 +285,8 @@ class Robot:
         amax = np.full(model.nv, np.nan)
         for jname, a in settings.acceleration_limits.items():
             amax[self._index(jname, src)] = a
-        if np.any(amax <= 0):
-            raise RobotFileError(src, f"acceleration limits must be > 0 [rad/s^2]: {amax}")
+        if np.any(amax <= 0) or np.any(np.isinf(amax)):
+            raise RobotFileError(src, f"acceleration limits must be finite and > 0 [rad/s^2]: {amax}")
         self.acceleration_limit = _frozen(amax)
         """[rad/s^2 or m/s^2] per planned joint; NaN where the settings give none."""
 

@@ -24,6 +24,7 @@ cloud path is relative to the JSON file. A point cloud's geometry is the union o
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -36,6 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.errors import ProblemFileError
+from planbench.files import InputFileError, read_json, regular_file
 from planbench.pointcloud import VoxelCloud, load_cloud
 
 __all__ = ["Obstacle", "Scene", "SHAPES"]
@@ -85,8 +87,18 @@ class Obstacle:
         if self.type == "mesh":
             if not self.path:
                 raise ValueError(f"{where}: a mesh needs 'path'")
-            if not Path(self.path).is_file():
-                raise ValueError(f"{where}: mesh file not found: {self.path}")
+            _check_vector(self.scale, 3, f"{where}: scale")
+            if min(abs(x) for x in self.scale) == 0:
+                raise ValueError(f"{where}: mesh scale must be non-zero on every axis, got {list(self.scale)}")
+            try:
+                st = regular_file(self.path, MAX_MESH_BYTES)
+            except InputFileError as exc:
+                if exc.problem.endswith("no such file"):
+                    raise ValueError(f"{where}: mesh file not found: {self.path}") from None
+                raise ValueError(f"{where}: mesh file {exc}") from None
+            problem = _mesh_problem(str(Path(self.path).resolve()), st.st_mtime_ns, st.st_size)
+            if problem:
+                raise ValueError(f"{where}: mesh file {self.path}: {problem}")
         if self.type == "pointcloud":
             if not self.path:
                 raise ValueError(f"{where}: a pointcloud needs 'path' (a .npz with array 'points' or a .ply)")
@@ -299,13 +311,34 @@ class Scene:
         return cls.from_dict(_read_json(p), str(p), p.parent)
 
 
-def _read_json(path: Path) -> Any:
+MAX_MESH_BYTES = 256 << 20
+"""[B] The largest mesh file read (256 MiB; the shipped robots' meshes are under 1 MB each)."""
+
+
+@functools.lru_cache(maxsize=64)
+def _mesh_problem(path: str, mtime_ns: int, size: int) -> str:
+    """Why coal cannot load the mesh file (its first line), or "" when it can (checked once per
+    file version and process: a scene names a bad mesh at load, not at its first collision query)."""
+    import coal
+
     try:
-        return json.loads(path.read_text())
-    except OSError as exc:
-        raise ProblemFileError(path, f"cannot read: {exc.strerror}") from exc
-    except json.JSONDecodeError as exc:
-        raise ProblemFileError(path, f"not valid JSON: {exc}") from exc
+        geometry = coal.MeshLoader().load(path, np.ones(3))
+    except (ValueError, RuntimeError) as exc:
+        lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
+        detail = [x for x in lines if not x.startswith(("From file", "in function", "at line", "Hint"))]
+        return "coal cannot load it: " + " ".join(detail)[:300].replace("message: ", "")
+    if geometry.num_tris == 0:
+        return "it holds no triangles"
+    return ""
+
+
+def _read_json(path: Path) -> Any:
+    """The JSON in a problem or scene file (a regular file of at most
+    :data:`planbench.files.MAX_TEXT_BYTES`); :class:`ProblemFileError` naming it otherwise."""
+    try:
+        return read_json(path)
+    except InputFileError as exc:
+        raise ProblemFileError(path, exc.problem) from None
 
 
 def _tuple(v: Sequence[Any]) -> tuple[float, ...]:

@@ -149,12 +149,14 @@ def test_every_family_works_for_a_third_robot():
         assert floor.size is not None and floor.size[0] == pytest.approx(2.2 * ws.reach, abs=1e-3)  # scaled to the arm
 
 
-def test_cli_writes_a_set(tmp_path):
+def test_cli_writes_a_set(tmp_path, capsys):
     assert generators.main(["--out", str(tmp_path), "--robots", "ur5", "--families", "window", "-n", "2"]) == 0
     manifest = json.loads((tmp_path / "manifest.json").read_text())
     assert list(manifest["sets"]) == ["ur5_window"]
     data = json.loads((tmp_path / "ur5_window.json").read_text())
     problems = [generators.problem_from_record(rec, data) for rec in data["problems"]]
     assert [p.id for p in problems] == ["gen:ur5_window/0001", "gen:ur5_window/0002"]
-    with pytest.raises(UnknownNameError):
-        generators.main(["--out", str(tmp_path), "--families", "kitchen"])
+    capsys.readouterr()
+    assert generators.main(["--out", str(tmp_path), "--families", "kitchen"]) == 2  # a named error, exit code 2
+    err = capsys.readouterr().err
+    assert "unknown generator family 'kitchen'" in err and "Traceback" not in err

@@ -30,6 +30,7 @@ from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_pr
 from planbench.bench.task import RunTask
 from planbench.cli import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError
+from planbench.files import check_writable
 from planbench.outputs import check_output
 from planbench.results import write_parquet
 
@@ -311,9 +312,12 @@ def _writing(path: str | Path) -> Iterator[None]:
 
 def cmd_report(args: argparse.Namespace) -> int:
     console = Console()
-    outputs = [x for x in (args.markdown, args.csv, args.plots, args.html) if x]
-    for out in outputs:
-        check_output(out, [args.db])
+    for out in (args.markdown, args.csv, args.html):
+        if out:
+            check_writable(out)  # before the work: a folder or a FIFO nobody reads would fail or block at the end
+    for out in (args.markdown, args.csv, args.plots, args.html):
+        if out:
+            check_output(out, [args.db])
     with ResultsDB(args.db, read_only=True) as db:
         rows = db.rows(args.suite)
         if rows and ((args.plots or args.html) and metrics_for(rows) is DYNAMIC_METRICS or args.replays):
@@ -374,6 +378,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         "csv": db_path.with_suffix(".csv").as_posix(),
         "parquet": db_path.with_suffix(".parquet").as_posix(),
     }[args.format]
+    if args.format != "ompl-log":  # (a folder of logs)
+        check_writable(args.out or default)
     out = check_output(args.out or default, [db_path])
     arrays = args.format == "parquet" or (args.format == "csv" and args.paths)
     with ResultsDB(db_path, read_only=True) as db:

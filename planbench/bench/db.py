@@ -136,7 +136,14 @@ def array_from_blob(blob: bytes | None) -> np.ndarray | None:
     """The array stored in a ``path`` or ``times`` column (None for NULL)."""
     if blob is None:
         return None
-    return np.load(io.BytesIO(blob), allow_pickle=False)  # type: ignore[no-any-return]
+    buf = io.BytesIO(blob)  # the header's claim checked before numpy allocates for it
+    version = np.lib.format.read_magic(buf)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read(buf)
+    if dtype.hasobject or len(blob) - buf.tell() < math.prod(shape) * dtype.itemsize:
+        raise ValueError(f"its header claims a {dtype} array of shape {shape}, in {len(blob)} bytes")
+    buf.seek(0)
+    return np.load(buf, allow_pickle=False)  # type: ignore[no-any-return]
 
 
 INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
@@ -401,7 +408,10 @@ class ResultsDB:
     def suite_settings(self, name: str) -> tuple[dict[str, Any], dict[str, Any]] | None:
         """(definition, settings) stored for suite ``name``, or None."""
         row = self.conn.execute("SELECT definition, settings FROM suites WHERE name=?", (name,)).fetchone()
-        return None if row is None else (json.loads(row[0]), json.loads(row[1]))
+        try:
+            return None if row is None else (json.loads(row[0]), json.loads(row[1]))
+        except (TypeError, ValueError) as exc:
+            raise ResultsFileError(self.path, f"suite {name!r}: its stored settings are not JSON ({exc})") from None
 
     @_sqlite_errors
     def put_suite(self, name: str, definition: dict[str, Any], settings_json: str) -> None:
@@ -519,9 +529,16 @@ class ResultsDB:
             for name, value in d.items():
                 if value is None and name in _FLOAT_COLUMNS:
                     d[name] = math.nan
+                elif name in _FLOAT_COLUMNS and not isinstance(value, (int, float)):
+                    raise ResultsFileError(self.path, f"run {d.get('id')}: column {name} holds {value!r}, not a number")
             if with_arrays:
-                d["path"] = array_from_blob(d["path"])
-                d["times"] = array_from_blob(d["times"])
+                try:
+                    d["path"] = array_from_blob(d["path"])
+                    d["times"] = array_from_blob(d["times"])
+                except (ValueError, EOFError) as exc:
+                    raise ResultsFileError(
+                        self.path, f"run {d.get('id')}: its path is not a readable array ({exc})"
+                    ) from None
             out.append(d)
         return out
 

@@ -45,7 +45,9 @@ class RunKind:
     work: Callable[[Any, Notify, socket.socket | None], dict[str, Any] | None]
     """In the worker: ``work(task, notify, channel)`` -> the raw result fields, or None when the
     run's record comes from the validator."""
-    judge: Callable[[dict[str, Any], dict[str, Any], socket.socket | None], tuple[dict[str, Any] | None, dict[str, Any]]]
+    judge: Callable[
+        [dict[str, Any], dict[str, Any], socket.socket | None], tuple[dict[str, Any] | None, dict[str, Any]]
+    ]
     """In the validator: ``judge(request, arrays, channel)`` -> (the run's raw fields when the
     validator made them, else None; the evaluation as a dict)."""
 

@@ -73,6 +73,7 @@ from typing import Any
 
 from planbench.datasets import load_problems
 from planbench.errors import DuplicateProblemError, InvalidConfigError, PlanbenchError, UnknownNameError
+from planbench.files import InputFileError, read_text
 from planbench.problem import Problem
 from planbench.validate import VALIDATOR, ValidationSettings
 
@@ -123,6 +124,9 @@ distance-field 554-560 / 236-243; ompl-rrtconnect, -bitstar, -prmstar, -kpiece, 
 (``mbm:*/0001-0004``): 732 / 414. 4096 MiB is more than 5x the largest, so no shipped planner
 meets it, while a runaway allocation still ends as an ``error`` row long before a machine of
 a few GiB per core runs out."""
+MAX_SECONDS = 1e6
+"""[s] The longest time limit or timeout accepted (11.6 days): the operating system's timers that
+enforce them take no more (a longer one overflows them)."""
 SEED_LIMIT = 2**63  # seeds are < 2**63: numpy's default_rng takes any, SQLite INTEGER is int64
 MAX_SEEDS = 1_000_000
 
@@ -206,8 +210,8 @@ class Suite:
             raise bad("[suite] seeds is empty")
         for name in ("time_limit", "setup_timeout", "grace", "validation_timeout"):
             v = getattr(self, name)
-            if not _positive_number(v):
-                raise bad(f"[suite] {name} must be a finite number > 0 [s], got {v!r}")
+            if not (_positive_number(v) and v <= MAX_SECONDS):
+                raise bad(f"[suite] {name} must be a finite number > 0 [s], at most {MAX_SECONDS:g}, got {v!r}")
         m = self.memory_limit
         if not (_positive_number(m) or (isinstance(m, (int, float)) and not isinstance(m, bool) and m == 0)):
             raise bad(f'[suite] memory_limit must be a number of MiB > 0, or 0 / "none" for no limit, got {m!r}')
@@ -283,11 +287,11 @@ def load_suite(name_or_path: str | Path) -> Suite:
     if text in builtins:
         return parse_suite(builtins[text].read_text(), source=f"built-in suite {text!r} ({builtins[text]})")
     path = Path(text)
-    if path.is_file():
+    if path.is_file() or (path.exists() and not path.is_dir()):  # a FIFO or a device: named below
         try:
-            content = path.read_text()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise SuiteFileError(str(path), f"cannot read: {exc}") from exc
+            content = read_text(path)
+        except InputFileError as exc:
+            raise SuiteFileError(str(path), exc.problem) from None
         suite = parse_suite(content, source=str(path))
         here = path.resolve().parent  # files a suite names are found next to it, wherever it runs
         return suite.with_changes(problems=tuple(_next_to(sel, here) for sel in suite.problems))
@@ -395,8 +399,10 @@ def _positive_number(v: Any) -> bool:
 
 def check_seconds(value: Any, what: str) -> float:
     """``value`` as seconds when it is a finite number > 0, else an error naming ``what``."""
-    if not _positive_number(value):
-        raise InvalidConfigError(f"{what} must be a finite number of seconds > 0, got {value!r}")
+    if not (_positive_number(value) and value <= MAX_SECONDS):
+        raise InvalidConfigError(
+            f"{what} must be a finite number of seconds > 0, at most {MAX_SECONDS:g}, got {value!r}"
+        )
     return float(value)
 
 
@@ -466,7 +472,7 @@ def expand_problems(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]:
     out: dict[str, ProblemRef] = {}
     for sel in selectors:
         path = Path(sel)
-        if not sel.startswith("mbm") and (path.is_dir() or path.is_file()):
+        if not sel.startswith("mbm") and (path.is_dir() or path.is_file() or (path.exists() and sel.endswith(".json"))):
             files = sorted(path.glob("*.json")) if path.is_dir() else [path]
             if not files:
                 raise PlanbenchError(f"{path}: folder holds no problem .json files")
@@ -487,7 +493,7 @@ def expand_scenarios(selectors: tuple[str, ...] | list[str]) -> list[ProblemRef]
     out: dict[str, ProblemRef] = {}
     for sel in selectors:
         path = Path(sel)
-        if path.is_dir() or path.is_file():
+        if path.is_dir() or path.is_file() or (path.exists() and sel.endswith(".json")):
             files = sorted(path.glob("*.json")) if path.is_dir() else [path]
             if not files:
                 raise PlanbenchError(f"{path}: folder holds no scenario .json files")

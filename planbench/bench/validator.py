@@ -41,7 +41,6 @@ from multiprocessing.reduction import recv_handle
 from typing import Any
 
 from planbench.bench.kinds import kind_of
-
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
 from planbench.bench.wire import decode, encode
 from planbench.certified import CertifiedChecker

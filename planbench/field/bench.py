@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planbench.errors import InvalidConfigError
 from planbench.field.backend import have_numba
 from planbench.field.full import full_field
 from planbench.field.kernels import Kernels
@@ -272,6 +273,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-dense", action="store_true", help="skip the dense 3D correlation")
 
 
+MAX_SIZE = 400
+"""The largest grid side timed (400^3 cells: 0.5 GB as float64, the dense and FFT rows several times that)."""
+
+
+def _check_settings(s: BenchSettings) -> None:
+    """Refuse settings that cannot be timed, before any timing."""
+    for n in s.sizes:
+        if not 8 <= n <= MAX_SIZE:
+            raise InvalidConfigError(f"--sizes: a grid side must be between 8 and {MAX_SIZE} cells, got {n}")
+    for name, value in (("--repeat", s.repeat), ("--points", s.points)):
+        if value < 1:
+            raise InvalidConfigError(f"{name} must be >= 1, got {value}")
+    if not (np.isfinite(s.budget) and s.budget > 0):
+        raise InvalidConfigError(f"--budget must be a finite number of seconds > 0, got {s.budget}")
+
+
 def run_from_args(args: argparse.Namespace) -> int:
     sizes, lengths = (tuple(args.sizes), tuple(args.lengths))
     if args.quick:
@@ -287,6 +304,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         fft=not args.no_fft,
         dense=not args.no_dense,
     )
+    _check_settings(settings)
     for length in lengths:  # bad lengths fail before any timing
         Kernels.from_cells(length)
     started = time.perf_counter()

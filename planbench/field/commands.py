@@ -11,9 +11,11 @@ import logging
 from typing import Any
 
 import planbench
+from planbench.errors import InvalidConfigError
 from planbench.field import full_field, surface_grid
 from planbench.field.bench import add_arguments, run_from_args
 from planbench.field.kernels import PROFILES, TAPERS, KernelSpec
+from planbench.files import check_writable
 from planbench.occupancy import OccupancyGrid
 from planbench.outputs import check_output
 
@@ -95,6 +97,9 @@ def cmd_field(args: argparse.Namespace) -> int:
     from planbench.field.plots import parse_slice, plot_field_slice
 
     axis, value = parse_slice(args.slice)
+    if not 0.0 <= args.outside <= 1.0:
+        raise InvalidConfigError(f"--outside is an occupancy in [0, 1] (0 free, 1 walled in), got {args.outside}")
+    check_writable(args.out, "--out", folder_made=True)
     check_output(args.out)
     problem = planbench.load_problems(args.problem)[0]
     kernels = _spec(args).build(args.resolution)
@@ -116,6 +121,7 @@ def cmd_field(args: argparse.Namespace) -> int:
 def cmd_kernel(args: argparse.Namespace) -> int:
     from planbench.field.plots import plot_kernel, plot_profiles  # matplotlib on use, as in cmd_field
 
+    check_writable(args.out, "--out", folder_made=True)
     check_output(args.out)
     if args.profile == "all":
         plot_profiles(reach=args.reach, resolution=args.resolution, out=args.out)

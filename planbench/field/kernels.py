@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import DTypeLike
 
-from planbench.errors import InvalidConfigError
+from planbench.errors import InvalidConfigError, ResourceLimitError
 
 __all__ = ["KernelSpec", "Kernels", "PROFILES", "TAPERS", "ProfileFn"]
 
@@ -47,6 +47,10 @@ ProfileFn = Callable[[np.ndarray], np.ndarray]
 PROFILES = ("linear", "gaussian", "inverse-power")
 TAPERS = ("linear", "gaussian", "constant")
 AXES = "xyz"
+MAX_KERNEL_CELLS = 1001
+"""The most cells a kernel may have along or across its axis (a reach of 0.2 m at 0.01 m is 41)."""
+MAX_DENSE_CELLS = 1 << 25
+"""The most cells of a kernel built whole in 3D (:meth:`Kernels.dense`, for plots: 256 MiB)."""
 
 
 @dataclass(frozen=True)
@@ -155,6 +159,11 @@ class Kernels:
                     f"kernel {name} must be odd and >= 3 cells (a centre cell and at least one "
                     f"on each side), got {n}; {hint}"
                 )
+            if n > MAX_KERNEL_CELLS:
+                raise ResourceLimitError(
+                    f"kernel {name} of {n:,} cells is more than the {MAX_KERNEL_CELLS:,} planbench builds "
+                    "(planbench.field.kernels.MAX_KERNEL_CELLS): use a coarser resolution or a shorter reach"
+                )
         resolution = _positive(resolution, "resolution", "m/cell")
         gain = _positive(gain, "gain", "-")
         c, w = (length - 1) // 2, (width - 1) // 2
@@ -205,6 +214,12 @@ class Kernels:
     def dense(self, axis: int | str) -> np.ndarray:
         """The full 3D kernel ``K_axis`` (L or W cells per dimension), axis order x, y, z."""
         a = _axis(axis)
+        cells = len(self.along) * len(self.across) ** 2
+        if cells > MAX_DENSE_CELLS:
+            raise ResourceLimitError(
+                f"the dense kernel would have {len(self.along)} x {len(self.across)} x {len(self.across)} = "
+                f"{cells:,} cells, more than {MAX_DENSE_CELLS:,} (planbench.field.kernels.MAX_DENSE_CELLS)"
+            )
         factors = [self.along if b == a else self.across for b in range(3)]
         return np.einsum("i,j,k->ijk", *factors)
 

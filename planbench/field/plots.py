@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 
+from planbench.errors import InvalidConfigError
 from planbench.field.full import MatrixField
 from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.occupancy import OccupancyGrid
@@ -113,7 +114,7 @@ def parse_slice(text: str) -> tuple[int, float]:
     except ValueError:
         coord = float("nan")
     if not sep or axis not in AXES or not np.isfinite(coord):
-        raise ValueError(f"a slice is written axis=value in metres, e.g. z=0.3; got {text!r}")
+        raise InvalidConfigError(f"--slice is written axis=value in metres, e.g. z=0.3; got {text!r}")
     return AXES.index(axis), coord
 
 

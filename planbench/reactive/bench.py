@@ -201,7 +201,8 @@ def _grid_shape(scenario: Scenario) -> tuple[int, ...]:
     from planbench.reactive.sensing import Sensor
 
     p = scenario.problem
-    frame = Sensor(scenario.sensing, p.robot).capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, np.random.default_rng(0))
+    sensor = Sensor(scenario.sensing, p.robot)
+    frame = sensor.capture(scenario.scene_at(0.0), np.array(p.start), 0.0, 0, np.random.default_rng(0))
     return tuple(frame.grid.data.shape)
 
 

@@ -37,7 +37,9 @@ class IsolatedRun:
         self.handoff = handoff
 
 
-def _controller_main(sock: socket.socket, scenario: dict[str, Any], name: str, settings: dict[str, Any], seed: int, ready: Any) -> None:
+def _controller_main(
+    sock: socket.socket, scenario: dict[str, Any], name: str, settings: dict[str, Any], seed: int, ready: Any
+) -> None:
     from planbench.field.threads import limit_threads
     from planbench.reactive.bench import serve_run
 

@@ -163,7 +163,10 @@ class GridRing:
             _, old_cells, old_values = held
             clear = np.setdiff1d(old_cells, cells, assume_unique=True)
             at = np.searchsorted(old_cells, cells).clip(max=max(len(old_cells) - 1, 0))
-            same = (old_cells[at] == cells) & (old_values[at] == values) if len(old_cells) else np.zeros(len(cells), bool)
+            if len(old_cells):
+                same = (old_cells[at] == cells) & (old_values[at] == values)
+            else:
+                same = np.zeros(len(cells), bool)
             changed = ~same
             fresh = False
         self._held[j] = (grid.shape, cells, values)

@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from planbench.datasets import load_problem
-from planbench.errors import PlanbenchError, ProblemFileError, ScenarioFileError
+from planbench.errors import PlanbenchError, ProblemFileError, ResourceLimitError, ScenarioFileError
+from planbench.files import InputFileError, read_json
 from planbench.problem import Problem
 from planbench.reactive.motion import Motion
 from planbench.scene import Obstacle, Scene
@@ -41,6 +42,12 @@ __all__ = ["CameraSettings", "MovingObstacle", "Scenario", "SensingSettings", "S
 
 SCENARIO_FORMAT = "planbench-scenario/1"
 SENSING_MODELS = ("truth", "depth")
+MAX_TICKS = 1_000_000
+"""The most control ticks, and the most sensor frames, of one run (100 Hz for 2.8 hours; the shipped
+scenarios have 2000): a run allocates its path and commands for every tick before it starts, and
+captures every frame due at a tick (a 1e12 Hz sensor filled 7.7 GB before the run's time limit)."""
+MAX_CAMERA_PIXELS = 1 << 22
+"""The most pixels of one simulated depth camera (4 million, 2048 x 2048): each frame casts one ray per pixel."""
 
 
 @dataclass(frozen=True)
@@ -76,8 +83,17 @@ class CameraSettings:
             raise ValueError("camera look_at must differ from its position")
         if np.linalg.norm(np.cross(axis, np.asarray(self.up, dtype=float))) < 1e-9:
             raise ValueError("camera up must not be parallel to its viewing direction")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"camera {name} must be a whole number of pixels, got {v!r}")
         if int(self.width) < 1 or int(self.height) < 1:
             raise ValueError(f"camera image must be at least 1x1 pixels, got {self.width}x{self.height}")
+        if int(self.width) * int(self.height) > MAX_CAMERA_PIXELS:
+            raise ValueError(
+                f"camera image of {self.width}x{self.height} pixels is more than the {MAX_CAMERA_PIXELS:,} "
+                "planbench simulates (planbench.reactive.scenario.MAX_CAMERA_PIXELS)"
+            )
         if not 0 < self.fov < 180:
             raise ValueError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
         if not (math.isfinite(self.max_range) and self.max_range > 0):
@@ -222,6 +238,16 @@ class Scenario:
             raise ValueError(f"control_rate must be > 0 [Hz], got {self.control_rate}")
         if not (math.isfinite(self.horizon) and self.horizon > 0):
             raise ValueError(f"horizon must be > 0 [s], got {self.horizon}")
+        for what, rate in (("control ticks", self.control_rate), ("sensor frames", self.sensing.rate)):
+            if self.horizon * rate > MAX_TICKS:
+                raise ResourceLimitError(
+                    f"a horizon of {self.horizon:g} s at {rate:g} Hz is {self.horizon * rate:.3g} {what}, more than "
+                    f"the {MAX_TICKS:,} of a run (planbench.reactive.scenario.MAX_TICKS)"
+                )
+        from planbench.occupancy import grid_shape
+        from planbench.reactive.sensing import default_bounds
+
+        grid_shape(*default_bounds(self.problem.robot, self.sensing.resolution), self.sensing.resolution)
         names = [o.name for o in self.problem.scene.obstacles] + [m.name for m in self.moving]
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
@@ -320,11 +346,9 @@ class Scenario:
     def load(cls, path: str | Path) -> Scenario:
         p = Path(path)
         try:
-            data = json.loads(p.read_text())
-        except OSError as exc:
-            raise ScenarioFileError(p, f"cannot read: {exc.strerror}") from None
-        except json.JSONDecodeError as exc:
-            raise ScenarioFileError(p, f"not valid JSON: {exc}") from None
+            data = read_json(p)
+        except InputFileError as exc:
+            raise ScenarioFileError(p, exc.problem) from None
         return cls.from_dict(data, str(p), p.parent)
 
     def __repr__(self) -> str:

@@ -67,7 +67,7 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
         if not files:
             raise PlanbenchError(f"{path}: folder holds no scenario .json files")
         return [Scenario.load(f) for f in files]
-    if path.is_file():
+    if path.is_file() or (path.exists() and text.endswith(".json")):  # a FIFO or a device: named by Scenario.load
         return [Scenario.load(path)]
     raise UnknownNameError("scenario set or file", text, ["dynamic", "dynamic-smoke", "dynamic:<family>[/<range>]"])
 
