@@ -666,11 +666,10 @@ def _motion_weights(robot: Any, gm: Any, n_robot: int, pairs: list[tuple[int, in
             out[i] = 1.0 if kinds[i] == "prismatic" else w
         return out
 
-    cache: dict[int, dict[int, float]] = {}
+    weights = {i: body_weights(i) for i in {i for pair in pairs for i in pair if i < n_robot}}
     W = np.zeros((len(pairs), nq))
     for k, (a, b) in enumerate(pairs):
-        wa = cache.setdefault(a, body_weights(a)) if a < n_robot else {}
-        wb = cache.setdefault(b, body_weights(b)) if b < n_robot else {}
+        wa, wb = weights.get(a, {}), weights.get(b, {})
         for j in set(wa) ^ set(wb):  # shared joints move both bodies rigidly
             W[k, model.joints[j].idx_q] = wa.get(j, 0.0) + wb.get(j, 0.0)
     return W

@@ -198,9 +198,6 @@ class Registry:
         self._specs[name] = spec
         return spec
 
-    def unregister(self, name: str) -> None:
-        self._specs.pop(name, None)
-
     def names(self) -> list[str]:
         self._ensure_discovered()
         return sorted(self._specs)

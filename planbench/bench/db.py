@@ -58,7 +58,7 @@ import sqlite3
 import stat
 import sys
 import urllib.parse
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -643,7 +643,3 @@ def _float_columns() -> set[str]:
 
 
 _FLOAT_COLUMNS = _float_columns()
-
-
-def iter_keys(rows: Iterable[dict[str, Any]]) -> list[RunKey]:
-    return [(r["suite"], r["problem"], r["planner"], int(r["seed"])) for r in rows]
