@@ -101,7 +101,8 @@ def warm_in_background() -> None:
     runs at a time (a lock file next to the marker)."""
     try:
         # start_new_session: it outlives the command that started it, untouched by its Ctrl-C
-        subprocess.Popen(*_compile_command(), start_new_session=True)
+        args, quiet = _compile_command()
+        subprocess.Popen(args, start_new_session=True, **quiet)
     except OSError:  # no process to spare: the next command finds the cache cold again, nothing worse
         pass
 

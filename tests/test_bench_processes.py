@@ -20,7 +20,7 @@ import pytest
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import OUTPUT_HEADER, process_alive
-from planbench.bench.runner import WRITABLE_VARIABLE
+from planbench.bench.sandbox import WRITABLE_VARIABLE
 from planbench.bench.suite import parse_suite
 
 TESTS = Path(__file__).parent

@@ -14,7 +14,8 @@ import pytest
 import planbench
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
-from planbench.bench.runner import WRITABLE_VARIABLE, _fields_from
+from planbench.bench.runner import _fields_from
+from planbench.bench.sandbox import WRITABLE_VARIABLE
 from planbench.bench.suite import parse_suite
 from planbench.bench.wire import BadField, BadMessage, clean_result, decode, encode
 from planbench.bench.worker import error_fields

@@ -42,7 +42,7 @@ import pytest
 import planbench
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive
-from planbench.bench.runner import WRITABLE_VARIABLE
+from planbench.bench.sandbox import WRITABLE_VARIABLE
 
 pytestmark = pytest.mark.slow
 

@@ -25,7 +25,7 @@ import planbench.cli as cli
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive
-from planbench.bench.runner import WRITABLE_VARIABLE
+from planbench.bench.sandbox import WRITABLE_VARIABLE
 from planbench.bench.suite import parse_suite
 
 # Read when Ray is imported (so set before): every Ray process of these tests binds 127.0.0.1.

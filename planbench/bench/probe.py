@@ -24,7 +24,7 @@ import time
 from typing import Any
 
 from planbench.bench import sandbox
-from planbench.bench.procs import Cgroups, detach, join_cgroup, kill_group, limit_threads
+from planbench.bench.procs import Cgroups, detach, join_cgroup, kill_group, limit_threads, thread_environment
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadMessage, decode, encode
 from planbench.errors import InvalidSettingError, PlanbenchError
 from planbench.registry import CONTROLLERS, REGISTRY
@@ -95,21 +95,19 @@ def probe_planners(
     Raises :class:`PlanbenchError` when the probe dies, answers garbage, or takes over ``timeout`` s
     (a plugin whose import hangs). ``kind="controller"``: the entries are controllers.
     """
-    from planbench.bench.runner import WRITABLE_VARIABLE, _thread_environment
-
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=True)
     scratch = tempfile.mkdtemp(prefix="planbench-probe-")
     cgroups = Cgroups()
     cgroup = cgroups.make("probe")
-    writable = tuple(p for p in os.environ.get(WRITABLE_VARIABLE, "").split(os.pathsep) if p)
+    writable = sandbox.writable_folders()
     proc = ctx.Process(
         target=_probe_main,
         args=(child, entries, os.getpid(), kind, scratch, cgroup, writable),
         daemon=True,
         name="planbench-probe",
     )
-    with _thread_environment(1):
+    with thread_environment(1):
         proc.start()
     child.close()
     try:

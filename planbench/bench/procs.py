@@ -38,6 +38,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 
 from planbench.field.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
 from planbench.field.threads import limit_threads as limit_compute_threads
@@ -53,6 +54,7 @@ __all__ = [
     "limit_threads",
     "process_alive",
     "start_reaper",
+    "thread_environment",
     "watch_parent",
 ]
 
@@ -413,3 +415,19 @@ class OutputFile:
         before = self.dropped + max(0, size - limit)
         text = data.decode("utf-8", errors="replace").replace("\x00", "\\x00")
         return (f"[... {before} bytes before this]\n" if before else "") + text
+
+
+@contextlib.contextmanager
+def thread_environment(threads: int) -> Iterator[None]:
+    """The thread-pool variables set while a child starts, so that its libraries start no pool
+    threads on import: the worker must hold a single thread when it enters its sandbox."""
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update({name: str(threads) for name in THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value

@@ -80,11 +80,10 @@ from typing import Any
 from planbench import compile_cache
 from planbench.bench import sandbox, snapshot
 from planbench.bench.kinds import RunKind, kind_of
-from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group
+from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group, thread_environment
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
-from planbench.field.threads import THREAD_VARIABLES
 from planbench.harness import answered_late, late_message
 from planbench.reactive.isolation import make_undumpable
 from planbench.validate import CLAIMED_SUCCESS, IN_TIME, Evaluation
@@ -94,10 +93,6 @@ log = logging.getLogger(__name__)
 __all__ = ["Runner", "default_jobs", "failure_record", "record_from"]
 
 Record = dict[str, Any]
-WRITABLE_VARIABLE = "PLANBENCH_SANDBOX_WRITABLE"
-"""Environment variable: folders (``os.pathsep``-separated) that sandboxed plugins may write too,
-e.g. a plugin's own log folder. Each is the user's choice to trust every plugin of the benchmark
-with it; never the results file's folder."""
 RECV_TIMEOUT = 5.0
 """[s] a child that stops in the middle of a message for this long is treated as broken."""
 MAX_MESSAGES_PER_WAIT = 64
@@ -162,9 +157,9 @@ def _charge_parent_time(record: Record, observed: float | None) -> None:
     figure (planner code ran there, and could have patched its clock) is kept in ``info`` as
     ``worker_planning_time``, for information only.
 
-    The phase runs from the worker's "planning starts" message to its result, each stamped when
-    this loop woke to read it: the planner's query, the harness's bookkeeping and the hand-off of
-    the result (tens of microseconds; ``docs/measurements.md``).
+    The phase runs from the go this process sent the waiting worker after its setup to the result,
+    stamped when this loop woke to read it: the planner's query, the harness's bookkeeping and the
+    hand-off of the result (tens of microseconds; ``docs/measurements.md``).
     """
     evaluation = record.get("evaluation") or {}
     if observed is None or "planning_time" not in evaluation:
@@ -310,13 +305,13 @@ class Runner:
         self.sandboxed = sandboxed
         """Workers write only to their scratch folders and signal no process outside
         (:mod:`planbench.bench.sandbox`); where the kernel cannot, they run without, with a warning."""
-        self.writable = tuple(p for p in os.environ.get(WRITABLE_VARIABLE, "").split(os.pathsep) if p)
+        self.writable = sandbox.writable_folders()
         """Folders plugins may write besides their scratch folder (:data:`WRITABLE_VARIABLE`)."""
         self._cgroups: Cgroups | None = None
         self._snapshots: dict[tuple[str, str], dict[str, Any]] = {}
+        """(entry, reference) -> what the validators judge by (:func:`planbench.bench.snapshot.take`)."""
         self._hooks: dict[str, tuple[int, int, int]] = {}
         """The interpreter's start-up hooks when the first slot started (:func:`startup_hooks`)."""
-        """(entry, reference) -> what the validators judge by (:func:`planbench.bench.snapshot.take`)."""
         self._warned: set[str] = set()
         self.warm_numba = True
         """Fill numba's shared cache of planbench's kernels before the first worker starts (once per
@@ -553,7 +548,7 @@ class Runner:
             daemon=True,
             name=f"planbench-{kind}-{self._count}",
         )
-        with _thread_environment(self.threads):
+        with thread_environment(self.threads):
             proc.start()
         child.close()
         _set_recv_timeout(parent, RECV_TIMEOUT)
@@ -873,22 +868,6 @@ def _next_for(plugin: tuple[str, ...] | None, pending: deque[RunTask]) -> int:
             if plugin_of(task) == plugin:
                 return i
     return 0
-
-
-@contextlib.contextmanager
-def _thread_environment(threads: int) -> Any:
-    """The thread-pool variables set while a child starts, so that its libraries start no pool
-    threads on import: the worker must hold a single thread when it enters its sandbox."""
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update({name: str(threads) for name in THREAD_VARIABLES})
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
 
 
 def _fields_from(header: dict[str, Any], arrays: dict[str, Any]) -> dict[str, Any]:

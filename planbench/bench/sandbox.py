@@ -33,7 +33,16 @@ import os
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-__all__ = ["SandboxUnavailable", "Restriction", "abi_version", "available", "enter", "restrict"]
+__all__ = [
+    "WRITABLE_VARIABLE",
+    "SandboxUnavailable",
+    "Restriction",
+    "abi_version",
+    "available",
+    "enter",
+    "restrict",
+    "writable_folders",
+]
 
 _CREATE_RULESET, _ADD_RULE, _RESTRICT_SELF = 444, 445, 446  # the same on every architecture
 _CREATE_RULESET_VERSION = 1
@@ -49,6 +58,15 @@ _FILE_RIGHTS = _EXECUTE | _WRITE_FILE | _READ_FILE | _TRUNCATE | _IOCTL_DEV
 """The rights that apply to a file (the others apply to a directory's entries)."""
 
 WRITABLE_DEVICES = ("/dev/null", "/dev/zero", "/dev/full")
+WRITABLE_VARIABLE = "PLANBENCH_SANDBOX_WRITABLE"
+"""Environment variable: folders (``os.pathsep``-separated) that sandboxed plugins may write too,
+e.g. a plugin's own log folder. Each is the user's choice to trust every plugin of the benchmark
+with it; never the results file's folder."""
+
+
+def writable_folders() -> tuple[str, ...]:
+    """The folders :data:`WRITABLE_VARIABLE` names."""
+    return tuple(p for p in os.environ.get(WRITABLE_VARIABLE, "").split(os.pathsep) if p)
 
 
 class SandboxUnavailable(OSError):
