@@ -39,7 +39,7 @@ def bench(tree: Path, args: list[str], jobs: int) -> tuple[float, int, float, in
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.db"
         env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-        command = [sys.executable, "-m", "planbench.cli", "bench", *args, "--out", str(db), "--jobs", str(jobs)]
+        command = [sys.executable, "-m", "planbench.cli.main", "bench", *args, "--out", str(db), "--jobs", str(jobs)]
         t0 = time.perf_counter()
         subprocess.run([*command, "--no-progress"], env=env, cwd=tmp, check=True, capture_output=True)
         wall = time.perf_counter() - t0

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from planbench.bench.closed_loop_plots import scenario_keys
 from planbench.bench.db import ResultsDB
 from planbench.bench.report import wilson_interval
-from planbench.reactive.plots import scenario_keys
 
 ORDER = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
 

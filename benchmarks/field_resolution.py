@@ -28,7 +28,7 @@ import numpy as np
 
 from planbench.field import PROFILES, KernelSpec, lazy_field
 from planbench.field.scene_field import standoff_gain
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 
 SPEED_MAX = 0.25  # the loop's default cruising speed [m/s]
 STANDOFF = 0.10  # the loop's default stand-off [m]

@@ -1,7 +1,7 @@
 """Fuzz planbench's command line with malformed input, and say which inputs are not refused cleanly.
 
-Every case runs one CLI command in a fresh process (``python -m planbench.cli ...``, or
-``python -m planbench.generate``) with a wall-clock timeout and an address-space limit, and is
+Every case runs one CLI command in a fresh process (``python -m planbench.cli.main ...``, or
+``python -m planbench.problems.generate``) with a wall-clock timeout and an address-space limit, and is
 classified:
 
 - ``good``: exit code 2 and a one-line named error (``planbench: error: ...`` or argparse's
@@ -49,7 +49,7 @@ AS_LIMIT = 8 << 30  # address space of a case's process [B]: a runaway allocatio
 class Case:
     name: str
     args: list[str]
-    module: str = "planbench.cli"
+    module: str = "planbench.cli.main"
     expect: str = "refused"  # "refused": exit 2 expected; "any": exit 0/1 is fine too
     result: dict[str, Any] = field(default_factory=dict)
 
@@ -106,7 +106,7 @@ def _ply_binary(path: Path, claimed: int, points: np.ndarray) -> None:
 
 def _results_db(path: Path) -> None:
     from planbench.bench.db import ResultsDB
-    from planbench.bench.runner import failure_record
+    from planbench.bench.records import failure_record
 
     with ResultsDB(path) as db:
         db.put_suite("s", {"planners": []}, "{}")
@@ -570,7 +570,7 @@ def make_inputs(w: Path) -> None:
 def cases() -> list[Case]:
     out: list[Case] = []
 
-    def add(name: str, *args: str, module: str = "planbench.cli", expect: str = "refused") -> None:
+    def add(name: str, *args: str, module: str = "planbench.cli.main", expect: str = "refused") -> None:
         out.append(Case(name, list(args), module, expect))
 
     plan_files = [
@@ -806,8 +806,8 @@ def cases() -> list[Case]:
               [""]):  # fmt: skip
         add(f"check {' '.join(a)}", "check", *a, expect="any" if "1e308" in a else "refused")
 
-    # python -m planbench.generate (the maintainers' regeneration tool)
-    g = "planbench.generate"
+    # python -m planbench.problems.generate (the maintainers' regeneration tool)
+    g = "planbench.problems.generate"
     add("generate --families nope", "--out", "gen_out", "--families", "nope", module=g)
     add("generate --robots nope", "--out", "gen_out", "--robots", "nope", "-n", "1", module=g)
     add("generate -n -1", "--out", "gen_out", "-n", "-1", module=g)

@@ -77,7 +77,7 @@ def run_one(problem_id: str, planner: str, settings: dict[str, object], time_lim
     import numpy as np
 
     import planbench
-    from planbench.datasets import load_problems
+    from planbench.problems.datasets import load_problems
 
     (problem,) = load_problems(problem_id)
     if settings.pop("_before", False):
@@ -119,7 +119,7 @@ def main() -> None:
         print("RESULT " + json.dumps(run_one(problem_id, args.planner, settings, args.time_limit, args.seed)))
         return
 
-    from planbench.datasets import load_problems
+    from planbench.problems.datasets import load_problems
 
     variants = dict(parse_variant(v) for v in args.variant) if args.variant else dict(DEFAULT_VARIANTS)
     env = dict(os.environ)

@@ -33,8 +33,8 @@ import numpy as np
 from _bench import run_suite
 
 import planbench
-from planbench.collision import CollisionChecker
-from planbench.datasets import load_problems
+from planbench.checking.collision import CollisionChecker
+from planbench.problems.datasets import load_problems
 
 
 def _per_call(fn, Q) -> float:  # type: ignore[no-untyped-def]

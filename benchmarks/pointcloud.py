@@ -1,7 +1,7 @@
 """Point-cloud scenes: what a 50k-point depth-camera cloud costs to load, voxelize and validate
 against, next to the old route of one box obstacle per occupied cell.
 
-The cloud: the shipped example's cameras (``planbench.depth_example``) at 400x300 pixels, the
+The cloud: the shipped example's cameras (``planbench.reactive.depth_example``) at 400x300 pixels, the
 first ``--points`` points (default 50,000) kept unthinned, as a ``pointcloud`` obstacle of point
 radius 5 mm (1 cm cubes). Printed (median of ``--repeats``):
 
@@ -28,10 +28,10 @@ from dataclasses import replace
 from pathlib import Path
 
 import planbench
-from planbench.depth_example import EXAMPLE, example_cloud
-from planbench.occupancy import scene_grid
-from planbench.pointcloud import VoxelCloud, load_cloud, read_points, write_points
+from planbench.geometry.occupancy import scene_grid
+from planbench.geometry.pointcloud import VoxelCloud, load_cloud, read_points, write_points
 from planbench.problem import Problem
+from planbench.reactive.depth_example import EXAMPLE, example_cloud
 from planbench.scene import Obstacle, Scene
 
 PLANNERS = ("straight-line", "ompl-rrtconnect", "matrix-field")

@@ -23,7 +23,7 @@ from _bench import run_suite, write_problems
 
 import planbench
 from planbench import Problem, Scene
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.metrics import densify
 from planbench.scene import Obstacle
 

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 import planbench
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.scenario import CameraSettings, SensingSettings
 from planbench.reactive.sensing import Sensor, camera_rays
 from planbench.scene import Obstacle, Scene

@@ -1,6 +1,6 @@
 """Wall time of a first ``planbench plan`` (issue 19, item 9): numba's cache cold (an empty
 ``NUMBA_CACHE_DIR``, as on a fresh install), then warm, and cold with ``--set backend=numba`` (the
-compilation in the foreground, as before planbench.compile_cache). Medians of ``--repeat`` runs.
+compilation in the foreground, as before planbench.runtime.compile_cache). Medians of ``--repeat`` runs.
 
     python benchmarks/startup.py [--problem mbm:box/0001] [--planner matrix-field] [--repeat 3]
 """

@@ -9,7 +9,7 @@ parallel call) and times, with warm caches, medians of repeated calls:
 - ``lazy par``: 30-point lazy field through the parallel kernel (what every call did before the
   size threshold, and what a large call still does);
 - ``lazy_field``: the same call through :func:`planbench.field.lazy_field` (serial below
-  :data:`planbench.field.threads.SERIAL_MAX_CELLS`);
+  :data:`planbench.runtime.threads.SERIAL_MAX_CELLS`);
 - ``full``: the full field of a 128^3 grid (about 10 % occupied), float32, default margin.
 
 "quiet" is the machine as it is; "contended" adds one busy-loop process per core (``--hogs``),
@@ -18,7 +18,7 @@ core count looks like to each worker (its parent, validator and planners add mor
 each call's median, and its mean (a stall of a whole time slice now and then shows in the mean,
 and planning times add up calls); each the median over ``--rounds`` rounds, and contended / quiet.
 Policies: numba's default (all cores, its default layer); the OpenMP layer with passive waiting;
-the workqueue layer; one thread (:func:`planbench.field.threads.limit_threads`, the benchmark
+the workqueue layer; one thread (:func:`planbench.runtime.threads.limit_threads`, the benchmark
 workers' policy).
 """
 
@@ -76,14 +76,14 @@ def child(spec: dict[str, Any]) -> dict[str, Any]:
     import numpy as np  # before limit_threads, as in a benchmark worker
 
     if spec.get("limit"):
-        from planbench.field.threads import limit_threads
+        from planbench.runtime.threads import limit_threads
 
         limit_threads(int(spec["limit"]))
     from planbench.field import _compiled as compiled
     from planbench.field import full_field, lazy_field
     from planbench.field.bench import RESOLUTION, bench_grid
     from planbench.field.kernels import Kernels
-    from planbench.field.threads import thread_report
+    from planbench.runtime.threads import thread_report
 
     n, length, points = spec["size"], spec["length"], spec["points"]
     grid = bench_grid(n, "float32", 0)
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.rounds):
         print(f"round {i + 1}/{args.rounds}: quiet, then {args.hogs} busy processes", file=sys.stderr)
         rounds.append({"quiet": run_policies(args, False), "contended": run_policies(args, True)})
-    from planbench.field.threads import SERIAL_MAX_CELLS, lazy_cells
+    from planbench.runtime.threads import SERIAL_MAX_CELLS, lazy_cells
 
     cells = lazy_cells(args.points, max(args.length // 2, 0))
     print(

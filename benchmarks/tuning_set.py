@@ -15,7 +15,7 @@ import argparse
 
 from _bench import write_problems
 
-from planbench import generators
+from planbench.problems import generators
 from planbench.robot import load_robot
 
 

@@ -22,8 +22,8 @@ import numpy as np
 from _bench import run_suite
 
 import planbench
-from planbench.certified import CertifiedChecker
-from planbench.collision import CollisionChecker
+from planbench.checking.certified import CertifiedChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.metrics import densify
 from planbench.validate import ValidationSettings
 

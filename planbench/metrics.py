@@ -1,4 +1,5 @@
-"""Path metrics as plain functions of arrays, so each has an exact, testable definition."""
+"""Path metrics as plain functions of arrays, so each has an exact, testable definition; and the
+interval of a success rate over runs."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ __all__ = [
     "execution_duration",
     "limited_duration",
     "turning_angle",
+    "wilson_interval",
 ]
 
 
@@ -105,3 +107,17 @@ def turning_angle(path: np.ndarray, min_segment: float = 1e-9) -> float:
         return 0.0
     cos = np.clip(np.einsum("ij,ij->i", d[:-1], d[1:]), -1.0, 1.0)
     return float(np.arccos(cos).sum())
+
+
+def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
+
+    Unlike the normal approximation it stays inside [0, 1] and is sensible at 0 or n successes.
+    (NaN, NaN) without runs.
+    """
+    if n <= 0:
+        return (math.nan, math.nan)
+    from scipy.stats import binomtest  # on use: scipy.stats takes a second to import
+
+    ci = binomtest(successes, n).proportion_ci(confidence, method="wilson")
+    return (float(ci.low), float(ci.high))

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import PlanbenchError, ProblemFileError
 from planbench.robot import (
     Robot,

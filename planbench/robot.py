@@ -42,7 +42,7 @@ import pinocchio as pin
 
 import planbench_robots
 from planbench.errors import RobotFileError, UnknownNameError
-from planbench.files import MAX_TEXT_BYTES, InputFileError, read_text, regular_file
+from planbench.files.inputs import MAX_TEXT_BYTES, InputFileError, read_text, regular_file
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -19,7 +19,7 @@ which are those of ``shape_msgs/SolidPrimitive``, URDF and coal)::
 ``orientation_xyzw`` is a unit quaternion, scalar last, mapping the obstacle's local axes into the
 scene frame (``p_scene = R p_local + position``); it defaults to the identity. A mesh or point
 cloud path is relative to the JSON file. A point cloud's geometry is the union of the cubes of edge
-``2 radius`` on a lattice that hold a point (its octree's leaves): :mod:`planbench.pointcloud`.
+``2 radius`` on a lattice that hold a point (its octree's leaves): :mod:`planbench.geometry.pointcloud`.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.errors import ProblemFileError
-from planbench.files import InputFileError, read_json, regular_file
-from planbench.pointcloud import VoxelCloud, load_cloud
+from planbench.files.inputs import InputFileError, read_json, regular_file
+from planbench.geometry.pointcloud import VoxelCloud, load_cloud
 
 __all__ = ["Obstacle", "Scene", "SHAPES"]
 
@@ -334,7 +334,7 @@ def _mesh_problem(path: str, mtime_ns: int, size: int) -> str:
 
 def _read_json(path: Path) -> Any:
     """The JSON in a problem or scene file (a regular file of at most
-    :data:`planbench.files.MAX_TEXT_BYTES`); :class:`ProblemFileError` naming it otherwise."""
+    :data:`planbench.files.inputs.MAX_TEXT_BYTES`); :class:`ProblemFileError` naming it otherwise."""
     try:
         return read_json(path)
     except InputFileError as exc:

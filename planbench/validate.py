@@ -9,7 +9,7 @@ voxel grid) and the robot's limits, and success means every check holds:
   path before any is built (:func:`validation_states`), so a huge path costs no more than counting;
 - every waypoint is inside the joint limits (so is every point between them: the limits are a box);
 - every segment (linear interpolation in joint space) is *proven* free of collisions with the scene
-  and of self-collisions, by :class:`planbench.certified.CertifiedChecker`: distance-based
+  and of self-collisions, by :class:`planbench.checking.certified.CertifiedChecker`: distance-based
   conservative advancement, no sampling resolution, every distance at least ``required_clearance``;
 - for a trajectory with time stamps, the joint velocities of every segment are within the limits;
 - the final end-effector pose is within the position and orientation tolerances of the goal pose,
@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from planbench import metrics
-from planbench.certified import CertificationSettings, CertifiedChecker
+from planbench.checking.certified import CertificationSettings, CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
 from planbench.problem import Problem, pose_error
 
@@ -69,7 +69,7 @@ class ValidationSettings:
     required_clearance: float = 0.0
     """Smallest distance [m] allowed between the robot and an obstacle, or between two of its links,
     anywhere along the path, on top of the certified checker's 1 um tolerance: with 0, touching
-    (closer than 1 um) is a collision (:class:`planbench.certified.CertificationSettings`)."""
+    (closer than 1 um) is a collision (:class:`planbench.checking.certified.CertificationSettings`)."""
     clearance_gap: float = 1e-3
     """The certified lower bound of the path's clearance is refined to within this [m] of the
     smallest distance found (a measurement setting; it never changes a verdict)."""

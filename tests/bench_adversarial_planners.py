@@ -20,8 +20,8 @@ import numpy as np
 
 import planbench
 import planbench.bench.worker
-import planbench.certified
-import planbench.collision
+import planbench.checking.certified
+import planbench.checking.collision
 import planbench.validate
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
@@ -46,9 +46,9 @@ class PatchingPlanner(Planner):
         def far(self, *args, **kwargs):
             return 1.0
 
-        planbench.collision.CollisionChecker.in_collision = free
-        planbench.collision.CollisionChecker.collisions = lambda self, *a, **k: []
-        planbench.collision.CollisionChecker.clearance = far
+        planbench.checking.collision.CollisionChecker.in_collision = free
+        planbench.checking.collision.CollisionChecker.collisions = lambda self, *a, **k: []
+        planbench.checking.collision.CollisionChecker.clearance = far
         real = planbench.validate.evaluate
 
         def always_success(problem, result, settings=None):
@@ -57,9 +57,9 @@ class PatchingPlanner(Planner):
 
         planbench.validate.evaluate = always_success
         planbench.evaluate = always_success
-        for name in dir(planbench.certified.CertifiedChecker):
+        for name in dir(planbench.checking.certified.CertifiedChecker):
             if name.startswith(("check", "certify", "verify", "path", "segment")):
-                setattr(planbench.certified.CertifiedChecker, name, lambda self, *a, **k: None)
+                setattr(planbench.checking.certified.CertifiedChecker, name, lambda self, *a, **k: None)
         result = PlanResult(PlanStatus.SUCCESS, path=straight_path(problem), target="configuration")
         # proof that the patch works in this process: validation here would call the path valid
         fooled = planbench.evaluate(problem, result).success

@@ -21,9 +21,9 @@ import pytest
 
 import planbench
 from planbench.bench.db import ResultsDB
-from planbench.bench.runner import failure_record
+from planbench.bench.records import failure_record
 from planbench.bench.suite import expand_problems
-from planbench.cli import main
+from planbench.cli.main import main
 from planbench.errors import (
     DuplicateProblemError,
     ProblemFileError,
@@ -34,7 +34,7 @@ from planbench.errors import (
 from planbench.problem import Problem
 
 TESTS = Path(__file__).parent
-PLANBENCH = [sys.executable, "-m", "planbench.cli"]
+PLANBENCH = [sys.executable, "-m", "planbench.cli.main"]
 
 
 def _fields(problem: str, seed: int, suite: str = "s") -> dict:

@@ -28,15 +28,15 @@ import pytest
 
 import planbench
 from planbench.bench.db import ResultsDB
-from planbench.bench.runner import failure_record
-from planbench.cli import main
+from planbench.bench.records import failure_record
+from planbench.cli.main import main
 from planbench.errors import ProblemFileError, ResourceLimitError
-from planbench.files import InputFileError, read_json
-from planbench.occupancy import MAX_GRID_CELLS, OccupancyGrid, grid_shape
-from planbench.pointcloud import MAX_POINTS, VoxelCloud
+from planbench.files.inputs import InputFileError, read_json
+from planbench.geometry.occupancy import MAX_GRID_CELLS, OccupancyGrid, grid_shape
+from planbench.geometry.pointcloud import MAX_POINTS, VoxelCloud
 
 TESTS = Path(__file__).parent
-PLANBENCH = [sys.executable, "-m", "planbench.cli"]
+PLANBENCH = [sys.executable, "-m", "planbench.cli.main"]
 
 
 def _refused(args: list[str], capsys, *needles: str) -> str:
@@ -250,7 +250,7 @@ def _cover_by_offsets(cloud, R, position, origin, resolution, i0, i1):  # noqa: 
     """VoxelCloud.cover's offsets loop, whatever the cubes' size (the reference)."""
     import itertools
 
-    from planbench.overlap import cubes_overlap_boxes
+    from planbench.geometry.overlap import cubes_overlap_boxes
 
     i0, i1 = np.asarray(i0), np.asarray(i1)
     out, h = np.zeros(tuple(i1 - i0)), 0.5 * cloud.cell
@@ -370,11 +370,11 @@ def test_check_of_an_unknown_controller_exits_2(capsys):
     ids=lambda a: " ".join(a),
 )
 def test_the_generate_tool_names_bad_arguments(args, tmp_path, capsys):
-    from planbench.generators import main as generate
+    from planbench.problems.generators import main as generate
 
     assert generate(["--out", str(tmp_path / "gen"), *args]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("python -m planbench.generate: error: ") and "Traceback" not in err
+    assert err.startswith("python -m planbench.problems.generate: error: ") and "Traceback" not in err
 
 
 # -- outputs ----------------------------------------------------------------------------------------------

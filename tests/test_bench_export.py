@@ -12,7 +12,7 @@ import pytest
 
 from planbench.bench.db import ResultsDB
 from planbench.bench.export import RUN_PROPERTIES, write_ompl_logs, write_planner_arena, write_runs_csv
-from planbench.bench.runner import failure_record
+from planbench.bench.records import failure_record
 from planbench.bench.task import RunTask
 from planbench.bench.worker import run_one
 
@@ -120,9 +120,9 @@ def test_runs_csv_has_every_run_and_no_path_blobs(rows, tmp_path):
 
 
 def test_results_load_as_a_dataframe_with_paths_and_decoded_json(rows):
-    import planbench.results
+    import planbench.bench.results
 
-    df = planbench.results.load(rows_db[0])
+    df = planbench.bench.results.load(rows_db[0])
     assert len(df) == len(rows) == 9 and set(df.planner) == {"straight-line", "noisy", "crashy"}
     ok = df[df.success]
     assert len(ok) >= 1 and all(p.ndim == 2 and p.shape[1] == 7 for p in ok.path)
@@ -130,18 +130,18 @@ def test_results_load_as_a_dataframe_with_paths_and_decoded_json(rows):
     assert isinstance(df.settings.iloc[0], dict) and df.settings.iloc[0]["time_limit"] == 1.0
     rate = df.groupby("planner")["success"].mean()
     assert rate["crashy"] == 0.0
-    assert "path" not in planbench.results.load(rows_db[0], paths=False).columns
+    assert "path" not in planbench.bench.results.load(rows_db[0], paths=False).columns
 
 
 def test_parquet_and_csv_with_paths_round_trip_the_paths(rows, tmp_path):
     import pandas
 
-    import planbench.results
-    from planbench.cli import main
+    import planbench.bench.results
+    from planbench.cli.main import main
 
     assert main(["export", str(rows_db[0]), "--format", "parquet", "--out", str(tmp_path / "r.parquet")]) == 0
     back = pandas.read_parquet(tmp_path / "r.parquet")
-    df = planbench.results.load(rows_db[0])
+    df = planbench.bench.results.load(rows_db[0])
     assert len(back) == len(df)
     for a, b in zip(df.path, back.path, strict=True):
         assert (a is None and b is None) or np.allclose(a, np.array([list(x) for x in b]))
@@ -153,7 +153,7 @@ def test_parquet_and_csv_with_paths_round_trip_the_paths(rows, tmp_path):
 
 
 def test_a_results_file_from_elsewhere_cannot_put_code_in_a_report(tmp_path):
-    from planbench.cli import main
+    from planbench.cli.main import main
 
     evil = "<script>alert('x')</script>"
     db_path = tmp_path / "evil.db"

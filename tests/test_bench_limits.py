@@ -11,7 +11,7 @@ import planbench
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.suite import parse_suite
-from planbench.cli import main
+from planbench.cli.main import main
 
 FREE = "mbm:table_pick/0001"  # the straight line solves it
 A = "bench_adversarial_planners"

@@ -143,11 +143,11 @@ def test_memory_limit_has_a_default_and_can_be_set_or_disabled():
 def test_bench_memory_limit_option_reaches_the_suite():
     import argparse
 
-    from planbench.bench.commands import add_commands
+    from planbench.cli.bench import add_commands
 
     parser = argparse.ArgumentParser()
     add_commands(parser.add_subparsers(dest="command"))
-    from planbench.bench.commands import _bench_suite
+    from planbench.cli.bench import _bench_suite
 
     for given, expected in (("none", 0.0), ("1500", 1500.0)):
         args = parser.parse_args(["bench", "--problems", "mbm:box/0001", "--memory-limit", given])

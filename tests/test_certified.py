@@ -1,4 +1,4 @@
-"""The certified checker: segments are proven free, never sampled (planbench.certified)."""
+"""The certified checker: segments are proven free, never sampled (planbench.checking.certified)."""
 
 import math
 
@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 import planbench
 from conftest import box, midpoint_wall
 from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
-from planbench.certified import CertificationSettings, CertifiedChecker
-from planbench.collision import CollisionChecker
+from planbench.checking.certified import CertificationSettings, CertifiedChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.metrics import densify
 
 

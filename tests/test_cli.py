@@ -3,7 +3,7 @@ import json
 import pytest
 
 import planbench
-from planbench.cli import main
+from planbench.cli.main import main
 
 
 def test_plan_prints_validated_metrics_and_writes_json(tmp_path, capsys):

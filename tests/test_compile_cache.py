@@ -1,14 +1,14 @@
 """A first ``planbench plan`` on a cold numba cache computes with numpy and compiles in the
-background (planbench.compile_cache); with the cache warm, or asked for numba, it compiles as before."""
+background (planbench.runtime.compile_cache); with the cache warm, or asked for numba, it compiles as before."""
 
 from __future__ import annotations
 
 import pytest
 
 import planbench
-from planbench import compile_cache
-from planbench.cli import main
-from planbench.field import backend
+from planbench.cli.compile import warm_up
+from planbench.cli.main import main
+from planbench.runtime import backend, compile_cache
 
 
 @pytest.fixture
@@ -40,7 +40,7 @@ def test_numba_by_name_compiles_in_the_foreground(cold):
 
 
 def test_a_warm_cache_changes_nothing(cold, capsys, tmp_path):
-    compile_cache.warm_up()  # numba's cache is warm in the test run: this loads it and writes the marker
+    warm_up()  # numba's cache is warm in the test run: this loads it and writes the marker
     assert compile_cache.is_warm()
     assert compile_cache.marker_path().is_relative_to(tmp_path)
     main(["plan", "--problem", "mbm:box/0001", "--planner", "matrix-field"])
@@ -51,9 +51,9 @@ def test_a_warm_cache_changes_nothing(cold, capsys, tmp_path):
 
 def test_the_marker_follows_the_kernel_sources(cold, monkeypatch):
     before = compile_cache.marker_path()
-    sources = compile_cache._sources()
+    sources = compile_cache.kernel_sources()
     assert len(sources) == 2
-    monkeypatch.setattr(compile_cache, "_sources", lambda: sources[:1])
+    monkeypatch.setattr(compile_cache, "kernel_sources", lambda: sources[:1])
     assert compile_cache.marker_path() != before
 
 
@@ -73,5 +73,5 @@ def test_a_workers_private_cache_is_found_where_numba_looks_for_it(tmp_path):
     """The cache folder planbench computes without importing numba is numba's own."""
     from numba.core import caching
 
-    for src in compile_cache._sources():
+    for src in compile_cache.kernel_sources():
         assert compile_cache.cache_subpath(src) == caching._CacheLocator.get_suitable_cache_subpath(str(src))

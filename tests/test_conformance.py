@@ -18,7 +18,7 @@ def test_every_registered_planner_conforms(name):
     if planbench.REGISTRY.spec(name).distribution != "planbench":
         # an installed third-party plugin: checked in a process of its own, so that one that
         # crashes the interpreter fails its own check, not this test session
-        from planbench.check import check_in_subprocess
+        from planbench.cli.check import check_in_subprocess
 
         outcome = check_in_subprocess(name)
         assert outcome.failure == "" and outcome.findings == []

@@ -48,7 +48,7 @@ pytestmark = pytest.mark.slow
 
 PLUGINS = Path(__file__).parent / "containment_plugins"
 ROOT = Path(planbench.__file__).resolve().parents[1]  # the planbench these tests import
-PLANBENCH = [sys.executable, "-m", "planbench.cli"]
+PLANBENCH = [sys.executable, "-m", "planbench.cli.main"]
 TAG = "PLANBENCH_CONTAINMENT_TAG"
 HOOK_DIR = "PLANBENCH_CONTAINMENT_HOOK"
 BENCH_TIMEOUT = 45.0

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import planbench
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Problem
 from planbench.reactive import Controller, Observation, Scenario, SensingSettings
 from planbench.reactive.control_model import (

@@ -17,7 +17,7 @@ from planbench.errors import InvalidSettingError, PlannerUnavailableError, Unkno
 from planbench.field.full import full_field
 from planbench.field.scene_field import FieldRepulsion
 from planbench.field.surface import surface_grid
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Pose, pose_error
 from planbench.reactive import Controller, Observation

@@ -152,7 +152,7 @@ def test_a_closed_loop_suite_runs_in_workers_and_is_validated_from_its_trajector
 
 
 def test_the_command_line_refuses_bad_scenarios_and_controllers_with_exit_code_2(tmp_path, capsys):
-    from planbench.cli import main
+    from planbench.cli.main import main
 
     bad = tmp_path / "bad.json"
     bad.write_text('{"format": "planbench-scenario/1", "problem": "mbm:box/0001", "horizon": -1}')

@@ -7,9 +7,9 @@ import pytest
 
 from planbench.errors import InvalidConfigError
 from planbench.field import Kernels, KernelSpec, full_field, lazy_field, surface_grid
-from planbench.field.backend import have_numba
 from planbench.field.reference import brute_force_field, dense_field, fft_field, window_sums
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime.backend import have_numba
 
 NEEDS_NUMBA = pytest.mark.skipif(not have_numba(), reason="numba not installed")
 BACKENDS = ["numpy", pytest.param("numba", marks=NEEDS_NUMBA)]

@@ -7,11 +7,11 @@ import argparse
 import numpy as np
 import pytest
 
+from planbench.cli.field import add_commands
 from planbench.field import KernelSpec, full_field
 from planbench.field.bench import BenchSettings, format_table, run
-from planbench.field.commands import add_commands
 from planbench.field.plots import parse_slice, plot_field_slice
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 
 
 def parser() -> argparse.ArgumentParser:

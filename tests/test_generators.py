@@ -1,4 +1,4 @@
-"""planbench.generators: seeded scene families for any arm, and the shipped ``gen:`` set."""
+"""planbench.problems.generators: seeded scene families for any arm, and the shipped ``gen:`` set."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import planbench
-from planbench import generators
-from planbench.datasets import problem_sets
 from planbench.errors import UnknownNameError
+from planbench.problems import generators
+from planbench.problems.datasets import problem_sets
 from planbench.robot import Robot, RobotSettings, example_robot_data_dir
 from planbench.validate import verdict_checker
 
@@ -124,7 +124,7 @@ def test_selectors():
     assert len(ur5) == 100 and {p.robot.name for p in ur5} == {"ur5"}
     windows = planbench.load_problems("gen:*_window/0007")
     assert [p.id for p in windows] == ["gen:panda_window/0007", "gen:ur5_window/0007"]
-    assert planbench.datasets.load_problem("gen:panda_table_clutter/0025").robot.name == "panda"
+    assert planbench.problems.datasets.load_problem("gen:panda_table_clutter/0025").robot.name == "panda"
     assert "gen" in problem_sets() and "ur5_pillars" in problem_sets()["gen"]
 
 

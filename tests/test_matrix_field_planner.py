@@ -7,8 +7,8 @@ import pytest
 
 import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
-from planbench.certified import CertifiedChecker
-from planbench.collision import CollisionChecker
+from planbench.checking.certified import CertifiedChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import UnknownNameError
 from planbench.robot import load_robot

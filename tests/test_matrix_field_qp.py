@@ -9,7 +9,7 @@ from scipy.optimize import lsq_linear
 
 import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot

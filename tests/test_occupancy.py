@@ -109,7 +109,7 @@ def test_any_rule_for_a_rotated_box_matches_coal_cell_by_cell():
 
 
 def test_mesh_obstacles_collide_and_voxelize_through_coal(panda):
-    from planbench.collision import CollisionChecker
+    from planbench.checking.collision import CollisionChecker
     from planbench.robot import example_robot_data_dir
 
     stl = example_robot_data_dir() / "robots" / "panda_description" / "meshes" / "collision" / "link0.stl"

@@ -9,8 +9,8 @@ without broadphase, so both methods must start from the same (empty) history.
 import numpy as np
 import pytest
 
-from planbench.collision import CollisionChecker
-from planbench.datasets import load_problems
+from planbench.checking.collision import CollisionChecker
+from planbench.problems.datasets import load_problems
 
 
 def boundary_configurations(checker, robot, n, seed=0):
@@ -101,7 +101,7 @@ def test_motion_checks_agree_with_the_harness_on_every_segment():
 
 
 def test_verdict_checker_agrees_with_the_harness_and_skips_the_clearance_refinement():
-    from planbench.certified import CertifiedChecker
+    from planbench.checking.certified import CertifiedChecker
     from planbench.validate import ValidationSettings, verdict_checker
 
     (problem,) = load_problems("mbm:bookshelf_small/0002")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import planbench
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.conformance import blocked_problem, check_planner, trivial_problem
 from planbench.errors import InvalidConfigError, UnknownNameError
 from planbench.planner import PlanStatus
@@ -248,7 +248,7 @@ def test_a_search_that_uses_the_whole_time_limit_returns_the_raw_path_unsimplifi
 
 
 def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path_without_repair(blocked, monkeypatch):
-    from planbench.certified import CertifiedChecker, PathVerdict
+    from planbench.checking.certified import CertifiedChecker, PathVerdict
 
     calls = []
     original = CertifiedChecker.check_path
@@ -264,7 +264,7 @@ def test_a_simplified_path_that_grazes_falls_back_to_the_reduced_path_without_re
 
 
 def test_a_path_that_fails_every_check_is_a_collision(blocked, monkeypatch):
-    from planbench.certified import CertifiedChecker, PathVerdict
+    from planbench.checking.certified import CertifiedChecker, PathVerdict
 
     monkeypatch.setattr(CertifiedChecker, "check_path", lambda self, path: PathVerdict(False, segment=0))
     result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=5.0, repair_attempts=1)
@@ -279,14 +279,14 @@ def test_a_path_that_fails_every_check_is_a_collision(blocked, monkeypatch):
 def grazing():
     """MBM bookshelf_small/0004, seed 0: OMPL's simplified path grazes the shelf (its sampled motion
     checks pass, the certified check does not)."""
-    from planbench.datasets import load_problems
+    from planbench.problems.datasets import load_problems
 
     (problem,) = load_problems("mbm:bookshelf_small/0004")
     return problem
 
 
 def test_a_grazing_simplified_path_is_repaired_and_certifies(grazing):
-    from planbench.certified import CertifiedChecker
+    from planbench.checking.certified import CertifiedChecker
     from planbench.metrics import densify
     from planbench.validate import ValidationSettings
 
@@ -312,7 +312,7 @@ def test_a_grazing_simplified_path_is_repaired_and_certifies(grazing):
 
 
 def test_certified_motion_checks_return_certified_checks_only(grazing):
-    from planbench.certified import CertifiedChecker
+    from planbench.checking.certified import CertifiedChecker
     from planbench.validate import ValidationSettings
 
     result = solved(grazing, RRTConnectPlanner, seed=0, motion_check="certified")
@@ -367,7 +367,7 @@ def test_grid_mode_plans_a_valid_path(blocked):
 
 
 def test_merged_boxes_cover_exactly_the_occupied_cells():
-    from planbench.occupancy import merge_cells
+    from planbench.geometry.occupancy import merge_cells
 
     rng = np.random.default_rng(0)
     for density in (0.1, 0.5, 0.9):

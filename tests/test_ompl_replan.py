@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import planbench
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidSettingError
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.conformance import check_controller
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller

@@ -13,15 +13,15 @@ import pytest
 import trimesh
 
 import planbench
-from planbench.certified import CertifiedChecker
-from planbench.cli import main
-from planbench.collision import CollisionChecker
-from planbench.datasets import load_problems
-from planbench.depth_example import shipped_example_dir
+from planbench.checking.certified import CertifiedChecker
+from planbench.checking.collision import CollisionChecker
+from planbench.cli.main import main
 from planbench.errors import ProblemFileError
-from planbench.occupancy import OccupancyGrid, scene_grid
-from planbench.pointcloud import PointCloudError, VoxelCloud, read_points, write_points
+from planbench.geometry.occupancy import OccupancyGrid, scene_grid
+from planbench.geometry.pointcloud import PointCloudError, VoxelCloud, read_points, write_points
 from planbench.problem import Problem
+from planbench.problems.datasets import load_problems
+from planbench.reactive.depth_example import shipped_example_dir
 from planbench.scene import Obstacle, Scene
 
 EXAMPLE = shipped_example_dir() / "depth_camera_table.json"
@@ -242,7 +242,7 @@ def test_every_planner_kind_plans_on_the_example(planner, limit):
 
 
 def test_regenerating_the_example_is_deterministic(tmp_path):
-    from planbench.depth_example import make_example
+    from planbench.reactive.depth_example import make_example
 
     path = make_example(tmp_path)
     assert json.loads(path.read_text()) == json.loads(EXAMPLE.read_text())

@@ -10,7 +10,7 @@ import planbench
 from planbench import Obstacle, PlanStatus, Problem, Scene
 from planbench.conformance import check_planner
 from planbench.errors import InvalidConfigError
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.robot import load_robot
 from planbench_plugins.ik_loop import ArmKinematics
 from planbench_plugins.potential_fields import (

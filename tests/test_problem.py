@@ -223,7 +223,7 @@ def test_a_problem_and_a_scene_write_their_mesh_and_cloud_files_relative_to_them
 
     import trimesh
 
-    from planbench.pointcloud import write_points
+    from planbench.geometry.pointcloud import write_points
     from planbench.scene import Obstacle
 
     lab = tmp_path / "lab"

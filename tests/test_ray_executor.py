@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import planbench.cli as cli
+import planbench.cli.main as cli
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.procs import process_alive

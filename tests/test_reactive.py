@@ -11,7 +11,7 @@ import pytest
 
 import planbench
 from planbench.errors import ScenarioFileError
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Problem
 from planbench.reactive import Controller, Motion, MovingObstacle, Observation, Scenario, SensingSettings
 from planbench.reactive.checker import TickChecker

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import planbench
-from planbench.cli import main
-from planbench.replay import replay_html
+from planbench.cli.main import main
+from planbench.visual.replay import replay_html
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 

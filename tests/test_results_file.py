@@ -17,14 +17,14 @@ import pytest
 
 from planbench.bench.db import ResultsDB
 from planbench.bench.export import write_runs_csv
+from planbench.bench.records import failure_record
 from planbench.bench.report import to_csv
-from planbench.bench.runner import failure_record
-from planbench.cli import main
+from planbench.cli.main import main
 from planbench.errors import OutputFileError, ResultsFileError, ResultsLockedError
-from planbench.outputs import check_output, csv_cell
+from planbench.files.outputs import check_output, csv_cell
 
 TESTS = Path(__file__).parent
-PLANBENCH = [sys.executable, "-m", "planbench.cli"]
+PLANBENCH = [sys.executable, "-m", "planbench.cli.main"]
 BENCH = ["bench", "--problems", "mbm:box/0001", "--planners", "straight-line", "--no-progress"]
 
 HOLD = """

@@ -20,7 +20,7 @@ from planbench.bench.procs import Cgroups, descendants, process_alive
 from planbench.bench.runner import Runner, _next_for, plugin_of, startup_hooks
 from planbench.bench.task import RunTask
 from planbench.errors import PlanbenchError
-from planbench.field.threads import THREAD_VARIABLES
+from planbench.runtime.threads import THREAD_VARIABLES
 
 needs_landlock = pytest.mark.skipif(not sandbox.available(), reason="the kernel offers no Landlock")
 

@@ -19,7 +19,7 @@ from planbench.bench.probe import probe_planners
 from planbench.bench.suite import parse_suite
 from planbench.bench.task import RunTask
 from planbench.bench.wire import BadMessage, decode, encode
-from planbench.cli import main
+from planbench.cli.main import main
 from planbench.conformance import check_planner
 from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.harness import DEFAULT_TIME_LIMIT, resolve_planner
@@ -269,7 +269,7 @@ def test_defaults_are_written_once():
     import inspect
 
     from planbench.bench import suite as suite_module
-    from planbench.cli import build_parser
+    from planbench.cli.main import build_parser
 
     assert inspect.signature(planbench.plan).parameters["time_limit"].default == DEFAULT_TIME_LIMIT
     plan_args = build_parser().parse_args(["plan", "--problem", "x"])

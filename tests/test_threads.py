@@ -1,5 +1,5 @@
 """Threads of the field kernels: small lazy calls run serially (same numbers as the parallel
-kernel), and :func:`planbench.field.threads.limit_threads` sets what it says."""
+kernel), and :func:`planbench.runtime.threads.limit_threads` sets what it says."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from planbench.field import Kernels, lazy_field
-from planbench.field import threads as field_threads
-from planbench.field.backend import have_numba
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime import threads as field_threads
+from planbench.runtime.backend import have_numba
 
 NEEDS_NUMBA = pytest.mark.skipif(not have_numba(), reason="numba not installed")
 RES = 0.05
@@ -122,7 +122,7 @@ def test_limit_threads_before_numba_is_imported() -> None:
     # as in a worker: numpy (and its OpenBLAS, which reads its variable at load) already loaded
     out = run_python("""
         import json, sys, numpy as np
-        from planbench.field.threads import limit_threads, thread_report
+        from planbench.runtime.threads import limit_threads, thread_report
         before = thread_report()
         after = limit_threads(1, layer="workqueue")
         assert "numba" not in sys.modules
@@ -158,7 +158,7 @@ def test_limit_threads_after_numba_has_started() -> None:
     out = run_python("""
         import json, os, numpy as np, numba
         from numba import njit, prange
-        from planbench.field.threads import limit_threads
+        from planbench.runtime.threads import limit_threads
 
         @njit(parallel=True)
         def ids(out):
@@ -193,8 +193,8 @@ def test_limit_threads_without_numba() -> None:
         sys.modules["numba"] = None  # numba cannot be imported
         import numpy as np
         from planbench.field import Kernels, lazy_field
-        from planbench.field.threads import limit_threads
-        from planbench.occupancy import OccupancyGrid
+        from planbench.runtime.threads import limit_threads
+        from planbench.geometry.occupancy import OccupancyGrid
 
         report = limit_threads(2)
         grid = OccupancyGrid(np.ones((6, 6, 6)), origin=[0, 0, 0], resolution=0.1)

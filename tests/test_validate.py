@@ -8,7 +8,7 @@ import pytest
 import planbench
 from conftest import midpoint_wall
 from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.problem import Goal, Pose
 
 

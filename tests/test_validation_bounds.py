@@ -13,12 +13,12 @@ import pytest
 from bench_bounds_planners import huge_path
 
 import planbench
-import planbench.certified
+import planbench.checking.certified
 import planbench.validate
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.suite import parse_suite
-from planbench.certified import CertificationSettings, CertifiedChecker
+from planbench.checking.certified import CertificationSettings, CertifiedChecker
 from planbench.metrics import TIMING_SPACING, densify
 from planbench.planner import PlanResult, PlanStatus
 from planbench.validate import ValidationSettings, validation_states
@@ -99,7 +99,7 @@ def test_shipped_planners_paths_validate_as_before(monkeypatch, ref, planner):
     # the long-path ways (the end-effector length a few states at a time, the motion bounds' rows
     # one pair at a time) give the same verdict and metrics as the at-once ways a short path takes
     monkeypatch.setattr(planbench.validate, "EE_CHUNK", 7)
-    monkeypatch.setattr(planbench.certified, "CUM_TABLE_FLOATS", 0)
+    monkeypatch.setattr(planbench.checking.certified, "CUM_TABLE_FLOATS", 0)
     CertifiedChecker.forget(p)
     _same(planbench.evaluate(p, result), ev)
 

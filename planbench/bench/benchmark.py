@@ -15,7 +15,8 @@ from planbench.bench.db import ResultsDB
 from planbench.bench.executors import Executor
 from planbench.bench.kinds import expand, kind_of, registry_of
 from planbench.bench.probe import probe_planners
-from planbench.bench.runner import Record, Runner, failure_record
+from planbench.bench.records import Record, failure_record
+from planbench.bench.runner import Runner
 from planbench.bench.suite import PlannerEntry, Suite, load_suite, parse_seeds
 from planbench.bench.task import RunTask
 from planbench.errors import InvalidSettingError, PlanbenchError, UnstorableValueError

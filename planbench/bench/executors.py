@@ -8,7 +8,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
-from planbench.bench.runner import Record, Runner
+from planbench.bench.records import Record
+from planbench.bench.runner import Runner
 from planbench.bench.task import RunTask
 from planbench.errors import InvalidConfigError
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.outputs import check_output, csv_cell
+from planbench.files.outputs import check_output, csv_cell
 from planbench.planner import PlanStatus
 
 __all__ = ["RUN_PROPERTIES", "write_ompl_logs", "write_planner_arena", "write_runs_csv", "experiments"]
@@ -199,7 +199,7 @@ def _column(name: str) -> str:
 
 def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     """A Planner Arena database at ``path`` (a file there is replaced, never a SQLite database:
-    :func:`~planbench.outputs.check_output`); see the module docstring."""
+    :func:`~planbench.files.outputs.check_output`); see the module docstring."""
     out = check_output(path)
     if out.exists():
         out.unlink()
@@ -255,7 +255,7 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Pat
 def write_runs_csv(rows: Sequence[dict[str, Any]], path: str | Path, paths: bool = False) -> Path:
     """Every run as a CSV row: all database columns (SI units, empty for NaN); ``paths``: with the
     ``path`` and ``times`` arrays as JSON lists (rows read ``with_arrays``), else without them.
-    Text that a spreadsheet would run as a formula is escaped (:func:`~planbench.outputs.csv_cell`)."""
+    Text that a spreadsheet would run as a formula is escaped (:func:`~planbench.files.outputs.csv_cell`)."""
     out = check_output(path)
     fields = [k for k in (rows[0] if rows else {}) if paths or k not in ("path", "times")]
     with out.open("w", newline="") as f:

@@ -19,7 +19,7 @@ from typing import Any
 
 from planbench.bench.plots import write_plots
 from planbench.bench.report import FAILURE_STATUSES, METRICS, Metric, _cells, _headers, metrics_for, summarize
-from planbench.outputs import check_output
+from planbench.files.outputs import check_output
 
 __all__ = ["write_html", "render_html"]
 
@@ -163,7 +163,7 @@ def write_html(
     out = check_output(path)
     links: dict[int, str] = {}
     if replays:
-        from planbench.replay import replay_row
+        from planbench.bench.replay import replay_row
 
         folder = out.parent / f"{out.stem}_replays"
         folder.mkdir(parents=True, exist_ok=True)

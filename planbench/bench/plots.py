@@ -10,7 +10,7 @@
   per planner, against the budget [s] on a log axis.
 
 Closed-loop runs get the closed-loop metrics' ECDFs and box plots and the plots of
-:mod:`planbench.reactive.plots` (tick-time ECDF, success by speed and by sensing, clearance over
+:mod:`planbench.bench.closed_loop_plots` (tick-time ECDF, success by speed and by sensing, clearance over
 time).
 """
 
@@ -23,21 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from planbench.bench.report import DYNAMIC_METRICS, Metric, metrics_for, wilson_interval
-from planbench.outputs import check_output
+from planbench.bench.report import DYNAMIC_METRICS, Metric, metrics_for
+from planbench.visual.plots import pyplot, save, success_bar
 
-__all__ = ["write_plots", "time_to_success"]
-
-
-def _pyplot() -> Any:
-    """matplotlib's pyplot on the Agg backend, imported on first use: it costs about half a second, which every
-    ``planbench`` command (this module is loaded with the CLI) would otherwise pay."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+__all__ = ["time_to_success", "write_plots"]
 
 
 def _planners(rows: Sequence[dict[str, Any]]) -> list[str]:
@@ -62,12 +51,6 @@ def time_to_success(rows: Sequence[dict[str, Any]], planner: str, budgets: np.nd
 FORMATS = ("png", "pdf", "svg")
 
 
-def _save(fig: Any, path: Path) -> None:
-    fig.tight_layout()
-    fig.savefig(check_output(path), dpi=150)
-    _pyplot().close(fig)
-
-
 def _ecdf_axes(ax: Any, rows: Sequence[dict[str, Any]], m: Metric, planners: Sequence[str]) -> None:
     for i, planner in enumerate(planners):
         v = _values(rows, planner, m)
@@ -80,7 +63,7 @@ def _ecdf_axes(ax: Any, rows: Sequence[dict[str, Any]], m: Metric, planners: Seq
 
 
 def ecdf_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "planner") -> None:
-    plt = _pyplot()
+    plt = pyplot()
     planners = _planners(rows)
     over = "every run" if m.over_all_runs else "validated successes"
     families = _families(rows) if by == "family" else ["all"]
@@ -99,11 +82,11 @@ def ecdf_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "
         ax.set_visible(False)
     if by == "family":
         fig.suptitle(f"{m.label}: ECDF over {over}, per family")
-    _save(fig, path)
+    save(fig, path)
 
 
 def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "planner") -> None:
-    plt = _pyplot()
+    plt = pyplot()
     planners = _planners(rows)
     families = _families(rows) if by == "family" else ["all"]
     groups = [(f, p) for f in families for p in planners]
@@ -121,28 +104,15 @@ def box_plot(rows: Sequence[dict[str, Any]], m: Metric, path: Path, by: str = "p
     ax.set_ylabel(m.label)
     ax.set_title(f"{m.label} over {over}" + (", per family" if by == "family" else ""))
     ax.grid(alpha=0.3, axis="y")
-    _save(fig, path)
+    save(fig, path)
 
 
 def _families(rows: Sequence[dict[str, Any]]) -> list[str]:
     return sorted({r["family"] or "-" for r in rows})
 
 
-def rate_bar(ax: Any, x: float, runs: Sequence[dict[str, Any]], width: float, color: int, label: str | None) -> None:
-    """One bar of the success rate of ``runs`` at ``x``, its Wilson 95 % interval and a ``k/n``
-    label (a 0 % bar keeps a sliver of height and its label: it reads as 0 of n, not as no data)."""
-    n, k = len(runs), sum(1 for r in runs if r["success"])
-    if not n:
-        return
-    rate = k / n
-    lo, hi = wilson_interval(k, n)
-    ax.bar(x, max(rate, 0.006), width, color=f"C{color}", label=label)
-    ax.errorbar(x, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
-    ax.text(x, hi + 0.015, f"{k}/{n}", ha="center", fontsize="xx-small")
-
-
 def success_by_family(rows: Sequence[dict[str, Any]], path: Path) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     planners = _planners(rows)
     families = _families(rows)
     width = 0.8 / max(1, len(planners))
@@ -151,17 +121,17 @@ def success_by_family(rows: Sequence[dict[str, Any]], path: Path) -> None:
     for i, planner in enumerate(planners):
         for xi, fam in zip(x + (i - (len(planners) - 1) / 2) * width, families, strict=True):
             group = [r for r in rows if r["planner"] == planner and (r["family"] or "-") == fam]
-            rate_bar(ax, xi, group, width, i, planner if fam == families[0] else None)
+            success_bar(ax, xi, group, width, i, planner if fam == families[0] else None)
     ax.set_xticks(x, families, rotation=30, ha="right")
     ax.set_ylim(0, 1.12)
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.set_title("validated success rate per family (bars labelled solved/runs)")
     ax.legend(fontsize="small")
-    _save(fig, path)
+    save(fig, path)
 
 
 def time_to_success_plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     times = [r["planning_time"] for r in rows if r["success"] and math.isfinite(r["planning_time"])]
     limit = max((r["time_limit"] for r in rows if r.get("time_limit") and math.isfinite(r["time_limit"])), default=1.0)
     lo = max(1e-5, min(times) / 2) if times else 1e-4
@@ -176,7 +146,7 @@ def time_to_success_plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     ax.set_title("time to success")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize="small")
-    _save(fig, path)
+    save(fig, path)
 
 
 def write_plots(
@@ -191,7 +161,7 @@ def write_plots(
     files = []
     metrics = metrics_for(rows)
     if metrics is DYNAMIC_METRICS:  # closed-loop runs: their own plots besides the metrics'
-        from planbench.reactive.plots import write_dynamic_plots
+        from planbench.bench.closed_loop_plots import write_dynamic_plots
 
         files += write_dynamic_plots(rows, out, fmt)
     for m in metrics:

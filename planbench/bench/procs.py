@@ -40,8 +40,8 @@ import threading
 import time
 from collections.abc import Iterator
 
-from planbench.field.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
-from planbench.field.threads import limit_threads as limit_compute_threads
+from planbench.runtime.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
+from planbench.runtime.threads import limit_threads as limit_compute_threads
 
 __all__ = [
     "THREAD_VARIABLES",
@@ -72,7 +72,7 @@ OUTPUT_HEADER = "--- worker output (tail) ---"
 def limit_threads(threads: int) -> None:
     """Cap the thread pools of OpenMP, BLAS and numba in this process, so parallel workers do not
     oversubscribe the cores, idle OpenMP threads sleep instead of spinning, and a run's arithmetic
-    does not depend on ``--jobs`` (:func:`planbench.field.threads.limit_threads`: environment for
+    does not depend on ``--jobs`` (:func:`planbench.runtime.threads.limit_threads`: environment for
     what loads later, the pools of what is loaded already, numpy's OpenBLAS included)."""
     limit_compute_threads(threads)
 

@@ -19,7 +19,8 @@ import socket
 import threading
 from typing import Any
 
-from planbench.bench.runner import Record, Runner
+from planbench.bench.records import Record
+from planbench.bench.runner import Runner
 from planbench.bench.task import RunTask
 from planbench.bench.wire import BadMessage, decode, encode
 
@@ -29,7 +30,7 @@ RECORD_KEYS = frozenset(
     {"evaluation", "message", "traceback", "path", "times", "info"}
     | {"wall_time", "validation_time", "elapsed", "pid", "host"}
 )
-"""The fields of a run's record (:func:`planbench.bench.runner.record_from`)."""
+"""The fields of a run's record (:func:`planbench.bench.records.record_from`)."""
 _ARRAYS = ("path", "times")
 
 

@@ -24,9 +24,9 @@ from rich.console import Group
 from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
-from scipy.stats import binomtest
 
-from planbench.outputs import csv_cell
+from planbench.files.outputs import csv_cell
+from planbench.metrics import wilson_interval  # re-exported: report users import it from here
 
 __all__ = [
     "DYNAMIC_METRICS",
@@ -90,18 +90,6 @@ VALID_PATH_FAILURES = ("late", "claimed_failure")
 """Counts of :func:`summarize` for failed runs whose path is valid (see :func:`valid_path_failure`)."""
 LOCATED = ("collision", "self-collision", "claimed-failure")
 """Failure reasons counted with their detail (a link, the status claimed) by :func:`failure_text`."""
-
-
-def wilson_interval(successes: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (scipy's ``binomtest(...).proportion_ci``).
-
-    Unlike the normal approximation it stays inside [0, 1] and is sensible at 0 or n successes.
-    (NaN, NaN) without runs.
-    """
-    if n <= 0:
-        return (math.nan, math.nan)
-    ci = binomtest(successes, n).proportion_ci(confidence, method="wilson")
-    return (float(ci.low), float(ci.high))
 
 
 def _quartiles(values: Sequence[float]) -> tuple[float, float, float]:
@@ -258,7 +246,7 @@ def to_markdown(
 
 def to_csv(summary: Sequence[dict[str, Any]]) -> str:
     """The summary as CSV with one column per statistic, SI units (no display scaling); text that a
-    spreadsheet would run as a formula (a planner label) is escaped (:func:`~planbench.outputs.csv_cell`)."""
+    spreadsheet would run as a formula (a planner label) is escaped (:func:`~planbench.files.outputs.csv_cell`)."""
     if not summary:
         return ""
     buf = io.StringIO()

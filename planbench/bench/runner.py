@@ -77,22 +77,22 @@ from dataclasses import dataclass, field
 from multiprocessing.reduction import send_handle
 from typing import Any
 
-from planbench import compile_cache
 from planbench.bench import sandbox, snapshot
 from planbench.bench.kinds import RunKind, kind_of
 from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group, thread_environment
+from planbench.bench.records import Record, failure_record, ran_out_of_memory, record_from
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
 from planbench.errors import PlanbenchError
 from planbench.harness import answered_late, late_message
 from planbench.reactive.isolation import make_undumpable
-from planbench.validate import CLAIMED_SUCCESS, IN_TIME, Evaluation
+from planbench.runtime import compile_cache
+from planbench.validate import CLAIMED_SUCCESS, IN_TIME
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Runner", "default_jobs", "failure_record", "record_from"]
+__all__ = ["Runner", "default_jobs"]
 
-Record = dict[str, Any]
 RECV_TIMEOUT = 5.0
 """[s] a child that stops in the middle of a message for this long is treated as broken."""
 MAX_MESSAGES_PER_WAIT = 64
@@ -105,24 +105,6 @@ def default_jobs() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover (not Linux)
         return max(1, os.cpu_count() or 1)
-
-
-def failure_record(status: str, message: str, traceback: str = "", planning_time: float = math.nan) -> Record:
-    """A record for a run that produced none itself (killed, crashed, or a result not kept)."""
-    evaluation = Evaluation(False, f"{status}: {message}", status, planning_time, math.nan).as_dict()
-    return {
-        "evaluation": evaluation,
-        "message": message,
-        "traceback": traceback,
-        "path": None,
-        "times": None,
-        "info": {},
-        "wall_time": math.nan,
-        "validation_time": math.nan,
-        "elapsed": math.nan,
-        "pid": None,
-        "host": "",
-    }
 
 
 PLAN_TIME_SLACK = (0.5, 0.1)
@@ -194,29 +176,6 @@ def _check_time_limit(record: Record, observed: float | None, time_limit: float)
     evaluation["checks"] = {**checks, IN_TIME: False}
     if late not in str(record.get("message") or ""):  # the worker's harness may have said it already
         record["message"] = f"{record.get('message') or ''} [{late}]".strip()
-
-
-def record_from(fields: dict[str, Any], evaluation: dict[str, Any] | None, validation_time: float) -> Record:
-    """The record of a run from its checked raw result and the validator's verdict (None when there
-    is nothing to validate: the run could not be prepared)."""
-    if evaluation is None:
-        status, message = fields["status"], fields["message"]
-        failure = f"{status}: {message}" if message else status
-        evaluation = Evaluation(False, failure, status, fields["planning_time"], fields["setup_time"]).as_dict()
-    wall = fields["wall_time"] + (validation_time if math.isfinite(validation_time) else 0.0)
-    return {
-        "evaluation": evaluation,
-        "message": fields["message"],
-        "traceback": fields["traceback"],
-        "path": fields["path"],
-        "times": fields["times"],
-        "info": fields["info"],
-        "wall_time": wall,
-        "validation_time": validation_time,
-        "elapsed": math.nan,
-        "pid": fields["pid"],
-        "host": fields["host"],
-    }
 
 
 @dataclass
@@ -525,8 +484,7 @@ class Runner:
     # -- processes -------------------------------------------------------------------------------
 
     def _start(self, kind: str) -> _Child:
-        # Imported here: the worker module imports this one (record_from), so importing it at the top
-        # would be an import cycle.
+        # Imported here: the main process imports neither entry point's module until it starts one.
         from planbench.bench.validator import validator_main
         from planbench.bench.worker import worker_main
 
@@ -902,15 +860,6 @@ def _note_memory_limit(record: Record, task: RunTask) -> None:
     )
     record["message"] = str(record.get("message", "")) + note
     evaluation["failure"] = str(evaluation.get("failure", "")) + note
-
-
-def ran_out_of_memory(message: str, traceback: str) -> bool:
-    """Whether a run ended in ``MemoryError``: the harness's message names it, or the traceback's
-    exception line does (the worker's output, appended after :data:`OUTPUT_HEADER`, does not count)."""
-    if "MemoryError" in message:
-        return True
-    own = traceback.split(OUTPUT_HEADER, 1)[0]
-    return any(line.startswith("MemoryError") for line in own.splitlines())
 
 
 def _set_recv_timeout(conn: Any, seconds: float) -> None:

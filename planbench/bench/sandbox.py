@@ -188,7 +188,7 @@ def enter(scratch: str, sandboxed: bool, writable: tuple[str, ...] = ()) -> str:
     import sys
     import tempfile
 
-    from planbench import compile_cache
+    from planbench.runtime import compile_cache
 
     os.makedirs(scratch, exist_ok=True)
     os.chdir(scratch)

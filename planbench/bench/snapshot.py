@@ -30,7 +30,7 @@ __all__ = ["SnapshotChanged", "restore", "take"]
 
 KEPT = 8
 """Restored problems a validator keeps (what is built for one is cached on it: see
-:data:`planbench.datasets.LOADED_PROBLEMS_KEPT`)."""
+:data:`planbench.problems.datasets.LOADED_PROBLEMS_KEPT`)."""
 
 
 class SnapshotChanged(PlanbenchError):
@@ -94,7 +94,7 @@ def take(entry: str, ref: str) -> dict[str, Any]:
         data["problem"] = scenario.problem.to_dict()  # the data, not a reference to re-read
         robot = scenario.problem.robot
     else:
-        from planbench.datasets import load_problem
+        from planbench.problems.datasets import load_problem
 
         problem = load_problem(ref)
         data = problem.to_dict()

@@ -71,10 +71,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from planbench.datasets import load_problems
 from planbench.errors import DuplicateProblemError, InvalidConfigError, PlanbenchError, UnknownNameError
-from planbench.files import InputFileError, read_text
+from planbench.files.inputs import InputFileError, read_text
 from planbench.problem import Problem
+from planbench.problems.datasets import load_problems
 from planbench.validate import VALIDATOR, ValidationSettings
 
 if sys.version_info >= (3, 11):

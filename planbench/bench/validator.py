@@ -35,21 +35,22 @@ import signal
 import socket
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.reduction import recv_handle
 from typing import Any
 
 from planbench.bench.kinds import kind_of
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
-from planbench.bench.wire import decode, encode
-from planbench.certified import CertifiedChecker
-from planbench.datasets import load_problem
+from planbench.bench.snapshot import SnapshotChanged, restore
+from planbench.bench.wire import clean_info, clean_result, decode, encode
+from planbench.checking.certified import CertifiedChecker
 from planbench.planner import PlanResult, PlanStatus
+from planbench.problems.datasets import load_problem
 from planbench.reactive.isolation import make_undumpable
-from planbench.validate import ValidationSettings, evaluate, not_validated
+from planbench.validate import Evaluation, ValidationSettings, evaluate, not_validated
 
-__all__ = ["validate_fields", "validator_main"]
+__all__ = ["JUDGE", "validate_fields", "validator_main"]
 
 
 def _problem(ref: str) -> Any:
@@ -125,7 +126,7 @@ def _answer(conn: Any, msg: dict[str, Any], arrays: dict[str, Any]) -> bytes:
         kind = kind_of(str(msg.get("kind", "static")))
         if kind.channel:
             channel = socket.socket(fileno=recv_handle(conn))
-        fields, evaluation = kind.judge(msg, arrays, channel)
+        fields, evaluation = JUDGE[kind.name](msg, arrays, channel)
     except Exception:
         return encode({"type": "verdict", "run": run, "error": traceback.format_exc()[-8000:]})
     finally:
@@ -158,3 +159,43 @@ def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 
         if header.get("type") == "stop":
             return
         conn.send_bytes(_answer(conn, header, arrays))
+
+
+Judgement = tuple[dict[str, Any] | None, dict[str, Any]]
+
+
+def _static_judge(request: dict[str, Any], arrays: dict[str, Any], channel: socket.socket | None) -> Judgement:
+    fields = clean_result({**request["result"], "path": arrays.get("path"), "times": arrays.get("times")})
+    try:
+        problem = restore(request["snapshot"])
+    except SnapshotChanged as exc:  # the run's problem is not the one the benchmark read: no verdict
+        failure = f"error: {exc}; no verdict"
+        return None, Evaluation(False, failure, "error", fields["planning_time"], fields["setup_time"]).as_dict()
+    return None, validate_fields(problem, fields, request["validation"])
+
+
+def _dynamic_judge(request: dict[str, Any], arrays: dict[str, Any], channel: socket.socket | None) -> Judgement:
+    from planbench.reactive.bench import simulate_run  # on use: a closed-loop validator only
+
+    if channel is None:
+        raise ValueError("a closed-loop run needs its channel to the controller")
+    scenario = restore(request["snapshot"])
+    cpu = request.get("cpu")
+    fields, evaluation = simulate_run(
+        scenario, int(request["seed"]), str(request["timing"]), channel, int(request["pid"]), cpu
+    )
+    info = fields["info"]
+    try:
+        info["controller"] = clean_info(info.get("controller", {}))
+    except Exception as exc:  # the controller's diagnostics are its own: they never cost the run
+        info["controller"] = {"info_error": f"not kept: {exc}"}
+    return fields, evaluation
+
+
+JUDGE: dict[str, Callable[[dict[str, Any], dict[str, Any], socket.socket | None], Judgement]] = {
+    "static": _static_judge,
+    "dynamic": _dynamic_judge,
+}
+"""What each run kind (:data:`planbench.bench.kinds.KINDS`) does in the validator:
+``judge(request, arrays, channel)`` -> (the run's raw fields when the validator made them, else
+None; the evaluation as a dict)."""

@@ -66,16 +66,16 @@ from planbench.bench.procs import (
     start_reaper,
     watch_parent,
 )
-from planbench.bench.runner import ran_out_of_memory, record_from
+from planbench.bench.records import ran_out_of_memory, record_from
 from planbench.bench.task import RunTask
 from planbench.bench.validator import validate_fields
 from planbench.bench.wire import BadField, BadMessage, clean_result, decode, encode
-from planbench.datasets import load_problem
 from planbench.harness import plan
 from planbench.planner import PlanResult, PlanStatus
+from planbench.problems.datasets import load_problem
 from planbench.registry import REGISTRY
 
-__all__ = ["THREAD_VARIABLES", "error_fields", "plan_one", "run_one", "worker_main"]
+__all__ = ["THREAD_VARIABLES", "WORK", "error_fields", "plan_one", "run_one", "worker_main"]
 
 
 class _PhaseReporter:
@@ -304,7 +304,7 @@ def worker_main(
                 _await_go(conn, run)
 
         try:
-            fields = kind.work(task, notify, channel)
+            fields = WORK[kind.name](task, notify, channel)
         except Exception as exc:  # planbench's own fault, or a planner that broke it: still a row
             fields = error_fields(f"the worker failed: {type(exc).__name__}: {exc}", traceback.format_exc())
         if channel is not None:
@@ -318,3 +318,34 @@ def worker_main(
             _send_result(conn, run, fields)
         if kind.fresh_worker or fields is None or _out_of_memory(fields):
             return  # one run only, or its heap may be in any state: the runner starts a fresh worker
+
+
+Notify = Callable[[str], None]
+
+
+def _static_work(task: RunTask, notify: Notify, channel: socket.socket | None) -> dict[str, Any]:
+    return plan_one(task, notify)
+
+
+def _dynamic_work(task: RunTask, notify: Notify, channel: socket.socket | None) -> dict[str, Any] | None:
+    from planbench.reactive.bench import serve_run  # on use: a closed-loop worker only
+
+    if channel is None:
+        raise ValueError("a closed-loop run needs its channel to the simulation")
+    fields = serve_run(task.problem_ref, task.planner, task.settings, task.seed, channel, notify)
+    if fields is None:
+        return None
+    try:
+        return clean_result(fields)
+    except BadField as bad:  # e.g. an exception text that is not valid text
+        fields.update(message=f"the run could not be prepared ({bad})", traceback="")
+        return clean_result(fields)
+
+
+WORK: dict[str, Callable[[RunTask, Notify, socket.socket | None], dict[str, Any] | None]] = {
+    "static": _static_work,
+    "dynamic": _dynamic_work,
+}
+"""What each run kind (:data:`planbench.bench.kinds.KINDS`) does in the worker:
+``work(task, notify, channel)`` -> the raw result fields, or None when the run's record comes from
+the validator (a closed loop, simulated there)."""

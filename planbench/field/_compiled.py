@@ -271,7 +271,7 @@ def _lazy_point(grid, outside, origin, resolution, along, across, points, out, p
 @njit(parallel=True, cache=True, fastmath=True)
 def lazy_points(grid, outside, origin, resolution, along, across, points, out, surface=False):  # type: ignore
     """Interpolated field at each point from the occupancy grid directly (see ``lazy.py``), the
-    points shared out over numba's threads (:mod:`planbench.field.threads` decides when).
+    points shared out over numba's threads (:mod:`planbench.runtime.threads` decides when).
 
     The trilinear weights are folded into 1D kernels over the (2m+2)^3 block around the point, and
     the block is contracted one axis at a time: y with two rows of weights into two z-lines, then z

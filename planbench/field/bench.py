@@ -35,11 +35,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planbench.errors import InvalidConfigError
-from planbench.field.backend import have_numba
 from planbench.field.full import full_field
 from planbench.field.kernels import Kernels
 from planbench.field.lazy import lazy_field
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime.backend import have_numba
 
 __all__ = ["BenchSettings", "Row", "add_arguments", "run", "run_from_args", "format_table"]
 

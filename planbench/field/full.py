@@ -28,10 +28,10 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from planbench.errors import InvalidConfigError
-from planbench.field import backend as _backend
 from planbench.field.interpolate import sample_field
 from planbench.field.kernels import Kernels
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime import backend as _backend
 
 __all__ = ["MatrixField", "full_field", "correlate_separable"]
 
@@ -89,7 +89,9 @@ def full_field(
     if _backend.resolve(backend) == "numba":
         P, T = kernels.factors(dt)
         data = np.ascontiguousarray(grid.data, dtype=dt)
-        components = _backend.compiled().field_from_grid(data, grid.outside, m, P, T)
+        from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
+
+        components = _compiled.field_from_grid(data, grid.outside, m, P, T)
     else:
         g = np.zeros(tuple(n + 2 * m for n in grid.shape), dtype=dt)
         inner = g[m : m + grid.shape[0], m : m + grid.shape[1], m : m + grid.shape[2]]
@@ -109,7 +111,9 @@ def correlate_separable(g: np.ndarray, kernels: Kernels, backend: str = "auto") 
     out = np.empty((3, *g.shape), dtype=dt)
     P, T = kernels.factors(dt)
     if _backend.resolve(backend) == "numba":
-        corr = _backend.compiled().correlate_axis
+        from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
+
+        corr = _compiled.correlate_axis
     else:
         corr = _scipy_pass
     h = np.empty_like(g)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planbench.field import backend as _backend
+from planbench.runtime import backend as _backend
 
 if TYPE_CHECKING:
     from planbench.field.full import MatrixField
@@ -42,7 +42,9 @@ def sample_field(field: MatrixField, points: np.ndarray, backend: str = "auto") 
     pts = as_points(points)
     out = np.empty((len(pts), 3))
     if _backend.resolve(backend) == "numba":
-        sample = _backend.compiled().sample_points_scaled
+        from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
+
+        sample = _compiled.sample_points_scaled
         sample(field.components, field.origin, float(field.resolution), int(field.margin), 1.0, pts, out)
     else:
         out[:] = _sample_numpy(field, pts)
@@ -65,10 +67,12 @@ def field_sampler(
     if out.dtype != np.float64 or out.shape != points.shape or not out.flags.writeable:
         raise ValueError(f"out must be a writable float64 array of shape {points.shape}, got {out.dtype} {out.shape}")
     if _backend.resolve(backend) == "numba":
-        import numba  # imported by _backend.compiled() already; planbench.field imports numba on first use only
+        import numba  # imported with _compiled already; planbench.field imports numba on first use only
 
         args = (field.components, field.origin, float(field.resolution), int(field.margin), float(scale), points, out)
-        sample = _backend.compiled().sample_points_scaled
+        from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
+
+        sample = _compiled.sample_points_scaled
         return functools.partial(sample.compile(tuple(numba.typeof(a) for a in args)), *args)
 
     def sample_numpy() -> None:

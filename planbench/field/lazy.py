@@ -12,7 +12,7 @@ Cells beyond the grid hold ``outside``; as the kernels sum to zero they contribu
 ``outside`` is subtracted, so the result equals the full field with its default margin, at every
 point in space (far from the grid it is exactly zero).
 
-With numba, a call that reads at most :data:`~planbench.field.threads.SERIAL_MAX_CELLS` grid cells
+With numba, a call that reads at most :data:`~planbench.runtime.threads.SERIAL_MAX_CELLS` grid cells
 (a planner's few dozen control points) runs on the calling thread; larger ones share the points
 out over numba's threads. Both give the same numbers (to rounding).
 """
@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from planbench.field import backend as _backend
 from planbench.field.interpolate import as_points
 from planbench.field.kernels import Kernels
-from planbench.field.threads import serial_lazy
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime import backend as _backend
+from planbench.runtime.threads import serial_lazy
 
 __all__ = ["lazy_field"]
 
@@ -48,7 +48,9 @@ def lazy_field(
     data = np.ascontiguousarray(grid.data)
     if _backend.resolve(backend) == "numba":
         along, across = kernels.factors(data.dtype)
-        compiled = _backend.compiled()
+        from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
+
+        compiled = _compiled
         kernel = (
             compiled.lazy_points_serial if serial_lazy(len(pts), kernels.support) else compiled.lazy_points
         )  # small calls stay on this thread (see .threads)

@@ -19,8 +19,8 @@ from matplotlib.figure import Figure
 from planbench.errors import InvalidConfigError
 from planbench.field.full import MatrixField
 from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
-from planbench.occupancy import OccupancyGrid
-from planbench.outputs import check_output
+from planbench.files.outputs import check_output
+from planbench.geometry.occupancy import OccupancyGrid
 
 __all__ = ["plot_profiles", "plot_kernel", "plot_field_slice", "parse_slice"]
 

@@ -15,7 +15,7 @@ from scipy import fft
 from scipy.ndimage import correlate
 
 from planbench.field.kernels import Kernels
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 
 __all__ = ["window_sums", "brute_force_field", "dense_field", "fft_field"]
 

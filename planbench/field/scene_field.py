@@ -23,7 +23,7 @@ from planbench.field.interpolate import field_sampler
 from planbench.field.kernels import PROFILES, TAPERS, Kernels, KernelSpec
 from planbench.field.lazy import lazy_field
 from planbench.field.surface import surface_grid
-from planbench.occupancy import OccupancyGrid, scene_grid
+from planbench.geometry.occupancy import OccupancyGrid, scene_grid
 
 __all__ = [
     "FIELD_MODES",
@@ -113,7 +113,7 @@ def build_scene_field(
     problem: Any, settings: FieldSettings
 ) -> tuple[OccupancyGrid | None, Kernels, MatrixField | None]:
     """``(grid, kernels, field)`` for a problem: the scene voxelized around the robot
-    (:func:`planbench.occupancy.scene_grid`, margin the kernel's reach plus one cell), surface
+    (:func:`planbench.geometry.occupancy.scene_grid`, margin the kernel's reach plus one cell), surface
     cells only if set, and in ``"full"`` mode the whole field. ``field`` is ``None`` in
     ``"lazy"`` mode or without obstacles; ``grid`` is ``None`` without obstacles in reach."""
     kernels = settings.kernels()

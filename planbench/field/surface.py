@@ -16,7 +16,7 @@ erase the noisy inner cells a sensor reports) and when thicker obstacles should 
 
 from __future__ import annotations
 
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 
 __all__ = ["surface_grid"]
 

@@ -2,7 +2,7 @@
 
 During a tick ``[t0, t1]`` the arm moves on the straight joint-space segment ``q0 -> q1`` (constant
 joint velocity) while each moving obstacle follows its motion. The static certified checker
-(:mod:`planbench.certified`) proves a segment free against fixed geometry; a moving obstacle is
+(:mod:`planbench.checking.certified`) proves a segment free against fixed geometry; a moving obstacle is
 reduced to that case by a bound on its motion:
 
 - Every point of obstacle ``i`` moves at most ``v_i`` [m/s] (:meth:`Motion.speed_bound`), so over
@@ -29,7 +29,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
-from planbench.certified import CertificationSettings, CertifiedChecker, PathVerdict
+from planbench.checking.certified import CertificationSettings, CertifiedChecker, PathVerdict
 from planbench.reactive.scenario import Scenario
 from planbench.scene import Scene
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from planbench.errors import InvalidConfigError, PlanbenchError
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Goal, pose_error
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import CONTROLLERS, NAME_PATTERN, Registry
@@ -78,7 +78,7 @@ class ConformanceTask:
 def conformance_task(period: float = 0.01, resolution: float = 0.02, padding: float = 0.2) -> ConformanceTask:
     """The task of MotionBenchMaker ``box/0001`` with a control period [s] and its observations
     (grid cells of ``resolution`` [m] over the scene grown by ``padding`` [m])."""
-    from planbench.datasets import load_problems
+    from planbench.problems.datasets import load_problems
 
     problem = load_problems(TASK_PROBLEM)[0]
     robot, label = problem.robot, f"conformance:{problem.id}"

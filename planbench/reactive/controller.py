@@ -28,7 +28,7 @@ import numpy as np
 from planbench.planner import EmptyConfig, build_config
 
 if TYPE_CHECKING:
-    from planbench.occupancy import OccupancyGrid
+    from planbench.geometry.occupancy import OccupancyGrid
     from planbench.problem import Goal, Tolerances
     from planbench.robot import Robot
     from planbench.scene import Scene

@@ -48,9 +48,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from planbench.datasets import load_problem
 from planbench.errors import PlanbenchError
 from planbench.problem import Problem
+from planbench.problems.datasets import load_problem
 from planbench.reactive.checker import TickChecker
 from planbench.reactive.motion import Motion
 from planbench.reactive.scenario import CameraSettings, MovingObstacle, Scenario, SensingSettings

@@ -40,8 +40,8 @@ class IsolatedRun:
 def _controller_main(
     sock: socket.socket, scenario: dict[str, Any], name: str, settings: dict[str, Any], seed: int, ready: Any
 ) -> None:
-    from planbench.field.threads import limit_threads
     from planbench.reactive.bench import serve_run
+    from planbench.runtime.threads import limit_threads
 
     os.setsid()  # a group of its own: killing it takes whatever it holds
     limit_threads(1)  # one core, as a benchmark worker

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.controller import BadCommand, Observation, as_command
 from planbench.reactive.isolation import ProcessClock
 from planbench.scene import Scene

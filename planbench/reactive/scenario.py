@@ -31,17 +31,31 @@ from typing import Any
 
 import numpy as np
 
-from planbench.datasets import load_problem
 from planbench.errors import PlanbenchError, ProblemFileError, ResourceLimitError, ScenarioFileError
-from planbench.files import InputFileError, read_json
+from planbench.files.inputs import InputFileError, read_json
 from planbench.problem import Problem
+from planbench.problems.datasets import load_problem
 from planbench.reactive.motion import Motion
 from planbench.scene import Obstacle, Scene
 
-__all__ = ["CameraSettings", "MovingObstacle", "Scenario", "SensingSettings", "SENSING_MODELS"]
+__all__ = ["CameraSettings", "MovingObstacle", "Scenario", "SensingSettings", "SENSING_MODELS", "default_bounds"]
 
 SCENARIO_FORMAT = "planbench-scenario/1"
 SENSING_MODELS = ("truth", "depth")
+BOUNDS_PADDING = 0.1
+"""Padding of the default sensing grid around the robot's reach [m]."""
+
+
+def default_bounds(robot: Any, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cube of half side ``robot.reach() + BOUNDS_PADDING`` [m] around the base, corners
+    rounded out to multiples of ``resolution`` [m]: nothing farther can touch the arm (the sensing
+    grid's default bounds)."""
+    half = robot.reach() + BOUNDS_PADDING
+    lower = np.full(3, math.floor(-half / resolution) * resolution)
+    upper = np.full(3, math.ceil(half / resolution) * resolution)
+    return lower, upper
+
+
 MAX_TICKS = 1_000_000
 """The most control ticks, and the most sensor frames, of one run (100 Hz for 2.8 hours; the shipped
 scenarios have 2000): a run allocates its path and commands for every tick before it starts, and
@@ -244,8 +258,7 @@ class Scenario:
                     f"a horizon of {self.horizon:g} s at {rate:g} Hz is {self.horizon * rate:.3g} {what}, more than "
                     f"the {MAX_TICKS:,} of a run (planbench.reactive.scenario.MAX_TICKS)"
                 )
-        from planbench.occupancy import grid_shape
-        from planbench.reactive.sensing import default_bounds
+        from planbench.geometry.occupancy import grid_shape
 
         grid_shape(*default_bounds(self.problem.robot, self.sensing.resolution), self.sensing.resolution)
         names = [o.name for o in self.problem.scene.obstacles] + [m.name for m in self.moving]

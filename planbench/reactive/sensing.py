@@ -53,16 +53,14 @@ import trimesh
 from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from planbench.occupancy import OccupancyGrid, _cover_block
+from planbench.geometry.occupancy import OccupancyGrid, _cover_block
 from planbench.reactive.controller import Observation
-from planbench.reactive.scenario import CameraSettings, SensingSettings
+from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds  # default_bounds re-exported
 from planbench.robot import Robot
 from planbench.scene import Obstacle, Scene
 
 __all__ = ["ROBOT_EDGE", "Sensor", "camera_rays", "default_bounds"]
 
-BOUNDS_PADDING = 0.1
-"""Padding of the default grid around the robot's reach [m]."""
 ROBOT_EDGE = 0.01
 """Longest edge of the subdivided robot meshes of the margin test [m] (the test may drop points
 up to ``ROBOT_EDGE / sqrt(3)`` beyond ``robot_margin``)."""
@@ -92,15 +90,6 @@ def camera_rays(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray]:
     xx, yy = np.meshgrid(x, y)  # (h, w): rows top to bottom
     d = forward + xx.reshape(-1, 1) * right + yy.reshape(-1, 1) * up
     return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
-def default_bounds(robot: Robot, resolution: float) -> tuple[np.ndarray, np.ndarray]:
-    """The cube of half side ``robot.reach() + 0.1`` [m] around the base, corners rounded out to
-    multiples of ``resolution`` [m]: nothing farther can touch the arm."""
-    half = robot.reach() + BOUNDS_PADDING
-    lower = np.full(3, math.floor(-half / resolution) * resolution)
-    upper = np.full(3, math.ceil(half / resolution) * resolution)
-    return lower, upper
 
 
 # --- shapes ---------------------------------------------------------------------------------------

@@ -20,8 +20,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from planbench.datasets import load_one
 from planbench.errors import PlanbenchError, ScenarioFileError, UnknownNameError
+from planbench.problems.datasets import load_one
 from planbench.reactive.scenario import Scenario
 
 __all__ = ["load_scenario", "load_scenarios", "scenario_names"]

@@ -3,14 +3,14 @@
 ``distance-field`` and ``matrix-field-qp`` measure exact distances (coal) to geometry. With truth
 sensing the observation carries the scene; a depth grid does not, so its occupied cells become the
 geometry: merged greedily into few boxes whose union is exactly those cells
-(:func:`planbench.occupancy.merge_cells`, which the OMPL planners' grid checker uses too).
+(:func:`planbench.geometry.occupancy.merge_cells`, which the OMPL planners' grid checker uses too).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from planbench.occupancy import OccupancyGrid, merge_cells
+from planbench.geometry.occupancy import OccupancyGrid, merge_cells
 from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.crop import occupied_part
 

@@ -7,14 +7,14 @@ cells' bounding box (grown by ``margin`` cells), the same numbers cost a fractio
 ``mbm:box/0001`` 43 x 43 x 62 cells instead of 142^3 (1 ms to find). It is exact for a grid that
 is free beyond its bounds (``outside = 0``): every cell cut off is free, and the field code reads
 cells beyond a grid as ``outside``. The planners cut the scene's grid the same way
-(:func:`planbench.occupancy.scene_grid`: the obstacles' box grown by the field's reach).
+(:func:`planbench.geometry.occupancy.scene_grid`: the obstacles' box grown by the field's reach).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 
 __all__ = ["occupied_part"]
 

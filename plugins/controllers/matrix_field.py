@@ -32,7 +32,7 @@ from planbench.field.full import full_field
 from planbench.field.kernels import Kernels, KernelSpec
 from planbench.field.scene_field import FieldRepulsion, standoff_gain
 from planbench.field.surface import surface_grid
-from planbench.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.controller import Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem

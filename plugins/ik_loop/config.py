@@ -155,7 +155,7 @@ class IKLoopConfig:
     early exit); 0 = never."""
     verify_path: bool = True
     """Before claiming success, certify the whole trajectory against the true scene with the
-    harness's checker (:mod:`planbench.certified`), so that success is never claimed on a colliding path."""
+    harness's checker (:mod:`planbench.checking.certified`), so that success is never claimed on a colliding path."""
 
     # --- self-collision (:mod:`.self_collision`) ---------------------------------------------
     self_collision: bool = True

@@ -16,7 +16,7 @@ loop's kinematics were last updated to (``kin.data``):
    [m], the witness points on both bodies [m], and the unit normal ``n`` from the first body (a
    robot geometry) towards the second (an obstacle, or another robot geometry).
 
-A convex hull (qhull, as :mod:`planbench.certified` builds them) contains its mesh, so ``d`` never
+A convex hull (qhull, as :mod:`planbench.checking.certified` builds them) contains its mesh, so ``d`` never
 overestimates the true clearance: a constraint that keeps the hulls apart keeps the meshes apart.
 (``buildConvexRepresentation`` is not a hull: it keeps a mesh's own triangles, and on a non-convex
 mesh such as the UR5's GJK then overestimates distances by centimetres.) Hull-to-primitive queries
@@ -31,7 +31,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import fresh_geometry_data
+from planbench.checking.collision import fresh_geometry_data
 
 __all__ = ["DistanceModel", "PairDistances"]
 

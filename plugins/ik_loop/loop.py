@@ -50,10 +50,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from planbench.collision import CollisionChecker
-from planbench.field import backend as field_backend
+from planbench.checking.collision import CollisionChecker
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
+from planbench.runtime import backend as field_backend
 from planbench.validate import verdict_checker
 from planbench_plugins.ik_loop import fast
 from planbench_plugins.ik_loop.config import IKLoopConfig, resolve_hierarchy

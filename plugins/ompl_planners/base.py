@@ -15,7 +15,7 @@ How a query runs (all inside ``plan()``, so all of it is timed by the harness):
 4. The path is simplified (``simplify=True``, OMPL's ``PathSimplifier`` via ``simplifySolution``)
    for at most what is left of the time limit; its time is reported apart in ``info``.
 5. The path is certified as the harness certifies it (``verify=True``,
-   :class:`planbench.certified.CertifiedChecker`, its verdict only: every segment proven free, no
+   :class:`planbench.checking.certified.CertifiedChecker`, its verdict only: every segment proven free, no
    sampling). OMPL's search and simplifier check motions at sampled points, and the simplifier's
    shortcuts can graze an obstacle between them (seen on MotionBenchMaker: up to 0.2 mm deep). A
    segment that fails is *repaired*: replaced by a detour through one random waypoint near its first
@@ -39,7 +39,7 @@ How a query runs (all inside ``plan()``, so all of it is timed by the harness):
    248 ms for the repair's first version there; so both stay ``"sampled"`` by default.
 
 Collision checking: a plain Python function is OMPL's state validity checker; it calls
-:meth:`planbench.collision.CollisionChecker.in_collision` (coal, robot against the scene's
+:meth:`planbench.checking.collision.CollisionChecker.in_collision` (coal, robot against the scene's
 primitives plus self-collision with the robot's ignore list, through a broadphase) or, with
 ``collision="grid"``, the same checker against the voxelized scene (:mod:`.grid`). States are
 sampled within the joint limits, so the checker does not test limits.
@@ -83,7 +83,7 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, UnknownNameError
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem

@@ -1,9 +1,9 @@
 """Collision checking against an occupancy grid instead of the scene's primitives.
 
 The planner can be given the same voxel information the matrix-field planner sees: the scene is
-voxelized with :meth:`planbench.occupancy.OccupancyGrid.from_scene` (rule ``"any"``: a cell is
+voxelized with :meth:`planbench.geometry.occupancy.OccupancyGrid.from_scene` (rule ``"any"``: a cell is
 occupied when any part of it overlaps an obstacle, so obstacles grow by at most one cell and never
-shrink), and the occupied cells become coal geometry in a :class:`~planbench.collision.CollisionChecker`
+shrink), and the occupied cells become coal geometry in a :class:`~planbench.checking.collision.CollisionChecker`
 (so robot self-collision, the ignore list and the broadphase are the same as in the exact mode):
 
 - ``"octree"``: one ``coal.OcTree`` holding the occupied cells. The grid's origin is snapped to a
@@ -28,8 +28,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import CollisionChecker
-from planbench.occupancy import OccupancyGrid, merge_cells, scene_grid
+from planbench.checking.collision import CollisionChecker
+from planbench.geometry.occupancy import OccupancyGrid, merge_cells, scene_grid
 from planbench.robot import Robot
 from planbench.scene import Scene
 
@@ -61,7 +61,7 @@ class _GeometryScene:
 
 
 def grid_for_scene(scene: Scene, resolution: float, padding: float = 0.0) -> OccupancyGrid:
-    """The scene voxelized (:func:`planbench.occupancy.scene_grid`, rule ``"any"``) on cells aligned
+    """The scene voxelized (:func:`planbench.geometry.occupancy.scene_grid`, rule ``"any"``) on cells aligned
     to multiples of ``resolution`` [m], as an octree needs (bounds: the scene's bounding box grown by
     ``padding`` [m], rounded out to whole cells)."""
     grid = scene_grid(scene, resolution, padding, aligned=True)

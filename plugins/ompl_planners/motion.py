@@ -13,7 +13,7 @@ apart instead.
 
 The configurations of one motion go to pinocchio in one batch (``computeCollisionsInParallel`` on a
 one-thread broadphase pool, the same dynamic AABB tree and geometry as
-:meth:`planbench.collision.CollisionChecker.in_collision`), in bisection order (the end state first,
+:meth:`planbench.checking.collision.CollisionChecker.in_collision`), in bisection order (the end state first,
 then midpoints of ever smaller intervals, as OMPL's validator does), stopping at the first collision:
 one call from Python per motion instead of one per configuration.
 
@@ -35,8 +35,8 @@ import numpy as np
 import pinocchio as pin
 from ompl import base as ob
 
-from planbench.certified import CertifiedChecker, PathVerdict
-from planbench.collision import CollisionChecker
+from planbench.checking.certified import CertifiedChecker, PathVerdict
+from planbench.checking.collision import CollisionChecker
 
 __all__ = ["CertifiedSegments", "SegmentChecker", "bisection_order", "make_motion_validator"]
 

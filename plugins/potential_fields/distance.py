@@ -29,7 +29,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import fresh_geometry_data
+from planbench.checking.collision import fresh_geometry_data
 from planbench.problem import Problem
 from planbench.robot import _link_of
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion

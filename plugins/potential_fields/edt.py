@@ -2,7 +2,7 @@
 
 Setup (untimed):
 
-1. the scene voxelized like the matrix field's (:func:`planbench.occupancy.scene_grid`: rule ``"any"``, 0.02 m cells,
+1. the scene voxelized like the matrix field's (:func:`planbench.geometry.occupancy.scene_grid`: rule ``"any"``, 0.02 m cells,
    the scene's box grown by ``d0`` plus one cell, cut to the robot's reach);
 2. signed distance at cell centres from scipy's ``distance_transform_edt``, outside and inside:
    ``sd = edt(free) * r - r/2`` in free cells, ``-(edt(occupied) * r - r/2)`` in occupied ones.
@@ -28,7 +28,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from planbench.field.full import MatrixField
-from planbench.occupancy import scene_grid
+from planbench.geometry.occupancy import scene_grid
 from planbench.problem import Problem
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
 from planbench_plugins.potential_fields.config import EDTFieldConfig

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planbench.collision import CollisionChecker
+from planbench.checking.collision import CollisionChecker
 from planbench.metrics import densify
 from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem

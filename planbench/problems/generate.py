@@ -1,6 +1,6 @@
-"""Regenerate planbench's own problem sets: ``python -m planbench.generate --out planbench/data/gen``.
+"""Regenerate planbench's own problem sets: ``python -m planbench.problems.generate --out planbench/data/gen``.
 
-The command line of :mod:`planbench.generators` (``--help`` for its options). It lives in a module
+The command line of :mod:`planbench.problems.generators` (``--help`` for its options). It lives in a module
 of its own because ``planbench`` imports the generators on start-up (for the ``gen:`` selector), and
 ``python -m`` on a module that is already imported runs it twice.
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from planbench.generators import main
+from planbench.problems.generators import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,18 +3,17 @@
 ``backend="auto"`` uses numba when it is installed and numpy/scipy otherwise; both give the same
 numbers (to rounding). numba is imported on first use only, so ``import planbench`` stays fast.
 A command can make ``"auto"`` mean numpy for the whole process (:func:`prefer`): ``planbench plan``
-does while numba's cache is cold (:mod:`planbench.compile_cache`).
+does while numba's cache is cold (:mod:`planbench.runtime.compile_cache`).
 """
 
 from __future__ import annotations
 
 import functools
 import importlib.util
-from types import ModuleType
 
 from planbench.errors import InvalidConfigError
 
-__all__ = ["BACKENDS", "have_numba", "prefer", "resolve", "compiled"]
+__all__ = ["BACKENDS", "have_numba", "prefer", "resolve"]
 
 BACKENDS = ("auto", "numba", "numpy")
 _AUTO: str | None = None  # what "auto" means in this process when set (prefer)
@@ -46,10 +45,3 @@ def resolve(backend: str) -> str:
     if backend == "numba" and not have_numba():
         raise InvalidConfigError("field backend 'numba' needs numba: pip install numba (or use backend='numpy')")
     return backend
-
-
-def compiled() -> ModuleType:
-    """The compiled kernels module (imports numba)."""
-    from planbench.field import _compiled  # on use: numba is optional and takes ~0.15 s to import
-
-    return _compiled

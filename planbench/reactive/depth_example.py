@@ -1,7 +1,7 @@
 """The shipped depth-camera example: a MotionBenchMaker scene seen by two simulated depth cameras,
 as a problem whose only obstacle is the point cloud they return.
 
-Regenerate it (deterministic for a seed) with ``python -m planbench.depth_example [OUT_DIR]``;
+Regenerate it (deterministic for a seed) with ``python -m planbench.reactive.depth_example [OUT_DIR]``;
 by default it rewrites ``planbench/data/examples``. The cameras are those of
 :mod:`planbench.reactive.sensing` (Embree ray casting, range noise along each ray, the robot
 removed by its geometry at the start configuration), cropped to the cube the arm can reach (as the
@@ -16,12 +16,13 @@ from __future__ import annotations
 import json
 import sys
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from planbench.pointcloud import VoxelCloud, write_points
+from planbench.geometry.pointcloud import VoxelCloud, write_points
 
 __all__ = ["DepthExample", "EXAMPLE", "make_example"]
 
@@ -57,7 +58,7 @@ EXAMPLE = DepthExample()
 
 def example_cloud(spec: DepthExample = EXAMPLE) -> tuple[Any, np.ndarray]:
     """The source problem and the cameras' (N, 3) points [m], one per occupied cube."""
-    from planbench.datasets import load_problems
+    from planbench.problems.datasets import load_problems
     from planbench.reactive.scenario import CameraSettings, SensingSettings
     from planbench.reactive.sensing import Sensor, default_bounds
 
@@ -107,7 +108,7 @@ def make_example(out_dir: str | Path, spec: DepthExample = EXAMPLE) -> Path:
         metadata={
             "set": "examples",
             "source": spec.source,
-            "generator": "planbench.depth_example",
+            "generator": "planbench.reactive.depth_example",
             "seed": spec.seed,
             "cameras": [{"position": list(p), "look_at": list(a)} for p, a in spec.cameras],
             "image": [spec.width, spec.height],
@@ -128,7 +129,7 @@ def make_example(out_dir: str | Path, spec: DepthExample = EXAMPLE) -> Path:
 
 def shipped_example_dir() -> Path:
     """Where the shipped example lives (inside the installed package)."""
-    return Path(__file__).parent / "data" / "examples"
+    return Path(str(resources.files("planbench") / "data" / "examples"))
 
 
 def _summary(cloud: VoxelCloud) -> str:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from planbench.bench.plots import _pyplot, _save, rate_bar
+from planbench.visual.plots import pyplot, save, success_bar
 
 __all__ = ["clearance_over_time", "scenario_keys", "success_by", "tick_time_ecdf", "write_dynamic_plots"]
 
@@ -50,7 +50,7 @@ def _ticks(row: dict[str, Any]) -> np.ndarray:
 
 
 def tick_time_ecdf(rows: Sequence[dict[str, Any]], path: Path, period: float = 0.01) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for c in _controllers(rows):
         ticks = np.concatenate([_ticks(r) for r in rows if r["planner"] == c] or [np.zeros(0)])
@@ -66,7 +66,7 @@ def tick_time_ecdf(rows: Sequence[dict[str, Any]], path: Path, period: float = 0
     ax.set_title("controller compute time per tick (ECDF)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize="small")
-    _save(fig, path)
+    save(fig, path)
 
 
 def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
@@ -79,7 +79,7 @@ def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
     order = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
     groups = sorted({k for k, _ in keyed}, key=lambda k: (order.get(k, 9), k))
     controllers = _controllers([r for _, r in keyed])
-    plt = _pyplot()
+    plt = pyplot()
     width = 0.8 / max(1, len(controllers))
     fig, ax = plt.subplots(figsize=(max(6, 1.6 * len(groups) + 3), 4))
     x = np.arange(len(groups))
@@ -87,14 +87,14 @@ def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
         pos = x + (i - (len(controllers) - 1) / 2) * width
         for xi, g in zip(pos, groups, strict=True):
             members = [r for k, r in keyed if k == g and r["planner"] == c]
-            rate_bar(ax, xi, members, width, i, c if g == groups[0] else None)
+            success_bar(ax, xi, members, width, i, c if g == groups[0] else None)
     ax.set_xticks(x, groups)
     ax.set_ylim(0, 1.12)
     ax.set_xlabel({"speed": "obstacle speed", "sensing": "sensing model"}.get(key, key))
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.set_title(f"closed-loop success by {key}")
     ax.legend(fontsize="small", loc="upper right")
-    _save(fig, path)
+    save(fig, path)
     return True
 
 
@@ -104,7 +104,7 @@ def clearance_over_time(scenario: Any, runs: dict[str, tuple[np.ndarray, np.ndar
     from planbench.reactive.checker import TickChecker
 
     checker = TickChecker(scenario)
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     for label, (times, path_q) in runs.items():
         d = np.array([checker.clearance(q, t) for t, q in zip(times, path_q, strict=True)])
@@ -115,7 +115,7 @@ def clearance_over_time(scenario: Any, runs: dict[str, tuple[np.ndarray, np.ndar
     ax.set_title(f"{scenario.name}: clearance over time")
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small")
-    _save(fig, path)
+    save(fig, path)
 
 
 def write_dynamic_plots(rows: Sequence[dict[str, Any]], folder: str | Path, fmt: str = "png") -> list[Path]:

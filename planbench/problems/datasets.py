@@ -6,9 +6,9 @@ Selectors:
 - ``mbm:<family>``: one family; ``mbm:<family>/0007``: one problem;
 - ``mbm:<family>/0001-0020`` or ``mbm:*/0021-0100``: an index range (inclusive);
 - ``gen`` or ``gen:*``: planbench's own generated problems (``planbench/data/gen``, see
-  :mod:`planbench.generators`); ``gen:<robot>_<family>/0001-0003``, ``gen:ur5_*``, ``gen:*_shelf``;
+  :mod:`planbench.problems.generators`); ``gen:<robot>_<family>/0001-0003``, ``gen:ur5_*``, ``gen:*_shelf``;
 - ``examples`` or ``examples:<name>``: the shipped example problems (``planbench/data/examples``),
-  e.g. ``examples:depth_camera_table``, a depth-camera point cloud (:mod:`planbench.depth_example`);
+  e.g. ``examples:depth_camera_table``, a depth-camera point cloud (:mod:`planbench.reactive.depth_example`);
 - a path to a problem JSON file, or to a folder of them.
 
 The MotionBenchMaker data ships inside planbench (``planbench/data/mbm``, with its README as
@@ -41,7 +41,7 @@ def problem_sets() -> dict[str, str]:
     return {
         "mbm": "MotionBenchMaker Panda set (Chamzas et al. 2022), 7 families x 100 problems: "
         + ", ".join(mbm_families()),
-        "gen": "planbench's own generated scenes (planbench.generators), 25 problems per set: "
+        "gen": "planbench's own generated scenes (planbench.problems.generators), 25 problems per set: "
         + ", ".join(shipped_sets()),
         "examples": "shipped example problems: " + ", ".join(example_names()),
     }
@@ -214,7 +214,7 @@ def _load_gen(rest: str) -> list[Problem]:
     return out
 
 
-# --- planbench's own generated set (written by planbench.generators) --------------------------
+# --- planbench's own generated set (written by planbench.problems.generators) --------------------------
 
 GEN_SEED = 0
 """The seed of the shipped generated set; problems of other seeds are named ``gen-s<seed>:``."""

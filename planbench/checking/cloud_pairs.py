@@ -3,7 +3,7 @@
 coal answers a mesh-to-octree distance in tens of milliseconds to over a hundred on a 30k-cube
 depth-camera cloud (its octree traversal prunes poorly on thin shells), a hull-to-octree one in
 about 1-2 ms. Certification needs thousands of such queries per path. So for a pair of a robot
-body and a cloud (:mod:`planbench.pointcloud`: a union of lattice cubes) the certified checker
+body and a cloud (:mod:`planbench.geometry.pointcloud`: a union of lattice cubes) the certified checker
 uses instead:
 
 - **bound**: the body's bounding sphere (centre and radius from its local AABB) against the cubes,
@@ -15,7 +15,7 @@ uses instead:
   BVH of the exposed cube faces, ~0.5 ms): outside the union the nearest point of the union lies on
   its boundary, so the two distances are equal.
 
-The same octree is what :class:`~planbench.collision.CollisionChecker` tests, so "free" means the
+The same octree is what :class:`~planbench.checking.collision.CollisionChecker` tests, so "free" means the
 same in both.
 """
 

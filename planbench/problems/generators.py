@@ -43,7 +43,7 @@ A scene whose start, IK or checks fail is drawn again (``attempts`` counts the d
 rounded to 0.1 mm and joint values to 1 urad, so files come out byte-identical.
 
 The shipped set (``planbench/data/gen``, selector ``gen:<robot>_<family>/<range>``) is regenerated
-with ``python -m planbench.generate --out planbench/data/gen`` (its command line: :func:`main`).
+with ``python -m planbench.problems.generate --out planbench/data/gen`` (its command line: :func:`main`).
 """
 
 from __future__ import annotations
@@ -65,11 +65,11 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from planbench.collision import CollisionChecker, fresh_geometry_data
-from planbench.datasets import GEN_SEED, problem_from_record, shipped_problems, shipped_sets
+from planbench.checking.collision import CollisionChecker, fresh_geometry_data
 from planbench.errors import InvalidConfigError, PlanbenchError, UnknownNameError
 from planbench.harness import plan
 from planbench.problem import Problem
+from planbench.problems.datasets import GEN_SEED, problem_from_record, shipped_problems, shipped_sets
 from planbench.robot import Robot, load_robot
 from planbench.scene import Obstacle, Scene
 from planbench.validate import evaluate, verdict_checker
@@ -88,14 +88,14 @@ __all__ = [
 ]
 
 GENERATOR_VERSION = 1
-GENERATOR = f"planbench.generators/{GENERATOR_VERSION}"
+GENERATOR = f"planbench.generators/{GENERATOR_VERSION}"  # the generator's name in the files: kept across moves
 FAMILIES = ("shelf", "window", "pillars", "table_clutter")
 GEN_FORMAT = "planbench-gen/1"
 MANIFEST_FORMAT = "planbench-gen-manifest/1"
 SHIPPED_ROBOTS = ("panda", "ur5")
 SHIPPED_COUNT = 25
 SHIPPED_SEED = GEN_SEED
-COMMAND = "python -m planbench.generate --out planbench/data/gen"
+COMMAND = "python -m planbench.problems.generate --out planbench/data/gen"
 
 START_NOISE = 0.15  # [rad] standard deviation of the start's offset from home, per joint
 START_CLEARANCE = 0.03  # [m] from obstacles
@@ -727,7 +727,7 @@ def _summary(rows: dict[str, dict[str, Any]]) -> dict[str, dict[str, int]]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m planbench.generate",
+        prog="python -m planbench.problems.generate",
         description="Generate planbench's own problem sets (shelf, window, pillars, table_clutter).",
     )
     ap.add_argument("--out", type=Path, required=True, help="output folder (the shipped set: planbench/data/gen)")
@@ -746,10 +746,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _main(args)
     except PlanbenchError as exc:
-        print(f"python -m planbench.generate: error: {exc}", file=sys.stderr)
+        print(f"python -m planbench.problems.generate: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("python -m planbench.generate: interrupted", file=sys.stderr)
+        print("python -m planbench.problems.generate: interrupted", file=sys.stderr)
         return 130
 
 
@@ -790,7 +790,7 @@ def _main(args: argparse.Namespace) -> int:
 
 
 def _read_json(path: Path, what: str) -> Any:
-    from planbench.files import InputFileError, read_json
+    from planbench.files.inputs import InputFileError, read_json
 
     try:
         return read_json(path)

@@ -2,8 +2,8 @@
 
 ::
 
-    import planbench.results
-    df = planbench.results.load("results.db")                  # one row per run
+    import planbench.bench.results
+    df = planbench.bench.results.load("results.db")                  # one row per run
     df.groupby("planner")["success"].mean()                    # success rate per planner
     df.loc[df.success, "planning_time"].median()               # [s], validated successes
     path = df.loc[0, "path"]                                    # (N, nq) float64 array [rad], or None
@@ -26,7 +26,7 @@ import numpy as np
 
 from planbench.bench.db import ResultsDB
 from planbench.errors import PlanbenchError
-from planbench.outputs import check_output
+from planbench.files.outputs import check_output
 
 __all__ = ["JSON_COLUMNS", "load", "write_parquet"]
 

@@ -4,7 +4,7 @@ The field kernels and the IK loop's step are compiled by numba on first use and 
 (``cache=True``); compiling them all takes 8 s on the 2-core VM, loading them from the cache
 well under a second. A first ``planbench plan`` on a fresh install should not wait for that:
 when the cache is cold, ``plan`` computes with the numpy implementations (the same numbers to
-rounding, a few times slower per step) and starts ``python -m planbench.compile_cache`` in the
+rounding, a few times slower per step) and starts ``python -m planbench.runtime.compile_cache`` in the
 background, which compiles the kernels, at low priority, then leaves a marker saying so. The
 benchmark never takes this route: its workers compile before their first timed setup.
 
@@ -15,7 +15,6 @@ again. A marker whose cache was deleted since costs one compilation, never a wro
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
 import importlib.util
 import os
@@ -23,19 +22,48 @@ import platform
 import shutil
 import subprocess
 import sys
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
-__all__ = ["enabled", "is_warm", "marker_path", "use_private_cache", "warm_in_background", "warm_now", "warm_up"]
+__all__ = [
+    "KERNELS_GROUP",
+    "enabled",
+    "is_warm",
+    "kernel_modules",
+    "kernel_sources",
+    "mark_warm",
+    "marker_path",
+    "use_private_cache",
+    "warm_in_background",
+    "warm_now",
+]
 
-KERNEL_MODULES = ("planbench.field._compiled", "planbench_plugins.ik_loop._compiled")
-"""The modules whose functions numba compiles with ``cache=True``."""
+COMPILE_MODULE = "planbench.cli.compile"
+"""What the background compilation runs (``python -m``): plans of the field planners, which
+compile (or load) every kernel they use; a module of the command line, since it plans."""
+
+KERNELS_GROUP = "planbench.kernels"
+"""The entry-point group in which a package declares a module whose functions numba compiles with
+``cache=True`` (name: any; value: the module), for instance in its ``pyproject.toml``::
+
+    [project.entry-points."planbench.kernels"]
+    my-planner = "my_planner._compiled"
+
+The marker's key includes those modules' sources, and a sandboxed worker's private cache is seeded
+with their cached code. Read from the installed metadata: nothing is imported."""
 
 
-def _sources() -> list[Path]:
+def kernel_modules() -> list[str]:
+    """The modules declared in :data:`KERNELS_GROUP` by the installed packages, sorted."""
+    return sorted({ep.value.split(":")[0].strip() for ep in entry_points(group=KERNELS_GROUP)})
+
+
+def kernel_sources() -> list[Path]:
+    """The source files of :func:`kernel_modules` (found without importing them, or numba)."""
     out = []
-    for name in KERNEL_MODULES:
-        spec = importlib.util.find_spec(name)  # the module's file, without importing (numba) it
+    for name in kernel_modules():
+        spec = importlib.util.find_spec(name)
         if spec is not None and spec.origin:
             out.append(Path(spec.origin))
     return out
@@ -46,7 +74,7 @@ def marker_path() -> Path:
     import numba
 
     key = [numba.__version__, sys.version, platform.machine(), _cpu_name()]
-    for src in _sources():
+    for src in kernel_sources():
         st = src.stat()
         key.append(f"{src}:{st.st_mtime_ns}:{st.st_size}")
     digest = hashlib.sha256("\n".join(key).encode()).hexdigest()[:16]
@@ -70,34 +98,28 @@ def enabled() -> bool:
 
 
 def is_warm() -> bool:
-    """Whether the background compilation (or :func:`warm_up`) has run for this cache key."""
+    """Whether the background compilation (:mod:`planbench.cli.compile`) has run for this cache key."""
     try:
         return marker_path().exists()
     except (OSError, ImportError):
         return False
 
 
-def warm_up() -> None:
-    """Compile (or load) the kernels a field planner's plan uses, then write the marker: one plan
-    of each field planner on a small MotionBenchMaker problem."""
-    import planbench
+def _compile_command() -> tuple[list[str], dict[str, Any]]:
+    """The command that runs :data:`COMPILE_MODULE`, and the keywords that discard its input and output."""
+    quiet = {name: subprocess.DEVNULL for name in ("stdin", "stdout", "stderr")}
+    return [sys.executable, "-m", COMPILE_MODULE], quiet
 
-    problem = planbench.load_problems("mbm:box/0001")[0]
-    for planner in ("matrix-field", "edt-field", "distance-field"):
-        planbench.plan(problem, planner, seed=0, time_limit=30.0, backend="numba", max_steps=50)
+
+def mark_warm() -> None:
+    """Write the marker: numba's cache now holds the kernels for this key."""
     path = marker_path()
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("numba's cache holds planbench's kernels for this key\n")
 
 
-def _compile_command() -> tuple[list[str], dict[str, Any]]:
-    """The command that runs :func:`main`, and the keywords that discard its input and output."""
-    quiet = {name: subprocess.DEVNULL for name in ("stdin", "stdout", "stderr")}
-    return [sys.executable, "-m", "planbench.compile_cache"], quiet
-
-
 def warm_in_background() -> None:
-    """Start :func:`warm_up` in a detached, low-priority process (output discarded); at most one
+    """Start :data:`COMPILE_MODULE` in a detached, low-priority process (output discarded); at most one
     runs at a time (a lock file next to the marker)."""
     try:
         # start_new_session: it outlives the command that started it, untouched by its Ctrl-C
@@ -120,7 +142,7 @@ def use_private_cache(directory: str) -> int:
     os.makedirs(directory, exist_ok=True)
     copied = 0
     user = os.environ.get("NUMBA_CACHE_DIR", "")
-    for src in _sources():
+    for src in kernel_sources():
         target = os.path.join(directory, cache_subpath(src))
         for shared in _shared_cache_dirs(src, user):
             files = sorted(shared.glob(f"{src.stem}.*.nb[ic]"))
@@ -155,7 +177,7 @@ def _shared_cache_dirs(src: Path, user: str = "") -> list[Path]:
 
 
 def warm_now(timeout: float = 600.0) -> bool:
-    """Fill the shared cache (:func:`warm_up`, in a child process) unless it is warm; whether it is
+    """Fill the shared cache (:data:`COMPILE_MODULE`, in a child process) unless it is warm; whether it is
     warm afterwards. The benchmark does this before its workers start: a sandboxed worker cannot
     write the shared cache, so each would otherwise compile in its own (5-8 s per worker)."""
     if is_warm():
@@ -166,21 +188,3 @@ def warm_now(timeout: float = 600.0) -> bool:
     except (OSError, subprocess.TimeoutExpired):
         return False
     return is_warm()
-
-
-def main() -> None:
-    """The background process: compile unless another process is at it or it is done."""
-    os.nice(10)
-    lock_path = marker_path().with_suffix(".lock")
-    lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(lock_path, "w") as lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:  # another one is compiling
-            return
-        if not is_warm():
-            warm_up()
-
-
-if __name__ == "__main__":
-    main()

@@ -37,7 +37,7 @@ __all__ = [
 MAX_TEXT_BYTES = 64 << 20
 """[B] The largest problem, scene, scenario, suite or robot settings file read (64 MiB). Shipped
 and generated problem files are a few kB; a scene with 10,000 obstacles is about 2 MB. Point
-clouds and meshes are binary files with their own limits (:mod:`planbench.pointcloud`)."""
+clouds and meshes are binary files with their own limits (:mod:`planbench.geometry.pointcloud`)."""
 
 
 class InputFileError(PlanbenchError):

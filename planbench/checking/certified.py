@@ -51,8 +51,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.cloud_pairs import cloud_pairs
-from planbench.collision import CollisionChecker, fresh_geometry_data
+from planbench.checking.cloud_pairs import cloud_pairs
+from planbench.checking.collision import CollisionChecker, fresh_geometry_data
 from planbench.robot import _link_of
 
 __all__ = ["CertifiedChecker", "CertificationSettings", "PathVerdict"]
@@ -154,7 +154,7 @@ class _Sample:
 class CertifiedChecker:
     """Certified collision checking of joint-space paths for one robot in one scene.
 
-    Built from the same pinocchio ``GeometryModel`` as :class:`planbench.collision.CollisionChecker`
+    Built from the same pinocchio ``GeometryModel`` as :class:`planbench.checking.collision.CollisionChecker`
     (robot self-collision pairs, SRDF and ignore list removed, plus every robot / obstacle pair), so
     "free" means free for the geometry that ``in_collision`` checks. Not thread-safe (own buffers).
 
@@ -180,7 +180,7 @@ class CertifiedChecker:
         self.n_pairs = len(pairs)
         self._pairs = [(int(p.first), int(p.second)) for p in pairs]
         # point-cloud pairs: a bounding-sphere bound and a collide-then-surface distance instead of
-        # coal's octree distances (planbench.cloud_pairs); pinocchio's batch call skips them
+        # coal's octree distances (planbench.checking.cloud_pairs); pinocchio's batch call skips them
         self._clouds = cloud_pairs(self.geometry_model, self._pairs, scene, self.n_robot_geoms)
         for k in self._clouds:
             self._hull_data.deactivateCollisionPair(k)

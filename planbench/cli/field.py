@@ -1,6 +1,6 @@
 """CLI subcommands of the matrix field: ``field``, ``kernel`` and ``bench-field``.
 
-``planbench.cli`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
+``planbench.cli.main`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
 takes the parsed arguments and returns an exit code.
 """
 
@@ -15,9 +15,9 @@ from planbench.errors import InvalidConfigError
 from planbench.field import full_field, surface_grid
 from planbench.field.bench import add_arguments, run_from_args
 from planbench.field.kernels import PROFILES, TAPERS, KernelSpec
-from planbench.files import check_writable
-from planbench.occupancy import OccupancyGrid
-from planbench.outputs import check_output
+from planbench.files.inputs import check_writable
+from planbench.files.outputs import check_output
+from planbench.geometry.occupancy import OccupancyGrid
 
 log = logging.getLogger(__name__)
 

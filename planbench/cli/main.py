@@ -20,19 +20,19 @@ from rich.table import Table
 
 import planbench
 from planbench.bench.suite import check_seconds, check_seed, expand_problems
-from planbench.datasets import problem_sets
 from planbench.errors import PlanbenchError
-from planbench.files import check_writable, release_outputs
+from planbench.files.inputs import check_writable, release_outputs
+from planbench.files.outputs import check_output
 from planbench.harness import DEFAULT_TIME_LIMIT
-from planbench.outputs import check_output
 from planbench.planner import PlanResult, PlanStatus
+from planbench.problems.datasets import problem_sets
 from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
 
 log = logging.getLogger("planbench")
 
 # Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
-COMMAND_MODULES = ("planbench.bench.commands", "planbench.field.commands")
+COMMAND_MODULES = ("planbench.cli.bench", "planbench.cli.field")
 
 
 def parse_setting(text: str) -> tuple[str, str]:
@@ -132,9 +132,8 @@ def _fmt(value: Any, unit: str) -> str:
 def _numpy_while_cold(planner: Any) -> None:
     """A planner that would compile numba code on a cold cache computes with numpy instead (the same
     numbers to rounding), while the kernels compile in the background for the next command
-    (:mod:`planbench.compile_cache`); ``PLANBENCH_BACKGROUND_COMPILE=0`` turns this off."""
-    from planbench import compile_cache
-    from planbench.field import backend
+    (:mod:`planbench.runtime.compile_cache`); ``PLANBENCH_BACKGROUND_COMPILE=0`` turns this off."""
+    from planbench.runtime import backend, compile_cache
 
     if not compile_cache.enabled() or not getattr(planner, "use_numba", False) or compile_cache.is_warm():
         return
@@ -161,7 +160,7 @@ def _worker_settings(setup: Any) -> dict[str, Any]:
     """The planner's settings as its worker gets them: those given, plus ``backend="numpy"`` where
     this command chose numpy for a cold numba cache (:func:`_numpy_while_cold`; the choice is made
     in this process, the worker is a fresh interpreter)."""
-    from planbench.field import backend
+    from planbench.runtime import backend
 
     settings = dict(setup.settings)
     config = setup.config
@@ -285,8 +284,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if path is None:
             console.print("no path to replay")
         else:
-            from planbench.occupancy import scene_grid
-            from planbench.replay import write_replay
+            from planbench.geometry.occupancy import scene_grid
+            from planbench.visual.replay import write_replay
 
             name = f"{args.planner} on {problem.id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
             grid = scene_grid(problem.scene, 0.02, robot=problem.robot)
@@ -307,7 +306,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from planbench.replay import replay_run
+    from planbench.bench.replay import replay_run
 
     check_writable(args.out, "--out")
     out = replay_run(args.db, args.run, check_output(args.out, [args.db]))
@@ -316,7 +315,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from planbench.check import check_in_subprocess
+    from planbench.cli.check import check_in_subprocess
 
     check_seconds(args.timeout, "--timeout")
     kind = "controller" if args.controller else "planner"

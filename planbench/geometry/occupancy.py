@@ -18,7 +18,7 @@ covered volume, and ``"any"`` misses only slivers thinner than ``resolution / su
 boxes, ``"any"`` is exact instead: a separating-axis test of the cell against the box). Only
 cells the obstacle's surface passes through are sub-sampled (found with exact signed distances).
 Mesh obstacles are voxelized with coal (a cell-sized box against the mesh): the ``"any"`` rule,
-whatever rule is asked for. Point clouds (unions of lattice cubes, :mod:`planbench.pointcloud`)
+whatever rule is asked for. Point clouds (unions of lattice cubes, :mod:`planbench.geometry.pointcloud`)
 are voxelized exactly for ``"any"`` (a cell counts when its interior meets a cube) and ``"center"``;
 ``"fraction"`` sub-samples the cells that ``"any"`` marks.
 """
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from planbench.errors import ResourceLimitError
-from planbench.overlap import cubes_overlap_boxes
+from planbench.geometry.overlap import cubes_overlap_boxes
 from planbench.scene import Scene
 
 __all__ = ["MAX_GRID_CELLS", "OccupancyGrid", "grid_shape", "merge_cells", "scene_grid"]
@@ -63,7 +63,8 @@ def grid_shape(lower: np.ndarray, upper: np.ndarray, resolution: float) -> tuple
         counts = " x ".join(f"{x:.0f}" for x in cells)
         raise ResourceLimitError(
             f"an occupancy grid over {extent} m at {resolution:g} m per cell would have {counts} = {total:.3g} "
-            f"cells, more than the {MAX_GRID_CELLS:,} planbench allocates (planbench.occupancy.MAX_GRID_CELLS): "
+            f"cells, more than the {MAX_GRID_CELLS:,} planbench allocates "
+            "(planbench.geometry.occupancy.MAX_GRID_CELLS): "
             "use a coarser resolution, or check for an obstacle far from the robot"
         )
     return tuple(int(x) for x in cells)  # type: ignore[return-value]
@@ -266,7 +267,7 @@ def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.n
 
 def _cube_box_overlap(centres: np.ndarray, half: float, obstacle: Any) -> np.ndarray:
     """Exact overlap (1.0 or 0.0) of axis-aligned cubes (centres (N, 3), half edge ``half``) with a
-    box obstacle (:func:`planbench.overlap.cubes_overlap_boxes`)."""
+    box obstacle (:func:`planbench.geometry.overlap.cubes_overlap_boxes`)."""
     extents = 0.5 * np.array(obstacle.size)
     hit = cubes_overlap_boxes(centres, half, np.array(obstacle.position), obstacle.rotation, extents, 1e-12)
     return hit.astype(float)  # type: ignore[no-any-return]

@@ -1,6 +1,6 @@
 """CLI subcommands of the benchmark: ``bench``, ``report`` and ``export``.
 
-``planbench.cli`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
+``planbench.cli.main`` calls :func:`add_commands` with its argparse subparsers; each command's ``func``
 takes the parsed arguments and returns an exit code.
 """
 
@@ -25,14 +25,14 @@ from planbench.bench.executors import EXECUTORS, Executor, make_executor
 from planbench.bench.html import write_html
 from planbench.bench.plots import write_plots
 from planbench.bench.report import DYNAMIC_METRICS, failures, metrics_for, summarize, to_csv, to_markdown, to_rich
+from planbench.bench.results import write_parquet
 from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
-from planbench.cli import parse_setting, settings_text
+from planbench.cli.main import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError
-from planbench.files import check_writable
-from planbench.outputs import check_output
-from planbench.results import write_parquet
+from planbench.files.inputs import check_writable
+from planbench.files.outputs import check_output
 
 log = logging.getLogger(__name__)
 

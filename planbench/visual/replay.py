@@ -1,4 +1,4 @@
-"""A 3D replay of a run in one self-contained HTML file: open it in any browser, offline, no server.
+"""A 3D replay of a path in one self-contained HTML file: open it in any browser, offline, no server.
 
 Built on pinocchio's meshcat integration (``pinocchio.visualize.MeshcatVisualizer``) and meshcat's
 static HTML export (``Visualizer.static_html``): the robot's collision meshes and the obstacles
@@ -16,16 +16,18 @@ from __future__ import annotations
 import contextlib
 import html
 import io
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import PlanbenchError
-from planbench.outputs import check_output
+from planbench.files.outputs import check_output
 
-__all__ = ["MAX_FRAMES", "replay_html", "replay_row", "replay_run", "write_replay"]
+__all__ = ["MAX_FRAMES", "replay_html", "write_replay"]
 
 MAX_FRAMES = 600
 FPS = 30
@@ -58,13 +60,16 @@ def replay_html(
     path: np.ndarray,
     times: np.ndarray | None = None,
     *,
-    scenario: Any = None,
+    geometry: Any = None,
+    place: Callable[[float], None] | None = None,
     grid: Any = None,
     title: str = "planbench replay",
 ) -> str:
     """The replay page of ``path`` (an (N, nq) array) on ``problem`` (module docstring) as a
-    string. ``scenario``: a :class:`~planbench.reactive.Scenario` whose moving obstacles move with
-    the path's ``times``; ``grid``: an :class:`~planbench.occupancy.OccupancyGrid` shown on demand."""
+    string. ``geometry``: the pinocchio geometry model shown (default: the robot and the problem's
+    scene); ``place(t)``: puts its moving obstacles where they are at ``t`` [s] of the path's
+    ``times`` (a closed-loop run's :class:`~planbench.reactive.checker.TickChecker` does);
+    ``grid``: an :class:`~planbench.geometry.occupancy.OccupancyGrid` shown on demand."""
     meshcat = _meshcat()
     from pinocchio.visualize import MeshcatVisualizer
 
@@ -72,15 +77,7 @@ def replay_html(
     robot = problem.robot
     if path.ndim != 2 or path.shape[1] != robot.nq or len(path) == 0 or not np.isfinite(path).all():
         raise PlanbenchError(f"a replay needs a finite (N, {robot.nq}) path, got shape {path.shape}")
-    if scenario is not None:
-        from planbench.reactive.checker import TickChecker
-
-        checker: Any = TickChecker(scenario)
-        geometry = checker.checker.geometry_model
-    else:
-        from planbench.collision import CollisionChecker
-
-        checker = None
+    if geometry is None:
         geometry = CollisionChecker(robot, problem.scene).geometry_model
     n_robot = len(robot.collision_model.geometryObjects)
     for i, g in enumerate(geometry.geometryObjects):  # the arm orange, obstacles see-through grey
@@ -96,8 +93,8 @@ def replay_html(
         shown_t, shown_q = _frames(path, times, np.asarray(robot.velocity_limit, dtype=float))
         anim = meshcat.animation.Animation(default_framerate=FPS)
         for k, (t, q) in enumerate(zip(shown_t, shown_q, strict=True)):
-            if checker is not None:
-                checker.place(float(t))
+            if place is not None:
+                place(float(t))
             pin.updateGeometryPlacements(robot.model, data, geometry, gdata, q)
             with anim.at_frame(vis, k) as frame:
                 for node, M in zip(nodes, gdata.oMg, strict=True):
@@ -125,34 +122,6 @@ def write_replay(out: str | Path, problem: Any, path: np.ndarray, times: np.ndar
     target = check_output(out)
     target.write_text(replay_html(problem, path, times, **kw))
     return target
-
-
-def replay_run(db_path: str | Path, run_id: int, out: str | Path) -> Path:
-    """The replay of run ``run_id`` of a results file (:func:`replay_row`)."""
-    from planbench.bench.db import ResultsDB
-
-    with ResultsDB(db_path, read_only=True) as db:
-        rows = [r for r in db.rows(with_arrays=True) if r["id"] == run_id]
-    if not rows:
-        raise PlanbenchError(f"{db_path} holds no run with id {run_id} (planbench export --format csv lists them)")
-    return replay_row(rows[0], out)
-
-
-def replay_row(row: dict[str, Any], out: str | Path) -> Path:
-    """The replay of a results-file row read with its arrays: a planner's path on its problem, or
-    a closed-loop run among its scenario's moving obstacles."""
-    if row.get("path") is None:
-        raise PlanbenchError(f"run {row.get('id')} ({row['planner']} on {row['problem']}) has no path to replay")
-    verdict = "success" if row["success"] else str(row["failure"])
-    title = f"{row['planner']} on {row['problem']}, seed {row['seed']}: {verdict}"
-    if row.get("deadline_misses") is not None:  # a closed-loop run: its scenario, moving obstacles and all
-        from planbench.reactive.sets import load_scenario
-
-        scenario = load_scenario(row["problem"])
-        return write_replay(out, scenario.problem, row["path"], row["times"], scenario=scenario, title=title)
-    from planbench.datasets import load_problem
-
-    return write_replay(out, load_problem(row["problem"]), row["path"], row["times"], title=title)
 
 
 def _close(vis: Any) -> None:

@@ -42,8 +42,8 @@ from typing import Any
 import numpy as np
 
 from planbench.errors import PlanbenchError
-from planbench.files import InputFileError, regular_file
-from planbench.overlap import cubes_overlap_boxes
+from planbench.files.inputs import InputFileError, regular_file
+from planbench.geometry.overlap import cubes_overlap_boxes
 
 __all__ = ["MAX_FILE_BYTES", "MAX_POINTS", "PointCloudError", "VoxelCloud", "load_cloud", "read_points", "write_points"]
 
@@ -148,7 +148,7 @@ def _check_count(p: Path, n: int) -> None:
     if n > MAX_POINTS:
         raise PointCloudError(
             f"point cloud {p}: holds {n:,} points, more than the {MAX_POINTS:,} planbench reads "
-            "(planbench.pointcloud.MAX_POINTS); thin it to one point per cube of edge 2 r (nothing is lost)"
+            "(planbench.geometry.pointcloud.MAX_POINTS); thin it to one point per cube of edge 2 r (nothing is lost)"
         )
 
 
@@ -263,7 +263,7 @@ class VoxelCloud:
         if len(points) > MAX_POINTS:
             raise PointCloudError(
                 f"{len(points):,} points are more than the {MAX_POINTS:,} planbench voxelises "
-                "(planbench.pointcloud.MAX_POINTS)"
+                "(planbench.geometry.pointcloud.MAX_POINTS)"
             )
         pts = np.asarray(points, dtype=float)
         idx = np.floor(pts / cell).astype(np.int64)

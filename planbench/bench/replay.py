@@ -1,0 +1,44 @@
+"""The replay of a run of a results file: its row, its problem or scenario, the 3D page
+(:mod:`planbench.visual.replay`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from planbench.bench.db import ResultsDB
+from planbench.errors import PlanbenchError
+from planbench.visual.replay import write_replay
+
+__all__ = ["replay_row", "replay_run"]
+
+
+def replay_run(db_path: str | Path, run_id: int, out: str | Path) -> Path:
+    """The replay of run ``run_id`` of a results file (:func:`replay_row`)."""
+    with ResultsDB(db_path, read_only=True) as db:
+        rows = [r for r in db.rows(with_arrays=True) if r["id"] == run_id]
+    if not rows:
+        raise PlanbenchError(f"{db_path} holds no run with id {run_id} (planbench export --format csv lists them)")
+    return replay_row(rows[0], out)
+
+
+def replay_row(row: dict[str, Any], out: str | Path) -> Path:
+    """The replay of a results-file row read with its arrays: a planner's path on its problem, or
+    a closed-loop run among its scenario's moving obstacles."""
+    if row.get("path") is None:
+        raise PlanbenchError(f"run {row.get('id')} ({row['planner']} on {row['problem']}) has no path to replay")
+    verdict = "success" if row["success"] else str(row["failure"])
+    title = f"{row['planner']} on {row['problem']}, seed {row['seed']}: {verdict}"
+    if row.get("deadline_misses") is not None:  # a closed-loop run: its scenario, moving obstacles and all
+        from planbench.reactive.checker import TickChecker  # on use: the closed-loop side
+        from planbench.reactive.sets import load_scenario
+
+        scenario = load_scenario(row["problem"])
+        moving = TickChecker(scenario)
+        geometry = moving.checker.geometry_model
+        return write_replay(
+            out, scenario.problem, row["path"], row["times"], geometry=geometry, place=moving.place, title=title
+        )
+    from planbench.problems.datasets import load_problem
+
+    return write_replay(out, load_problem(row["problem"]), row["path"], row["times"], title=title)

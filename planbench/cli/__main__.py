@@ -1,0 +1,7 @@
+"""``python -m planbench.cli``: the ``planbench`` command."""
+
+import sys
+
+from planbench.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,6 @@
+"""Geometry of the world as planners see it: occupancy grids, point clouds, cube-box overlap.
+
+- :mod:`~planbench.geometry.occupancy`: :class:`~planbench.geometry.occupancy.OccupancyGrid`, a scene voxelised.
+- :mod:`~planbench.geometry.pointcloud`: point-cloud obstacles (files, voxel clouds).
+- :mod:`~planbench.geometry.overlap`: exact cell-box overlap, for voxelisation.
+"""
