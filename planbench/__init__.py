@@ -8,6 +8,8 @@ Library use::
     print(planbench.evaluate(problem, result))
 """
 
+from typing import TYPE_CHECKING
+
 from planbench.datasets import load_problems
 from planbench.errors import PlanbenchError
 from planbench.harness import plan
@@ -18,6 +20,9 @@ from planbench.registry import CONTROLLERS, REGISTRY, Registry, make_controller,
 from planbench.robot import Robot, RobotSettings, load_robot
 from planbench.scene import Obstacle, Scene
 from planbench.validate import Evaluation, ValidationSettings, evaluate
+
+if TYPE_CHECKING:  # imported on use (__getattr__ below): its type for type checkers
+    from planbench.reactive.sets import load_scenarios
 
 __version__ = "0.1.0"
 
