@@ -46,7 +46,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--controllers", nargs="+", default=["matrix-field", "edt-field"])
     args = ap.parse_args()
-    print("| sensing | controller | tick median | tick p99 | turns over 1 ms | update per frame | hand-off median | hand-off p99 |")
+    print(
+        "| sensing | controller | tick median | tick p99 | turns over 1 ms | update per frame "
+        "| hand-off median | hand-off p99 |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for sensing in ("depth", "truth"):
         base = load_scenario(f"dynamic:panda_swinging_fast_{sensing}/0001")

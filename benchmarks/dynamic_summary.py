@@ -112,9 +112,16 @@ def compare(quiet: Sequence[dict[str, Any]], loaded: Sequence[dict[str, Any]]) -
     """Per controller, the runs of ``loaded`` whose verdict differs from the same scenario's in
     ``quiet`` (matched by scenario and controller)."""
     before = {(r["problem"], r["planner"]): bool(r["success"]) for r in quiet}
-    lines = ["| controller | runs compared | success quiet | success loaded | verdicts that differ |", "|---|---|---|---|---|"]
+    lines = [
+        "| controller | runs compared | success quiet | success loaded | verdicts that differ |",
+        "|---|---|---|---|---|",
+    ]
     for c in sorted({r["planner"] for r in loaded}):
-        pairs = [(before[(r["problem"], c)], bool(r["success"])) for r in loaded if r["planner"] == c and (r["problem"], c) in before]
+        pairs = [
+            (before[(r["problem"], c)], bool(r["success"]))
+            for r in loaded
+            if r["planner"] == c and (r["problem"], c) in before
+        ]
         differ = sum(a != b for a, b in pairs)
         lines.append(f"| `{c}` | {len(pairs)} | {sum(a for a, _ in pairs)} | {sum(b for _, b in pairs)} | {differ} |")
     return "\n".join(lines)
@@ -123,7 +130,9 @@ def compare(quiet: Sequence[dict[str, Any]], loaded: Sequence[dict[str, Any]]) -
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("db", nargs="+", help="results files (their closed-loop runs are pooled)")
-    parser.add_argument("--loaded", help="a results file of the same scenarios run beside other load: verdicts compared")
+    parser.add_argument(
+        "--loaded", help="a results file of the same scenarios run beside other load: verdicts compared"
+    )
     args = parser.parse_args()
     rows = _rows(args.db)
     if args.loaded:

@@ -51,6 +51,7 @@ def bare(calls: int, cpu: int) -> np.ndarray:
     a, b = socket.socketpair()
     p = ctx.Process(target=_echo, args=(b,), daemon=True)
     p.start()
+    assert p.pid is not None  # set by start()
     b.close()
     os.sched_setaffinity(p.pid, {cpu})
     own = os.sched_getaffinity(0)
@@ -82,6 +83,7 @@ def served(calls: int, cpu: int | None) -> tuple[np.ndarray, np.ndarray, np.ndar
         target=_controller_main, args=(theirs, scenario.to_dict(), "handoff:NullController", {}, 0, there), daemon=True
     )
     p.start()
+    assert p.pid is not None  # set by start()
     theirs.close()
     assert ready.recv() == "plan"
     own = os.sched_getaffinity(0)

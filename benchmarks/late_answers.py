@@ -45,11 +45,24 @@ def main() -> None:
     parser.add_argument("--before", type=float, default=0.005, help="[s] how long before its limit a planner answers")
     parser.add_argument("--load", action="store_true", help="one busy process per core beside the benchmark")
     args = parser.parse_args()
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)] if args.load else []
+    busy = (
+        [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
+        if args.load
+        else []
+    )
     try:
         tasks = [
-            RunTask("handoff", "mbm:table_pick/0001", "mbm:table_pick/0001", "late",
-                    "bench_adversarial_planners:LatePlanner", seed, {"past": -args.before}, time_limit=args.limit, grace=5.0)
+            RunTask(
+                "handoff",
+                "mbm:table_pick/0001",
+                "mbm:table_pick/0001",
+                "late",
+                "bench_adversarial_planners:LatePlanner",
+                seed,
+                {"past": -args.before},
+                time_limit=args.limit,
+                grace=5.0,
+            )
             for seed in range(args.runs)
         ]
         records: dict[int, Any] = {}
@@ -67,7 +80,10 @@ def main() -> None:
           f"load: {'one busy process per core' if args.load else 'none'} ({os.cpu_count()} cores)")
     print(f"hand-off [ms] (parent's plan phase - worker's planning time): median {statistics.median(ms):.2f}, "
           f"p90 {ms[int(0.9 * (len(ms) - 1))]:.2f}, max {ms[-1]:.2f}; tolerance {HANDOFF_TOLERANCE * 1e3:g} ms")
-    print(f"worker's planning time [s]: max {max(reported):.4f}; parent's plan phase [s]: max {max(runner.phases.values()):.4f}")
+    print(
+        f"worker's planning time [s]: max {max(reported):.4f}; "
+        f"parent's plan phase [s]: max {max(runner.phases.values()):.4f}"
+    )
     print(f"statuses: { {s: statuses.count(s) for s in sorted(set(statuses))} } (timeout: an honest answer failed)")
 
 

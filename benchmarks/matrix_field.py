@@ -71,6 +71,7 @@ def bench_step(
 
     # the query's own objects, as the loop uses them (prepared by setup), at a configuration near the start
     prep = planner._prepared
+    assert prep is not None  # set by setup
     kin, inputs, repulsion = prep["kin"], prep["inputs"], prep["repulsion"]
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)

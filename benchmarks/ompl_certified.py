@@ -65,8 +65,8 @@ def _before_package(rev: str) -> str:
     names = subprocess.run(
         ["git", "ls-tree", "--name-only", rev, "plugins/ompl_planners/"], cwd=root, check=True, capture_output=True
     ).stdout.split()
-    for name in names:
-        name = name.decode()
+    for raw in names:
+        name = raw.decode()
         text = subprocess.run(["git", "show", f"{rev}:{name}"], cwd=root, check=True, capture_output=True).stdout
         with open(os.path.join(pkg, os.path.basename(name)), "wb") as f:
             f.write(text)

@@ -97,7 +97,8 @@ def main() -> None:
     print(f"scene_grid (2 cm)        {t_grid * 1e3:8.1f} ms")
     for name, t in t_valid.items():
         ev = planbench.evaluate(problem, paths[name])
-        n = 0 if paths[name].path is None else len(paths[name].path)
+        waypoints = paths[name].path
+        n = 0 if waypoints is None else len(waypoints)
         print(f"evaluate {name:<16}{t * 1e3:8.1f} ms  ({n} waypoints, {ev.status}, success {ev.success})")
 
     coarse = VoxelCloud.from_points(points, 2 * args.boxes_radius)

@@ -26,12 +26,14 @@ import statistics
 import sys
 import time
 from collections import Counter
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from _bench import run_suite
 
 import planbench
+from planbench.planner import Planner
 from planbench_plugins.ik_loop import ArmKinematics
 from planbench_plugins.matrix_field import MatrixFieldPlanner
 from planbench_plugins.potential_fields import DistanceFieldPlanner, EDTFieldPlanner
@@ -95,7 +97,7 @@ def _reason(result: Any, ev: Any) -> str:
 
 def run_mbm(
     selector: str,
-    planners: dict[str, tuple[type, dict[str, Any]]],
+    planners: Mapping[str, tuple[type[Planner], Mapping[str, Any]]],
     time_limit: float = 5.0,
     verbose: bool = False,
     jsonl: str | None = None,

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import sys
@@ -31,6 +32,7 @@ import numpy as np
 
 from planbench.bench.benchmark import run_benchmark, select
 from planbench.bench.db import ResultsDB
+from planbench.bench.ray_executor import RayStats
 from planbench.bench.runner import default_jobs
 from planbench.bench.suite import parse_suite
 
@@ -103,7 +105,7 @@ def _write_rate(rows: list[dict], tmp: Path) -> float:
         return len(rows) / (time.perf_counter() - t0)
 
 
-def _ray_run(suite, db: Path, nodes: int, cpus: int) -> tuple[float, float, object]:
+def _ray_run(suite, db: Path, nodes: int, cpus: int) -> tuple[float, float, RayStats]:
     import ray
     from ray.cluster_utils import Cluster
 
@@ -115,7 +117,7 @@ def _ray_run(suite, db: Path, nodes: int, cpus: int) -> tuple[float, float, obje
         for _ in range(nodes - 1):
             cluster.add_node(num_cpus=cpus // nodes)
         cluster.wait_for_nodes()
-        ray.init(address=cluster.address, logging_level="WARNING", log_to_driver=False)
+        ray.init(address=cluster.address, logging_level=logging.WARNING, log_to_driver=False)
         start = time.perf_counter() - t0
         executor = RayExecutor()
         t1 = time.perf_counter()

@@ -38,7 +38,8 @@ def _obstacle(rng: np.random.Generator, name: str, reach: float) -> Obstacle:
     phi, z = rng.uniform(-math.pi, math.pi), rng.uniform(0.0, 0.9 * reach)
     position = (r * math.cos(phi), r * math.sin(phi), z)
     q = rng.normal(size=4)
-    quat = tuple(float(x) for x in q / np.linalg.norm(q))
+    a, b, c, d = (float(x) for x in q / np.linalg.norm(q))
+    quat = (a, b, c, d)
     kind = rng.choice(["box", "sphere", "cylinder", "plate"])
     if kind == "box":
         return Obstacle(name, "box", position, quat, size=tuple(rng.uniform(0.04, 0.3, 3)))

@@ -77,8 +77,15 @@ def main(argv: list[str] | None = None) -> int:
     for width, height in ((160, 120), (320, 240)):
         cam = replace(CAMERA, width=width, height=height)
         sensor = Sensor(SensingSettings(model="depth", resolution=res, cameras=(cam,)), robot)
-        total = _median_ms(args.frames, lambda k, s=sensor: s.capture(scene(k), q(k), 0.0, k, rng))
-        cloud = _median_ms(args.frames, lambda k, s=sensor: s.point_cloud(scene(k), q(k), rng))
+
+        def capture(k: int, s: Sensor = sensor) -> object:
+            return s.capture(scene(k), q(k), 0.0, k, rng)
+
+        def cloud_of(k: int, s: Sensor = sensor) -> object:
+            return s.point_cloud(scene(k), q(k), rng)
+
+        total = _median_ms(args.frames, capture)
+        cloud = _median_ms(args.frames, cloud_of)
         points = len(sensor.point_cloud(scene(0), q(0), rng))
         print(f"  depth {width}x{height:<4}  capture {total:7.1f}   point cloud {cloud:6.1f}   ({points} points)")
     return 0

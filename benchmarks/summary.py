@@ -17,6 +17,7 @@ import argparse
 import collections
 import json
 import statistics
+from collections.abc import Sequence
 from typing import Any
 
 from scipy.stats import binomtest
@@ -39,9 +40,9 @@ def reason(row: dict[str, Any]) -> str:
     return str(row["status"]).replace("_", " ")
 
 
-def median(values: list[float], scale: float = 1.0) -> str:
-    values = [v for v in values if v is not None]
-    return f"{statistics.median(values) * scale:.1f}" if values else "-"
+def median(values: Sequence[float | None], scale: float = 1.0) -> str:
+    present = [v for v in values if v is not None]
+    return f"{statistics.median(present) * scale:.1f}" if present else "-"
 
 
 def problem_set(problem: str) -> str:
@@ -73,8 +74,8 @@ def table(rows: list[dict[str, Any]], by_set: bool = False) -> None:
 
 def guided(rows: list[dict[str, Any]], baseline: str, label: str) -> None:
     base = {(r["problem"], r["seed"]): r for r in rows if r["planner"] == baseline}
-    pairs = [(r, base.get((r["problem"], r["seed"]))) for r in rows if r["planner"] == label]
-    pairs = [(g, b) for g, b in pairs if b is not None and g["success"] and b["success"]]
+    matched = [(r, base.get((r["problem"], r["seed"]))) for r in rows if r["planner"] == label]
+    pairs = [(g, b) for g, b in matched if b is not None and g["success"] and b["success"]]
     if not pairs:
         return
     info = [json.loads(g["info"]) if isinstance(g["info"], str) else (g["info"] or {}) for g, _ in pairs]

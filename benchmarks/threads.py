@@ -62,7 +62,7 @@ CLEARED = (
 
 def _times(fn: Any, repeat: int, budget: float) -> list[float]:
     fn()
-    times = []
+    times: list[float] = []
     end = time.perf_counter() + budget
     while len(times) < repeat and (len(times) < 5 or time.perf_counter() < end):
         t0 = time.perf_counter()

@@ -16,6 +16,7 @@ import importlib.machinery
 import sys
 import warnings
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from planbench.errors import PlanbenchError
 from planbench.geometry.occupancy import OccupancyGrid
@@ -27,6 +28,10 @@ from planbench.registry import CONTROLLERS, REGISTRY, Registry, make_controller,
 from planbench.robot import Robot, RobotSettings, load_robot
 from planbench.scene import Obstacle, Scene
 from planbench.validate import Evaluation, ValidationSettings, evaluate
+
+if TYPE_CHECKING:  # imported on use (__getattr__ below): its type for type checkers
+    from planbench.reactive.sets import load_scenarios
+    from planbench.bench.results import load as load_results
 
 __version__ = "0.1.0"
 

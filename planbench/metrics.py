@@ -74,8 +74,10 @@ def limited_duration(path: np.ndarray, velocity_limit: np.ndarray, acceleration_
     amax = np.asarray(acceleration_limit, dtype=float)
     if not np.all(np.isfinite(amax)):
         return math.nan
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))]) if len(path) else []
-    if len(path) < 2 or s[-1] <= 1e-12:
+    if len(path) < 2:
+        return 0.0
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    if s[-1] <= 1e-12:
         return 0.0
     import toppra
     import toppra.algorithm

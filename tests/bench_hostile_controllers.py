@@ -219,7 +219,9 @@ class _Exploding:
 
 def make_wrong(kind: str) -> type:
     """A :class:`WrongCommand` class that returns ``kind`` (so suites can name it without settings)."""
-    return type(f"Wrong_{kind}", (WrongCommand,), {"__init__": lambda self, config=None, **s: _init(self, kind, config, s)})
+    return type(
+        f"Wrong_{kind}", (WrongCommand,), {"__init__": lambda self, config=None, **s: _init(self, kind, config, s)}
+    )
 
 
 def _init(self, kind, config, settings):

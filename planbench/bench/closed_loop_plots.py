@@ -72,8 +72,8 @@ def tick_time_ecdf(rows: Sequence[dict[str, Any]], path: Path, period: float = 0
 def success_by(rows: Sequence[dict[str, Any]], key: str, path: Path) -> bool:
     """Bars of the success rate per ``key`` (``speed`` or ``sensing``) and controller; False (and
     no file) when no row is a shipped scenario."""
-    keyed = [(scenario_keys(r["problem"]).get(key), r) for r in rows]
-    keyed = [(k, r) for k, r in keyed if k]
+    pairs = [(scenario_keys(r["problem"]).get(key), r) for r in rows]
+    keyed = [(k, r) for k, r in pairs if k]
     if not keyed:
         return False
     order = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}

@@ -336,8 +336,8 @@ class RayExecutor:
         try:
             ray = import_ray()
         finally:
-            for key, value in saved.items():
-                if value is None:
+            for key, before in saved.items():
+                if before is None:
                     os.environ.pop(key, None)
         if not local and not ray.is_initialized():
             # bounded, and before Ray's client (which waits minutes for an unreachable cluster, deaf to Ctrl-C)

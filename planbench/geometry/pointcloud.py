@@ -173,7 +173,8 @@ def _check_ply(p: Path, size: int) -> None:
     body = end + len(b"end_header")
     body += 2 if head[body : body + 2] == b"\r\n" else 1
     lines = head[:end].decode("ascii", errors="replace").splitlines()
-    fmt, elements = "", []  # (name, count, [property sizes; None for a list])
+    fmt = ""
+    elements: list[tuple[str, int, list[int | None]]] = []  # (name, count, [property sizes; None for a list])
     for line in lines:
         words = line.split()
         if words[:1] == ["format"] and len(words) >= 2:
@@ -199,7 +200,7 @@ def _check_ply(p: Path, size: int) -> None:
     _check_count(p, count)
     before = elements[: elements.index(vertex[0])]
     if fmt.startswith("binary") and all(None not in e[2] for e in (*before, vertex[0])):
-        need = sum(c * sum(s) for _, c, s in (*before, vertex[0]))  # type: ignore[arg-type]
+        need = sum(c * sum(z for z in s if z is not None) for _, c, s in (*before, vertex[0]))  # no None: checked
     else:  # ASCII (or variable-length records): at least one digit and a separator per value
         need = count * 2 * max(1, len(props))
     if size - body < need:

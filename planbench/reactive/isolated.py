@@ -76,6 +76,7 @@ def run_isolated(
         name="planbench-controller",
     )
     proc.start()
+    assert proc.pid is not None  # set by start()
     theirs.close()
     ready_there.close()
     try:

@@ -185,7 +185,7 @@ def run_scenario(
         seed=seed,
         settings=settings,
         replay=replay,
-        name=name or getattr(controller, "name", ""),
+        name=name or getattr(controller, "name", None) or "",
         sensor=sensor,
     )
     record.setup_time = setup_time
@@ -276,7 +276,8 @@ def simulate(
             if settings.timing == "ideal":
                 c = 0.0
             elif settings.timing == "replay":
-                c = float(replay[k]) if k < len(replay) and np.isfinite(replay[k]) else 0.0  # type: ignore[index]
+                assert replay is not None  # checked on entry
+                c = float(replay[k]) if k < len(replay) and np.isfinite(replay[k]) else 0.0
             compute[k] = c
             missed = max(0, math.ceil(c / T - _EPS) - 1)
             rec.deadline_misses += missed

@@ -26,7 +26,7 @@ def occupied_part(grid: OccupancyGrid, margin: int = 0) -> OccupancyGrid | None:
     if grid.outside > 0:
         return grid
     data = grid.data
-    columns = data.any(axis=2)
+    columns = np.asarray(data.any(axis=2))  # an array: data is 3D (numpy's stubs allow a scalar)
     xs, ys = np.flatnonzero(columns.any(axis=1)), np.flatnonzero(columns.any(axis=0))
     if not len(xs):
         return None

@@ -91,7 +91,7 @@ class OMPLReplanController(Controller):
     def update(self, observation: Observation) -> None:
         self.scene = observation.scene if observation.scene is not None else self._cells(observation)
         self.checker = None  # built when first needed (in the step: it is part of checking)
-        self.frame_checker: CollisionChecker | None = None  # the whole observed scene's
+        self.frame_checker = None  # the whole observed scene's
         self.fresh = True
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
@@ -123,7 +123,10 @@ class OMPLReplanController(Controller):
         inset = self.config.cell_inset * observation.grid.resolution
         if inset <= 0:
             return scene
-        shrunk = tuple(dataclasses.replace(o, size=tuple(s - 2 * inset for s in o.size)) for o in scene.obstacles)
+        shrunk = tuple(
+            dataclasses.replace(o, size=tuple(s - 2 * inset for s in o.size)) if o.size is not None else o  # boxes
+            for o in scene.obstacles
+        )
         return Scene(shrunk, scene.name)
 
     def _plan(self, q: np.ndarray) -> None:

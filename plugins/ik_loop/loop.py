@@ -110,7 +110,8 @@ class Repulsion(Protocol):
     ``gain`` is the gain in use (reported in the result's ``info``).
     """
 
-    gain: float
+    @property
+    def gain(self) -> float: ...
 
     def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
 
@@ -406,6 +407,7 @@ class IKLoopPlanner(Planner):
         escapes: list[tuple[str, int, bool]] = []  # (what it escaped, the step it left from, towards the goal)
         since = 0  # the step the last escape ended on: stalls are judged from there
         verified = False  # the path so far certified free (by a check before an escape could fire)
+        k = 0  # the step (bound before escape, which rebinds it)
 
         def escape(after: str, frm: int) -> bool:
             """Rewind to step ``frm`` and escape from there (:meth:`_escape`); False when no escape
@@ -427,7 +429,6 @@ class IKLoopPlanner(Planner):
             status, message = budget_spent  # what the loop ends on if nothing else ends it
             return True
 
-        k = 0
         path[0] = q
         while True:
             update(q)

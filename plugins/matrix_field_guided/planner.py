@@ -108,7 +108,8 @@ class MatrixFieldGuidedPlanner(Planner):
         checker = verdict_checker(problem)
         attempts: list[str] = []
         quiet: list[tuple[float, float]] = []
-        path, why = waypoints, "no_attempt"
+        path = waypoints
+        why: str | None = "no_attempt"
         for _ in range(cfg.retries + 1):
             path, stamps, why, stats = self._track(problem, waypoints, quiet, deadline=t0 + time_limit)
             if why is None:

@@ -86,7 +86,8 @@ class QPSolver:
                 self.name,
                 "infeasible (inconsistent bounds, found before the solver)",
             )
-        P, G = qp.P, qp.G
+        P: np.ndarray | csc_matrix = qp.P
+        G: np.ndarray | csc_matrix | None = qp.G
         if self._sparse:  # a sparse-only backend: convert here, silently, instead of in qpsolvers
             P = self._csc(P)
             G = None if G is None else self._csc(G)
