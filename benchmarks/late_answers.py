@@ -76,10 +76,14 @@ def main() -> None:
     handoff = [runner.phases[s] - r for s, r in enumerate(reported)]
     statuses = [records[s]["evaluation"]["status"] for s in range(args.runs)]
     ms = sorted(1e3 * h for h in handoff)
-    print(f"{args.runs} runs, --jobs {args.jobs}, limit {args.limit} s, answers {args.before * 1e3:g} ms before it, "
-          f"load: {'one busy process per core' if args.load else 'none'} ({os.cpu_count()} cores)")
-    print(f"hand-off [ms] (parent's plan phase - worker's planning time): median {statistics.median(ms):.2f}, "
-          f"p90 {ms[int(0.9 * (len(ms) - 1))]:.2f}, max {ms[-1]:.2f}; tolerance {HANDOFF_TOLERANCE * 1e3:g} ms")
+    print(
+        f"{args.runs} runs, --jobs {args.jobs}, limit {args.limit} s, answers {args.before * 1e3:g} ms before it, "
+        f"load: {'one busy process per core' if args.load else 'none'} ({os.cpu_count()} cores)"
+    )
+    print(
+        f"hand-off [ms] (parent's plan phase - worker's planning time): median {statistics.median(ms):.2f}, "
+        f"p90 {ms[int(0.9 * (len(ms) - 1))]:.2f}, max {ms[-1]:.2f}; tolerance {HANDOFF_TOLERANCE * 1e3:g} ms"
+    )
     print(
         f"worker's planning time [s]: max {max(reported):.4f}; "
         f"parent's plan phase [s]: max {max(runner.phases.values()):.4f}"

@@ -30,8 +30,8 @@ from planbench.scene import Obstacle, Scene
 from planbench.validate import Evaluation, ValidationSettings, evaluate
 
 if TYPE_CHECKING:  # imported on use (__getattr__ below): its type for type checkers
-    from planbench.reactive.sets import load_scenarios
     from planbench.bench.results import load as load_results
+    from planbench.reactive.sets import load_scenarios
 
 __version__ = "0.1.0"
 

@@ -30,6 +30,8 @@ TESTS = Path(__file__).parent
 def plugins_may_write_tmp_path(tmp_path, monkeypatch):
     """The planners here say their pids in a file under tmp_path: their sandbox lets them."""
     monkeypatch.setenv(WRITABLE_VARIABLE, str(tmp_path))
+
+
 A = "bench_adversarial_planners"
 PROBLEM = "mbm:table_pick/0001"
 

@@ -359,8 +359,6 @@ def baseline(tmp_path_factory):
     return rows
 
 
-
-
 # -- 1: a worker shared with another plugin --------------------------------------------------------------
 
 

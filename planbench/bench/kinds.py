@@ -21,6 +21,7 @@ from typing import Any
 
 __all__ = ["KINDS", "RunKind", "expand", "kind_of", "registry_of"]
 
+
 @dataclass(frozen=True)
 class RunKind:
     """How a kind of run crosses the benchmark's processes."""

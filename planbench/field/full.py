@@ -22,6 +22,7 @@ field within ``support`` cells beyond the grid is then sampled as zero, an appro
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,7 +114,7 @@ def correlate_separable(g: np.ndarray, kernels: Kernels, backend: str = "auto") 
     if _backend.resolve(backend) == "numba":
         from planbench.field import _compiled  # on use: numba is optional and takes 0.15 s to import
 
-        corr = _compiled.correlate_axis
+        corr: Callable[..., None] = _compiled.correlate_axis
     else:
         corr = _scipy_pass
     h = np.empty_like(g)

@@ -143,7 +143,12 @@ def _as_delivered(frame: Any) -> Any:
 
 
 def simulate_remote(
-    scenario: Scenario, sock: socket.socket, pid: int, *, seed: int = 0, settings: RunSettings | None = None,
+    scenario: Scenario,
+    sock: socket.socket,
+    pid: int,
+    *,
+    seed: int = 0,
+    settings: RunSettings | None = None,
     cpu: int | None = None,
 ) -> tuple[RunRecord, list[float]]:
     """The closed loop against the controller of process ``pid`` over ``sock``, both pinned to core

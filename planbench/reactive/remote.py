@@ -464,4 +464,3 @@ class RemoteController:
 def socket_pair() -> tuple[socket.socket, socket.socket]:
     """A connected pair of stream sockets for :func:`serve_controller` and :class:`RemoteController`."""
     return socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
-

@@ -2,8 +2,9 @@
 
 Setup (untimed):
 
-1. the scene voxelized like the matrix field's (:func:`planbench.geometry.occupancy.scene_grid`: rule ``"any"``, 0.02 m cells,
-   the scene's box grown by ``d0`` plus one cell, cut to the robot's reach);
+1. the scene voxelized like the matrix field's (:func:`planbench.geometry.occupancy.scene_grid`:
+   rule ``"any"``, 0.02 m cells, the scene's box grown by ``d0`` plus one cell, cut to the robot's
+   reach);
 2. signed distance at cell centres from scipy's ``distance_transform_edt``, outside and inside:
    ``sd = edt(free) * r - r/2`` in free cells, ``-(edt(occupied) * r - r/2)`` in occupied ones.
    ``edt(free)`` is the distance between cell *centres*; the half cell ``r/2`` turns it into the
