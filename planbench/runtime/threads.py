@@ -38,8 +38,6 @@ the BLAS pools, and :func:`serial_lazy` is not consulted (the numpy path has no 
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import os
 import sys
 from typing import Any
@@ -82,19 +80,6 @@ WAIT_VARIABLES = {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "0", "KMP_BLOC
 instead of spinning (libgomp: ``OMP_WAIT_POLICY``, ``GOMP_SPINCOUNT``; Intel/LLVM:
 ``KMP_BLOCKTIME``), so a pool that is not working does not take a core from another process."""
 
-_OPENBLAS_SET = (
-    "scipy_openblas_set_num_threads64_",
-    "scipy_openblas_set_num_threads",
-    "openblas_set_num_threads64_",
-    "openblas_set_num_threads",
-)
-_OPENBLAS_GET = (
-    "scipy_openblas_get_num_threads64_",
-    "scipy_openblas_get_num_threads",
-    "openblas_get_num_threads64_",
-    "openblas_get_num_threads",
-)
-
 
 def lazy_cells(n_points: int, support: int) -> int:
     """Grid cells a lazy call reads: ``n_points`` blocks of ``(2 * support + 2)^3`` cells."""
@@ -121,10 +106,9 @@ def limit_threads(threads: int = 1, layer: str | None = None) -> dict[str, Any]:
       ``layer`` (``"workqueue"``, ``"omp"``, ``"tbb"``; ``None`` keeps numba's choice) sets
       ``NUMBA_THREADING_LAYER``; it cannot change once numba has started its pool (a
       ``RuntimeError`` then, unless it is the layer in use).
-    - BLAS already loaded (numpy's OpenBLAS is loaded by ``import numpy``, before this call in a
-      worker, and reads ``OPENBLAS_NUM_THREADS`` only then): ``threadpoolctl`` where installed,
-      else OpenBLAS's own ``set_num_threads`` through ctypes; OpenMP runtimes already loaded get
-      ``omp_set_num_threads`` for this thread.
+    - BLAS and OpenMP libraries already loaded (numpy's OpenBLAS is loaded by ``import numpy``,
+      before this call in a worker, and reads ``OPENBLAS_NUM_THREADS`` only then): threadpoolctl's
+      ``threadpool_limits``, which finds them in the process and calls each one's own setter.
 
     Returns :func:`thread_report` after the change.
     """
@@ -138,7 +122,9 @@ def limit_threads(threads: int = 1, layer: str | None = None) -> dict[str, Any]:
         os.environ["NUMBA_THREADING_LAYER"] = layer
     if sys.modules.get("numba") is not None:
         _limit_numba(threads, layer)
-    _limit_loaded_pools(threads)
+    from threadpoolctl import threadpool_limits  # on use: 12 ms, which `import planbench` need not pay
+
+    threadpool_limits(limits=threads)  # the BLAS and OpenMP libraries loaded already
     return thread_report()
 
 
@@ -164,42 +150,6 @@ def _limit_numba(threads: int, layer: str | None) -> None:
         parallel.NUM_THREADS = threads
 
 
-def _loaded_libraries(*needles: str) -> list[str]:
-    """Paths of the shared libraries mapped into this process whose file name has a needle."""
-    try:
-        with open("/proc/self/maps") as f:
-            paths = {line.split()[-1] for line in f if "/" in line}
-    except OSError:  # not Linux: only the environment and threadpoolctl apply
-        return []
-    return sorted(p for p in paths if any(n in os.path.basename(p) for n in needles))
-
-
-def _limit_loaded_pools(threads: int) -> None:
-    try:
-        from threadpoolctl import threadpool_limits  # optional dependency
-    except ImportError:
-        threadpool_limits = None
-    if threadpool_limits is not None:
-        threadpool_limits(threads)
-        return
-    for path in _loaded_libraries("openblas"):
-        lib = _cdll(path)
-        for name in _OPENBLAS_SET:
-            if lib is not None and hasattr(lib, name):
-                getattr(lib, name)(ctypes.c_int(threads))
-                break
-    for path in _loaded_libraries("libgomp", "libiomp", "libomp"):
-        lib = _cdll(path)
-        if lib is not None and hasattr(lib, "omp_set_num_threads"):
-            lib.omp_set_num_threads(ctypes.c_int(threads))
-
-
-def _cdll(path: str) -> Any:
-    with contextlib.suppress(OSError):
-        return ctypes.CDLL(path)
-    return None
-
-
 def thread_report() -> dict[str, Any]:
     """What this process runs with: the variables above, numba's threads for the calling thread
     and its layer (``None`` where numba is not imported; the layer is ``None`` until its pool has
@@ -219,10 +169,9 @@ def thread_report() -> dict[str, Any]:
             report["numba_layer"] = parallel.threading_layer()
         else:  # the size its pool will start with (asking numba would start it)
             report["numba_threads"] = int(parallel.NUM_THREADS)
-    for path in _loaded_libraries("openblas"):
-        lib = _cdll(path)
-        for name in _OPENBLAS_GET:
-            if lib is not None and hasattr(lib, name):
-                report["openblas"][os.path.basename(path)] = int(getattr(lib, name)())
-                break
+    from threadpoolctl import threadpool_info
+
+    for pool in threadpool_info():
+        if pool.get("internal_api") == "openblas":
+            report["openblas"][os.path.basename(pool["filepath"])] = int(pool["num_threads"])
     return report
