@@ -39,7 +39,7 @@ from planbench.robot import (
     settings_from_dict,
     shipped_settings_dir,
 )
-from planbench.scene import Scene, _read_json
+from planbench.scene import Scene, read_problem_json
 
 __all__ = ["Pose", "Goal", "Tolerances", "Problem", "ProblemCheck"]
 
@@ -285,7 +285,7 @@ class Problem:
     @classmethod
     def load(cls, path: str | Path) -> Problem:
         p = Path(path)
-        return cls.from_dict(_read_json(p), str(p), p.parent)
+        return cls.from_dict(read_problem_json(p), str(p), p.parent)
 
     def __repr__(self) -> str:
         return f"Problem({self.id!r}, robot={self.robot.name!r}, obstacles={len(self.scene)}, goal={self.goal.kind})"

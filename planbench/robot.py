@@ -49,7 +49,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["RobotSettings", "Robot", "load_robot", "robot_names", "example_robot_data_dir"]
+__all__ = ["RobotSettings", "Robot", "link_of", "load_robot", "robot_names", "example_robot_data_dir"]
 
 
 @functools.cache
@@ -324,7 +324,7 @@ class Robot:
     def _remove_pairs(geom: Any, pairs: Sequence[tuple[str, str]], src: str) -> None:
         links: dict[str, list[int]] = {}
         for i, g in enumerate(geom.geometryObjects):
-            links.setdefault(_link_of(g.name), []).append(i)
+            links.setdefault(link_of(g.name), []).append(i)
         for a, b in pairs:
             for link in (a, b):
                 if link not in links:
@@ -369,7 +369,7 @@ class Robot:
         return f"Robot({self.name!r}, nq={self.nq}, ee_frame={self.settings.ee_frame!r})"
 
 
-def _link_of(geometry_name: str) -> str:
+def link_of(geometry_name: str) -> str:
     """pinocchio names collision geometries ``<link>_<k>``; recover the link name."""
     base, _, idx = geometry_name.rpartition("_")
     return base if base and idx.isdigit() else geometry_name

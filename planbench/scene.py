@@ -40,7 +40,7 @@ from planbench.errors import ProblemFileError
 from planbench.files.inputs import InputFileError, read_json, regular_file
 from planbench.geometry.pointcloud import VoxelCloud, load_cloud
 
-__all__ = ["Obstacle", "Scene", "SHAPES"]
+__all__ = ["Obstacle", "Scene", "SHAPES", "read_problem_json"]
 
 SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh", "pointcloud")
 SCENE_FORMAT = "planbench-scene/1"
@@ -308,7 +308,7 @@ class Scene:
     @classmethod
     def load(cls, path: str | Path) -> Scene:
         p = Path(path)
-        return cls.from_dict(_read_json(p), str(p), p.parent)
+        return cls.from_dict(read_problem_json(p), str(p), p.parent)
 
 
 MAX_MESH_BYTES = 256 << 20
@@ -332,7 +332,7 @@ def _mesh_problem(path: str, mtime_ns: int, size: int) -> str:
     return ""
 
 
-def _read_json(path: Path) -> Any:
+def read_problem_json(path: Path) -> Any:
     """The JSON in a problem or scene file (a regular file of at most
     :data:`planbench.files.inputs.MAX_TEXT_BYTES`); :class:`ProblemFileError` naming it otherwise."""
     try:

@@ -18,7 +18,15 @@ from pathlib import Path
 from typing import Any
 
 from planbench.bench.plots import write_plots
-from planbench.bench.report import FAILURE_STATUSES, METRICS, Metric, _cells, _headers, metrics_for, summarize
+from planbench.bench.report import (
+    FAILURE_STATUSES,
+    METRICS,
+    Metric,
+    metrics_for,
+    summarize,
+    summary_cells,
+    summary_headers,
+)
 from planbench.files.outputs import check_output
 
 __all__ = ["write_html", "render_html"]
@@ -34,11 +42,11 @@ pre { background: #f8f8f8; padding: 0.5em; overflow-x: auto; font-size: 0.8em; }
 
 
 def _table(summary: Sequence[dict[str, Any]], by: Sequence[str], metrics: Sequence[Metric] = METRICS) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in _headers(by, metrics))
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in summary_headers(by, metrics))
     body = []
     for s in summary:
         keys = "".join(f'<td class="key">{html.escape(str(s[c]))}</td>' for c in by)
-        cells = "".join(f"<td>{html.escape(c)}</td>" for c in _cells(s, metrics))
+        cells = "".join(f"<td>{html.escape(c)}</td>" for c in summary_cells(s, metrics))
         body.append(f"<tr>{keys}{cells}</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 

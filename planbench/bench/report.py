@@ -29,6 +29,8 @@ from planbench.files.outputs import csv_cell
 from planbench.metrics import wilson_interval  # re-exported: report users import it from here
 
 __all__ = [
+    "summary_cells",
+    "summary_headers",
     "DYNAMIC_METRICS",
     "METRICS",
     "Metric",
@@ -216,7 +218,7 @@ def _rate(s: dict[str, Any]) -> str:
     return f"{100 * s['success_rate']:.0f}% [{100 * s['success_ci_low']:.0f}, {100 * s['success_ci_high']:.0f}]"
 
 
-def _cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True) -> list[str]:
+def summary_cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True) -> list[str]:
     cells = [f"{s['solved']}/{s['runs']}", _rate(s), s.get("failures") or "-"]
     for m in metrics:
         med = s[f"{m.name}_median"]
@@ -228,7 +230,7 @@ def _cells(s: dict[str, Any], metrics: Sequence[Metric], quartiles: bool = True)
     return cells
 
 
-def _headers(by: Sequence[str], metrics: Sequence[Metric], short: bool = False) -> list[str]:
+def summary_headers(by: Sequence[str], metrics: Sequence[Metric], short: bool = False) -> list[str]:
     labels = [(m.short or m.label) if short else m.label for m in metrics]
     return [*by, "solved", "success [95% CI]", "failures", *labels]
 
@@ -237,10 +239,10 @@ def to_markdown(
     summary: Sequence[dict[str, Any]], by: Sequence[str] = ("planner",), metrics: Sequence[Metric] = METRICS
 ) -> str:
     """A Markdown table; metric cells are ``median [q1, q3]`` over solved runs."""
-    head = _headers(by, metrics)
+    head = summary_headers(by, metrics)
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     for s in summary:
-        lines.append("| " + " | ".join([*(str(s[c]) for c in by), *_cells(s, metrics)]) + " |")
+        lines.append("| " + " | ".join([*(str(s[c]) for c in by), *summary_cells(s, metrics)]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -286,10 +288,10 @@ def to_rich(
         ),
         caption_justify="left",
     )
-    for i, h in enumerate(_headers(by, metrics, short=True)):
+    for i, h in enumerate(summary_headers(by, metrics, short=True)):
         table.add_column(escape(h), justify="left" if i < len(by) else "right", no_wrap=i < len(by))
     for s in summary:
-        table.add_row(*(escape(str(s[c])) for c in by), *_cells(s, metrics, quartiles))
+        table.add_row(*(escape(str(s[c])) for c in by), *summary_cells(s, metrics, quartiles))
     return table
 
 

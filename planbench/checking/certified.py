@@ -53,7 +53,7 @@ import pinocchio as pin
 
 from planbench.checking.cloud_pairs import cloud_pairs
 from planbench.checking.collision import CollisionChecker, fresh_geometry_data
-from planbench.robot import _link_of
+from planbench.robot import link_of
 
 __all__ = ["CertifiedChecker", "CertificationSettings", "PathVerdict"]
 
@@ -676,4 +676,4 @@ def _motion_weights(robot: Any, gm: Any, n_robot: int, pairs: list[tuple[int, in
 
 
 def _display(geometry_name: str) -> str:
-    return geometry_name if geometry_name.startswith("obstacle:") else _link_of(geometry_name)
+    return geometry_name if geometry_name.startswith("obstacle:") else link_of(geometry_name)

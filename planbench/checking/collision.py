@@ -23,7 +23,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.robot import Robot, _link_of
+from planbench.robot import Robot, link_of
 from planbench.scene import Scene
 
 __all__ = ["CollisionChecker", "fresh_geometry_data"]
@@ -129,4 +129,4 @@ class CollisionChecker:
 
 
 def _display(geometry_name: str) -> str:
-    return geometry_name if geometry_name.startswith("obstacle:") else _link_of(geometry_name)
+    return geometry_name if geometry_name.startswith("obstacle:") else link_of(geometry_name)

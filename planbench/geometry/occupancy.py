@@ -32,9 +32,9 @@ import numpy as np
 
 from planbench.errors import ResourceLimitError
 from planbench.geometry.overlap import cubes_overlap_boxes
-from planbench.scene import Scene
+from planbench.scene import Obstacle, Scene
 
-__all__ = ["MAX_GRID_CELLS", "OccupancyGrid", "grid_shape", "merge_cells", "scene_grid"]
+__all__ = ["MAX_GRID_CELLS", "OccupancyGrid", "cover_block", "grid_shape", "merge_cells", "scene_grid"]
 
 RULES = ("any", "center", "fraction")
 MAX_GRID_CELLS = 1 << 26
@@ -171,7 +171,7 @@ class OccupancyGrid:
             i1 = np.clip(np.floor((hi - grid.origin) / resolution).astype(int) + 1, 0, shape)
             if np.any(i1 <= i0):
                 continue
-            block = _cover_block(obstacle, grid.origin, resolution, i0, i1, rule, subsamples)
+            block = cover_block(obstacle, grid.origin, resolution, i0, i1, rule, subsamples)
             view = data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
             if rule == "fraction":  # overlapping obstacles: occupancy is the union, capped at 1
                 np.minimum(view + block, 1.0, out=view)
@@ -236,8 +236,18 @@ def scene_grid(
     return OccupancyGrid.from_scene(scene, resolution, bounds=(lo, hi), rule="any")
 
 
-def _cover_block(obstacle, origin, resolution, i0, i1, rule, subsamples) -> np.ndarray:  # type: ignore[no-untyped-def]
-    """Coverage in [0, 1] of the cells i0..i1 (exclusive) by one obstacle, following ``rule``."""
+def cover_block(
+    obstacle: Obstacle,
+    origin: np.ndarray,
+    resolution: float,
+    i0: np.ndarray,
+    i1: np.ndarray,
+    rule: str,
+    subsamples: int,
+) -> np.ndarray:
+    """Coverage in [0, 1] of the cells ``i0..i1`` (integer (3,) corners, ``i1`` exclusive) of the
+    grid at ``origin`` [m] by one obstacle, following ``rule`` (the voxelisation of a scene's grid,
+    and of a sensed frame's obstacles)."""
     n = i1 - i0
     if obstacle.type == "mesh":
         return _mesh_cover(obstacle, origin, resolution, i0, n)

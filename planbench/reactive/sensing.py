@@ -53,7 +53,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from planbench.geometry.occupancy import OccupancyGrid, _cover_block
+from planbench.geometry.occupancy import OccupancyGrid, cover_block
 from planbench.reactive.controller import Observation
 from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds  # default_bounds re-exported
 from planbench.robot import Robot
@@ -270,7 +270,7 @@ class Sensor:
             i1 = np.clip(np.floor((hi - origin) / res).astype(int) + 1, 0, shape)
             if np.any(i1 <= i0):
                 continue
-            block = _cover_block(o, origin, res, i0, i1, "any", 4)
+            block = cover_block(o, origin, res, i0, i1, "any", 4)
             view = data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
             np.maximum(view, block, out=view)
 

@@ -31,7 +31,7 @@ import pinocchio as pin
 
 from planbench.checking.collision import fresh_geometry_data
 from planbench.problem import Problem
-from planbench.robot import _link_of
+from planbench.robot import link_of
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
 from planbench_plugins.potential_fields.config import DistanceFieldConfig
 from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
@@ -85,7 +85,7 @@ class DistanceFieldRepulsion:
             radii.append(0.5 * float(np.linalg.norm(hi - lo)))
             obj = pin.GeometryObject(g.name, int(g.parentJoint), int(g.parentFrame), g.placement, geom)
             gm.addGeometryObject(obj)
-            link = _link_of(g.name)
+            link = link_of(g.name)
             if link not in links:
                 links.append(link)
             link_of_geom.append(links.index(link))
