@@ -28,31 +28,12 @@ from planbench.outputs import check_output
 from planbench.planner import PlanResult, PlanStatus
 from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
+from planbench.settings import parse_setting, settings_text
 
 log = logging.getLogger("planbench")
 
 # Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
 COMMAND_MODULES = ("planbench.bench.commands", "planbench.field.commands")
-
-
-def parse_setting(text: str) -> tuple[str, str]:
-    """``key=value`` as the key and the value's text: the planner's ``Config`` says what the text
-    means (``gain=2.5`` a float, ``timed=false`` a bool, ``params={"range": 0.3}`` JSON), see
-    :meth:`planbench.registry.Registry.configure`."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"settings are key=value, got {text!r}")
-    return key.strip(), value
-
-
-def settings_text(pairs: Sequence[tuple[str, str]] | None) -> dict[str, str]:
-    """``--set`` pairs as a dict; a key given twice is an error (which one was meant?)."""
-    out: dict[str, str] = {}
-    for key, value in pairs or ():
-        if key in out and out[key] != value:
-            raise PlanbenchError(f"--set {key} is given twice ({out[key]!r} and {value!r}); give it once")
-        out[key] = value
-    return out
 
 
 def cmd_list(args: argparse.Namespace) -> int:

@@ -28,11 +28,11 @@ from planbench.bench.report import DYNAMIC_METRICS, failures, metrics_for, summa
 from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
-from planbench.cli import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.files import check_writable
 from planbench.outputs import check_output
 from planbench.results import write_parquet
+from planbench.settings import parse_setting, settings_text
 
 log = logging.getLogger(__name__)
 
