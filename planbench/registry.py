@@ -25,10 +25,10 @@ import importlib.metadata
 import re
 import traceback
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-from planbench.errors import PlanbenchError, PlannerUnavailableError, UnknownNameError
+from planbench.errors import DuplicatePluginError, PlanbenchError, PlannerUnavailableError, UnknownNameError
 from planbench.settings import PlannerSetup, configure_class
 
 __all__ = [
@@ -93,11 +93,19 @@ class PlannerSpec:
     hint: str = ""  # what to install
     traceback: str = ""  # of an import that raised something else than a missing module
     kind: str = "planner"  # the registry's kind, for messages
+    rival: PlannerSpec | None = field(default=None, repr=False)
+    """Another registration of this entry point's name: a second installed entry point (loading is
+    then a :class:`~planbench.errors.DuplicatePluginError`), or a class registered before this entry
+    point was imported that may be the one it names (loading checks that it is)."""
+    importing: bool = field(default=False, repr=False)  # its module is being imported (load)
 
     def load(self) -> type:
         if self.loaded is not None:
             return self.loaded  # type: ignore[no-any-return]
+        if self.rival is not None and self.rival.loaded is None:  # two installed plugins, one name
+            raise self._claimed_twice(self.rival)
         module_name, _, attr = self.entry_point.partition(":")
+        self.importing = True
         try:
             obj: Any = importlib.import_module(module_name)
             for part in attr.split("."):
@@ -112,6 +120,12 @@ class PlannerSpec:
             self.hint = "the plugin raised while importing; see the traceback with --verbose"
             self.traceback = traceback.format_exc()
             raise _unavailable(self.kind, self.name, self.error, self.hint) from exc
+        finally:
+            self.importing = False
+        if self.rival is not None:  # a class registered under this name before: the one imported?
+            if self.rival.loaded is not obj:
+                raise self._claimed_twice(self.rival)
+            self.rival = None
         self.loaded = obj
         return obj  # type: ignore[no-any-return]
 
@@ -119,9 +133,15 @@ class PlannerSpec:
     def available(self) -> bool:
         try:
             self.load()
-        except PlannerUnavailableError:
+        except (PlannerUnavailableError, DuplicatePluginError):
             return False
         return True
+
+    def _claimed_twice(self, other: PlannerSpec) -> DuplicatePluginError:
+        """The error of ``other`` claiming this spec's name (recorded as why it cannot be loaded)."""
+        exc = _duplicate(self, other)
+        self.error, self.hint = str(exc), ""
+        return exc
 
 
 PluginSpec = PlannerSpec
@@ -151,10 +171,8 @@ class Registry:
             return
         self._discovered = True
         for ep in importlib.metadata.entry_points(group=self.group):
-            if ep.name in self._specs:
-                continue  # a decorator registration wins over an entry point of the same name
             dist = getattr(ep, "dist", None)
-            self._specs[ep.name] = PlannerSpec(
+            spec = PlannerSpec(
                 ep.name,
                 ep.value,
                 "entry point",
@@ -162,9 +180,23 @@ class Registry:
                 version=dist.version if dist else "",
                 kind=self.kind,
             )
+            first = self._specs.setdefault(ep.name, spec)
+            if first is not spec and first.entry_point != spec.entry_point and first.rival is None:
+                # two installed distributions, one name: the name stays listed and says so when used,
+                # so that one bad install does not take `planbench list` (or every other plugin) down
+                first.rival = spec
 
     def register(self, cls: type | str, name: str | None = None) -> PlannerSpec:
-        """Register a class (or a ``"module:Attr"`` string) under ``name``."""
+        """Register a class (or a ``"module:Attr"`` string) under ``name`` (default: the class's
+        ``name``); the spec of that name.
+
+        A name is registered once: registering the same plugin again (the same class, or the same
+        ``module:Attr``, as when a module is imported again or a notebook cell runs again) is a no-op
+        that keeps the newest class, and so is an entry point's own module registering the class that
+        entry point names while it is imported. Another plugin under a taken name is a
+        :class:`~planbench.errors.DuplicatePluginError` naming both; tests that need a plugin of
+        their own register it into an isolated ``Registry(discover=False)``.
+        """
         kind = self.kind
         if isinstance(cls, str):
             if name is None:
@@ -179,8 +211,18 @@ class Registry:
             spec = PlannerSpec(name, f"{module}:{cls.__qualname__}", "decorator", dist, version, loaded=cls, kind=kind)
         if not NAME_PATTERN.match(name):
             raise ValueError(f"{kind} name {name!r} must be kebab-case (lowercase words joined by '-')")
-        self._specs[name] = spec
-        return spec
+        self._ensure_discovered()  # an installed plugin of that name is a duplicate now, not later
+        first = self._specs.setdefault(name, spec)
+        if first is spec:
+            return spec
+        if _same_plugin(first, spec):
+            if spec.loaded is not None:
+                first.loaded = spec.loaded  # the newest class of a module imported again
+            return first
+        if first.loaded is None and first.rival is None and (first.importing or _may_be_same(first, spec)):
+            first.rival = spec  # e.g. the entry point's package re-exports this class: load() checks it exactly
+            return first
+        raise _duplicate(first, spec)
 
     def names(self) -> list[str]:
         self._ensure_discovered()
@@ -242,6 +284,43 @@ class Registry:
         """An instance of ``planner`` (see :meth:`resolve`) with its ``Config`` built from ``settings``
         (see :meth:`configure`)."""
         return self.configure(planner, settings).build()
+
+
+def _same_plugin(a: PlannerSpec, b: PlannerSpec) -> bool:
+    """Whether two registrations are one plugin: the same class, or the same ``module:Attr``."""
+    return (a.loaded is not None and a.loaded is b.loaded) or a.entry_point == b.entry_point
+
+
+def _may_be_same(entry: PlannerSpec, spec: PlannerSpec) -> bool:
+    """Whether ``spec``'s class may be the one the not yet imported entry point ``entry`` names under
+    another module path (``pkg:Cls`` re-exporting ``pkg.impl:Cls``): same package, same class name."""
+    (a_module, _, a_attr), (b_module, _, b_attr) = entry.entry_point.partition(":"), spec.entry_point.partition(":")
+    return a_module.split(".")[0] == b_module.split(".")[0] and a_attr.split(".")[-1] == b_attr.split(".")[-1]
+
+
+def _source(spec: PlannerSpec) -> str:
+    """Where a registration came from, for a message."""
+    if spec.origin == "entry point":
+        dist = f" of {spec.distribution} {spec.version}".rstrip() if spec.distribution else ""
+        return f"entry point {spec.name} = {spec.entry_point}{dist}"
+    return f"{spec.entry_point} (registered in this process)"
+
+
+def _duplicate(first: PlannerSpec, second: PlannerSpec) -> DuplicatePluginError:
+    """The error of ``second`` claiming the name of ``first``, with what to do about it."""
+    kind = first.kind
+    if second.origin == "entry point":
+        dists = " or ".join(sorted({f"pip uninstall {s.distribution}" for s in (first, second) if s.distribution}))
+        hint = (
+            f"One name, one {kind}: uninstall one of the two distributions ({dists or 'pip uninstall'}), "
+            "or rename the entry point in one of them."
+        )
+    else:
+        hint = (
+            f"One name, one {kind}: give the new class another name (its `name` attribute, or `name=` "
+            f"when registering it); a test registers into an isolated planbench.Registry(discover=False)."
+        )
+    return DuplicatePluginError(kind, first.name, _source(first), _source(second), hint)
 
 
 def _load_entry_point(planner: str, kind: str = "planner") -> type:
