@@ -304,13 +304,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     outcome = check_in_subprocess(args.name, kind, args.timeout)
     if outcome.unknown:
         raise PlanbenchError(outcome.failure)
-    if outcome.conformant:
-        print(f"{kind} {args.name}: conformant")
-        return 0
-    print(f"{kind} {args.name}: NOT conformant")
-    for line in [outcome.failure] if outcome.failure else outcome.findings:
-        print(f"  - {line}")
-    return 1
+    print("\n".join(outcome.lines()))
+    return 0 if outcome.conformant else 1
 
 
 def _array(a: Any) -> Any:
@@ -408,7 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the conformance checker on a planner or controller, in a process of its own",
         description="Check a planner (or, with --controller, a controller) against planbench's interface and "
         "behaviour rules, in a separate process: a plugin that crashes or hangs fails its check, nothing else. "
-        "Exit code 0: conformant; 1: not (what was found is listed); 2: unknown name.",
+        "Every named check is listed as passed, failed (with what was found) or not run. Exit code 0: "
+        "conformant; 1: not; 2: unknown name.",
     )
     p.add_argument("name", help="a registered name, a family:variant preset, or module:Attr")
     p.add_argument("--controller", action="store_true", help="NAME is a closed-loop controller")
