@@ -5,8 +5,8 @@ accepted.
 
 The registries (:mod:`planbench.registry`) find a plugin's class by name; this module is what turns
 user values into that class's settings, for every kind of plugin alike (messages name the kind). It
-imports no registry, so that the command line, the benchmark's suites and workers can read settings
-without the plugins.
+imports no registry (the registries import it), and the benchmark's commands read ``--set`` here
+rather than through :mod:`planbench.cli`.
 """
 
 from __future__ import annotations
