@@ -69,6 +69,19 @@ class PlannerUnavailableError(PlanbenchError):
         super().__init__(msg + (f" ({hint})" if hint else ""))
 
 
+class DuplicatePluginError(PlanbenchError):
+    """Two different plugins registered under one name of one kind (a planner, a controller): a name
+    must mean one plugin, or a benchmark row could come from either. Names both sources (``sources``:
+    the one registered first, then the other) and what to do (``hint``)."""
+
+    def __init__(self, kind: str, name: str, first: str, second: str, hint: str) -> None:
+        self.kind = kind
+        self.name = name
+        self.sources = (first, second)
+        self.hint = hint
+        super().__init__(f"{kind} {name!r} is registered twice: first by {first}, then by {second}. {hint}")
+
+
 class InvalidConfigError(PlanbenchError, ValueError):
     """A setting outside its domain; says which setting and what is allowed."""
 

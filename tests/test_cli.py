@@ -4,6 +4,8 @@ import pytest
 
 import planbench
 from planbench.cli.main import main
+from planbench.conformance import CHECKS
+from planbench.reactive.conformance import CHECKS as CONTROLLER_CHECKS
 
 
 def test_plan_prints_validated_metrics_and_writes_json(tmp_path, capsys):
@@ -71,6 +73,11 @@ def test_plan_output_is_whole_in_narrow_terminals(monkeypatch, capsys, columns):
     assert "mbm:bookshelf_small/0001" in text and "mbm:bookshelf_small/0002" in text
 
 
+def after_raises(checks):
+    """The checks a checker does not get to when the plugin raises on its first call, as listed."""
+    return ", ".join(c for c in checks if c not in ("interface", "settings", "raises"))
+
+
 def test_check_runs_the_conformance_checker_in_its_own_process(monkeypatch, capsys):
     import os
     from pathlib import Path
@@ -79,10 +86,19 @@ def test_check_runs_the_conformance_checker_in_its_own_process(monkeypatch, caps
     monkeypatch.setenv("PYTHONPATH", tests + os.pathsep + os.environ.get("PYTHONPATH", ""))
     monkeypatch.syspath_prepend(tests)
     assert main(["check", "straight-line"]) == 0
-    assert "planner straight-line: conformant" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert out.splitlines()[:2] == ["planner straight-line: conformant", f"  passed: {', '.join(CHECKS)}"]
     assert main(["check", "bench_planners:SuicidePlanner"]) == 1  # it kills its process: not this one
     assert "crashed the check's process (SIGKILL)" in capsys.readouterr().out
     assert main(["check", "bench_planners:RaisingPlanner"]) == 1
-    assert "bench-raising planner fails on purpose" in capsys.readouterr().out
+    out = capsys.readouterr().out.splitlines()
+    assert out[:2] == ["planner bench_planners:RaisingPlanner: NOT conformant", "  failed: raises"]
+    assert out[2].startswith("    - raises: on conformance:trivial: plan raised") and "fails on purpose" in out[2]
+    assert out[-2:] == ["  passed: interface, settings", f"  not run: {after_raises(CHECKS)}"]
+    assert main(["check", "bench_controllers:RaisingController", "--controller"]) == 1  # printed the same way
+    out = capsys.readouterr().out.splitlines()
+    assert out[:2] == ["controller bench_controllers:RaisingController: NOT conformant", "  failed: raises"]
+    assert out[2].startswith("    - raises: step at tick 2") and "fails on purpose" in out[2]
+    assert out[-2:] == ["  passed: interface, settings", f"  not run: {after_raises(CONTROLLER_CHECKS)}"]
     assert main(["check", "no-such-planner"]) == 2
     assert "unknown planner 'no-such-planner'" in capsys.readouterr().err

@@ -5,7 +5,7 @@ import pytest
 
 import planbench
 from planbench import PlanResult, PlanStatus
-from planbench.conformance import check_planner
+from planbench.conformance import CHECKS, ConformanceReport, Finding, check_planner, planner_report
 from planbench_plugins.straight_line import StraightLinePlanner
 
 # OMPL's PRM* grows its roadmap while a second thread searches it: same seed, possibly another path
@@ -25,7 +25,7 @@ def test_every_registered_planner_conforms(name):
         return
     problems = check_planner(name)
     if name in NOT_REPRODUCIBLE:
-        problems = [p for p in problems if "gave different paths" not in p]
+        problems = [p for p in problems if p.check != "non-deterministic"]
     assert problems == []
 
 
@@ -76,17 +76,18 @@ def test_a_correct_planner_has_no_problems():
 
 
 @pytest.mark.parametrize(
-    "planner, expected",
+    "planner, check, expected",
     [
-        (ClaimsSuccessThroughWalls, "claims success but validation fails: collision"),
-        (Broken, "kebab-case"),
-        (Unseeded, "different paths"),
-        (Raises, "plan raised: planner raised in plan(): RuntimeError: bug"),
+        (ClaimsSuccessThroughWalls, "false-success", "claims success but validation fails: collision"),
+        (Broken, "interface", "kebab-case"),
+        (Unseeded, "non-deterministic", "different paths"),
+        (Raises, "raises", "plan raised: planner raised in plan(): RuntimeError: bug"),
     ],
 )
-def test_deliberately_broken_planners_are_flagged(planner, expected):
+def test_deliberately_broken_planners_are_flagged_under_the_check_s_name(planner, check, expected):
     found = check_planner(planner)
-    assert any(expected in f for f in found), found
+    assert any(f.check == check and expected in f.message for f in found), found
+    assert all(f.check in CHECKS for f in found) and str(found[0]).startswith(f"{found[0].check}: ")
 
 
 def test_path_not_starting_at_start_is_flagged():
@@ -97,10 +98,46 @@ def test_path_not_starting_at_start_is_flagged():
             return PlanResult(PlanStatus.SUCCESS, np.stack([problem.start + 0.1, problem.goal.q]))
 
     found = check_planner(Offset)
-    assert any("path[0] must equal problem.start" in f for f in found), found
+    assert any(f.check == "wrong-start" and "path[0] must equal problem.start" in f.message for f in found), found
 
 
 @pytest.mark.slow
 def test_overrunning_the_time_limit_is_flagged():
     found = check_planner(Slow, time_limit=0.05)
-    assert any("with a time limit of 0.05 s" in f for f in found), found
+    assert any(f.check == "time-limit" and "with a time limit of 0.05 s" in f.message for f in found), found
+
+
+def test_the_report_says_which_named_checks_passed_failed_or_did_not_run():
+    good = planner_report(Good)
+    assert good.conformant and good.checks == tuple(CHECKS) and good.with_status("passed") == list(CHECKS)
+    assert good.lines() == [f"passed: {', '.join(CHECKS)}"]
+
+    raises = planner_report(Raises)  # plan raises on every problem: nothing after the call is looked at
+    assert raises.with_status("failed") == ["raises"]
+    assert raises.with_status("passed") == ["interface", "settings"]
+    assert raises.with_status("not run") == [c for c in CHECKS if c not in ("interface", "settings", "raises")]
+    assert raises.lines()[0] == "failed: raises"
+    assert raises.lines()[1].startswith("  - raises: on conformance:trivial: plan raised")
+
+    broken = planner_report(Broken)  # a bad interface: the planner is not run
+    assert broken.status("interface") == "failed" and broken.status("non-deterministic") == "not run"
+
+    class NoPlan:
+        name = "no-plan"
+        Config = Good.Config
+
+    no_plan = planner_report(NoPlan)
+    assert [f.check for f in no_plan.findings] == ["interface", "interface"]  # no setup(), no plan()
+    assert no_plan.with_status("not run") == [c for c in CHECKS if c not in ("interface", "settings")]
+    given = planner_report(Good, config=Good.Config(), problems=[planbench.load_problems("mbm:box/0001")[0]])
+    assert given.with_status("not run") == ["settings", "trivial-unsolved"] and given.conformant
+
+
+def test_a_report_crosses_processes_as_checked_plain_data():
+    report = ConformanceReport(("a", "b", "c"), (Finding("a", "x" * 5000),), frozenset({"c"}))
+    back = ConformanceReport.from_data(report.to_data())
+    assert back.checks == report.checks and back.not_run == report.not_run
+    assert back.findings == (Finding("a", "x" * 2000),)
+    for bad in ({}, {"checks": "a", "findings": [], "not_run": []}, {"checks": [], "findings": [["a"]], "not_run": []}):
+        with pytest.raises(TypeError):
+            ConformanceReport.from_data(bad)

@@ -13,6 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from planbench.conformance import ConformanceReport
 from planbench.errors import InvalidSettingError, PlannerUnavailableError, UnknownNameError
 from planbench.field.full import full_field
 from planbench.field.scene_field import FieldRepulsion
@@ -21,7 +22,7 @@ from planbench.geometry.occupancy import OccupancyGrid
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Pose, pose_error
 from planbench.reactive import Controller, Observation
-from planbench.reactive.conformance import CHECKS, check_controller, conformance_task
+from planbench.reactive.conformance import CHECKS, check_controller, conformance_task, controller_report
 from planbench.registry import CONTROLLERS, REGISTRY, Registry, make_controller, make_planner, register_controller
 from planbench.scene import Scene
 from planbench_plugins.controllers import IKLoopController
@@ -226,6 +227,20 @@ def test_the_checker_names_a_bad_interface_and_bad_info():
     assert [f.check for f in check_controller(Bad)] == ["interface"]
     found = check_controller(BadInfo)
     assert [f.check for f in found] == ["info"] and "JSON-friendly" in found[0].message
+
+
+def test_the_report_has_the_planners_shape_and_says_which_checks_did_not_run():
+    good = controller_report(Toward)
+    assert isinstance(good, ConformanceReport) and good.conformant
+    assert good.checks == tuple(CHECKS) and good.lines() == [f"passed: {', '.join(CHECKS)}"]
+    stays = controller_report(Stays)  # every run ends; only the goal check fails
+    assert stays.with_status("failed") == ["ignores-goal"] and stays.with_status("not run") == []
+    raises = controller_report(RaisesInStep)  # the first run stops at tick 6: nothing after it runs
+    assert raises.with_status("failed") == ["raises"]
+    assert raises.with_status("passed") == ["interface", "settings"]
+    assert raises.lines()[:2] == ["failed: raises", "  - raises: " + raises.findings[0].message]
+    unseeded = controller_report(Unseeded)  # the free-space run still happens after non-determinism
+    assert unseeded.with_status("failed") == ["non-deterministic"] and unseeded.with_status("not run") == []
 
 
 # --- the field controllers ---------------------------------------------------------------------------

@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"planbench": ROOT / "planbench", "planbench_plugins": ROOT / "plugins", "planbench_robots": ROOT / "robots"}
 
 LAYERS: list[tuple[str, set[str]]] = [
-    ("foundation", {"errors", "files", "runtime", "planbench_robots"}),
+    ("foundation", {"errors", "settings", "files", "runtime", "planbench_robots"}),
     ("model", {"robot", "scene", "problem", "geometry", "checking", "metrics", "planner"}),
     ("field", {"field"}),
     ("planning", {"registry", "harness", "validate", "conformance", "problems"}),

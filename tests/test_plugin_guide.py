@@ -11,7 +11,7 @@ import numpy as np
 from test_registry import install_fake_distribution
 
 import planbench
-from planbench.conformance import check_planner
+from planbench.conformance import CHECKS, check_planner
 
 ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "writing-a-planner.md"
@@ -42,6 +42,13 @@ def test_the_guide_planner_installs_by_its_entry_point_line_and_conforms(tmp_pat
     result = planbench.plan(problem, registry.get(name))
     assert planbench.evaluate(problem, result).success
     sys.modules.pop(module, None)
+
+
+def test_the_guide_lists_the_checkers_named_checks_as_planbench_check_prints_them():
+    text = GUIDE.read_text().split("\n## A complete planner plugin\n", 1)[1].split("\n## ", 1)[0]
+    assert re.findall(r"^\| `([a-z-]+)` \|", text, flags=re.M) == list(CHECKS)
+    printed = next(code for lang, code in section_blocks(GUIDE, "## A complete planner plugin") if lang == "text")
+    assert printed.splitlines()[1] == f"  passed: {', '.join(CHECKS)}"
 
 
 def test_the_guide_planner_on_the_ik_loop_conforms_and_plans(monkeypatch):

@@ -3,9 +3,11 @@
 ``planbench bench --set``, a suite file), and settings parsed to their ``Config`` field's type
 before anything runs. Also the benchmark's run record (``RunTask``) as wire data."""
 
+import ast
 import dataclasses
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -23,7 +25,7 @@ from planbench.cli.main import main
 from planbench.conformance import check_planner
 from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.harness import DEFAULT_TIME_LIMIT, resolve_planner
-from planbench.registry import PlannerSetup
+from planbench.settings import PlannerSetup
 
 # A real float setting of a real planner, and the message every way of giving it 'abc' must carry.
 BAD = ("matrix-field", "speed_max", "abc")
@@ -294,4 +296,30 @@ def test_settings_with_an_instance_and_a_broken_default_are_named():
         Config = NeedsValue
 
     found = check_planner(NoDefaults)
-    assert any(f.startswith("Config() must work with defaults only: planner 'no-defaults'") for f in found), found
+    expected = "Config() must work with defaults only: planner 'no-defaults'"
+    assert any(f.check == "settings" and f.message.startswith(expected) for f in found), found
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    """Every module ``path`` imports, anywhere in it (``from planbench import cli``: ``planbench.cli``)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out += [(node.lineno, node.module)] + [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+    return out
+
+
+def test_settings_reads_no_registry_and_the_benchmark_no_command_line():
+    """``planbench.settings`` stands below the registries (it imports none: no cycle), and the
+    benchmark reads ``--set`` through it, never through ``planbench.cli`` (ast: nothing is imported)."""
+    package = Path(planbench.__file__).parent
+    assert not [m for _, m in _imports(package / "settings.py") if m.startswith("planbench.registry")]
+    bad = [
+        f"{path.relative_to(package)}:{line} imports {module}"
+        for path in sorted((package / "bench").rglob("*.py"))
+        for line, module in _imports(path)
+        if module == "planbench.cli" or module.startswith("planbench.cli.")
+    ]
+    assert not bad, bad

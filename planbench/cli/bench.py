@@ -29,10 +29,10 @@ from planbench.bench.results import write_parquet
 from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.bench.task import RunTask
-from planbench.cli.main import parse_setting, settings_text
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.files.inputs import check_writable
 from planbench.files.outputs import check_output
+from planbench.settings import parse_setting, settings_text
 
 log = logging.getLogger(__name__)
 

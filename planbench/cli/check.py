@@ -4,7 +4,9 @@ its own.
 A third-party plugin may crash the interpreter (a segfault in its C++), hang, or call ``exit``;
 checked in the caller's process, it would take the caller down with it (a whole pytest session).
 Here the check runs in a spawned process that answers with data only; a process that dies, or does
-not answer within ``timeout`` seconds, is a verdict of its own, not a crash of the caller.
+not answer within ``timeout`` seconds, is a verdict of its own, not a crash of the caller. Planners and
+controllers answer with the same :class:`~planbench.conformance.ConformanceReport` (each named check
+passed, failed or not run), printed the same way (:meth:`CheckOutcome.lines`).
 """
 
 from __future__ import annotations
@@ -12,10 +14,11 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from planbench.bench.procs import detach, kill_group
+from planbench.conformance import ConformanceReport
 
 __all__ = ["CheckOutcome", "check_in_subprocess"]
 
@@ -24,18 +27,29 @@ KINDS = ("planner", "controller")
 
 @dataclass(frozen=True)
 class CheckOutcome:
-    """What the check found: ``findings`` (empty and ``failure`` empty: conformant), or
-    ``failure``, why there is no answer (the process crashed or timed out, or the name is unknown)."""
+    """What the check found: its ``report`` (every named check passed: conformant), or ``failure``,
+    why there is none (the process crashed or timed out, or the name is unknown)."""
 
     name: str
     kind: str
-    findings: list[str] = field(default_factory=list)
+    report: ConformanceReport | None = None
     failure: str = ""
     unknown: bool = False
 
     @property
+    def findings(self) -> list[str]:
+        """Each finding as ``check: message``."""
+        return [str(f) for f in self.report.findings] if self.report is not None else []
+
+    @property
     def conformant(self) -> bool:
-        return not self.findings and not self.failure
+        return not self.failure and self.report is not None and self.report.conformant
+
+    def lines(self) -> list[str]:
+        """The verdict, then the report (or why there is none), as ``planbench check`` prints it."""
+        verdict = "conformant" if self.conformant else "NOT conformant"
+        detail = [f"- {self.failure}"] if self.failure or self.report is None else self.report.lines()
+        return [f"{self.kind} {self.name}: {verdict}", *(f"  {line}" for line in detail)]
 
 
 def _check_main(conn: Any, name: str, kind: str, parent_pid: int) -> None:
@@ -44,16 +58,16 @@ def _check_main(conn: Any, name: str, kind: str, parent_pid: int) -> None:
 
     try:
         if kind == "controller":
-            from planbench.reactive.conformance import check_controller
+            from planbench.reactive.conformance import controller_report
             from planbench.registry import CONTROLLERS
 
             CONTROLLERS.resolve(name)  # an unknown name is an error (exit code 2), not a finding
-            findings = [f"{f.check}: {f.message}" for f in check_controller(name)]
+            report = controller_report(name)
         else:
-            from planbench.conformance import check_planner
+            from planbench.conformance import planner_report
 
-            findings = list(check_planner(name))
-        conn.send({"findings": [str(f) for f in findings]})
+            report = planner_report(name)
+        conn.send({"report": report.to_data()})
     except PlanbenchError as exc:  # an unknown name, a plugin that cannot be loaded
         conn.send({"error": str(exc), "planbench_error": True})
     except Exception as exc:  # the plugin raised where the checker does not catch it
@@ -81,9 +95,12 @@ def check_in_subprocess(name: str, kind: str = "planner", timeout: float = 300.0
         except (EOFError, OSError):
             proc.join(5)
             return CheckOutcome(name, kind, failure=_death(proc.exitcode))
-        if "error" in answer:
+        if isinstance(answer, dict) and "error" in answer:
             return CheckOutcome(name, kind, failure=str(answer["error"]), unknown=bool(answer.get("planbench_error")))
-        return CheckOutcome(name, kind, findings=[str(f) for f in answer.get("findings", [])])
+        try:
+            return CheckOutcome(name, kind, ConformanceReport.from_data(answer["report"]))
+        except (TypeError, KeyError):
+            return CheckOutcome(name, kind, failure="the check's process answered with something else than a report")
     finally:
         kill_group(proc.pid)
         proc.join(5)

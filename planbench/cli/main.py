@@ -28,31 +28,12 @@ from planbench.planner import PlanResult, PlanStatus
 from planbench.problems.datasets import problem_sets
 from planbench.registry import CONTROLLERS, REGISTRY
 from planbench.robot import load_robot, robot_names
+from planbench.settings import parse_setting, settings_text
 
 log = logging.getLogger("planbench")
 
 # Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
 COMMAND_MODULES = ("planbench.cli.bench", "planbench.cli.field")
-
-
-def parse_setting(text: str) -> tuple[str, str]:
-    """``key=value`` as the key and the value's text: the planner's ``Config`` says what the text
-    means (``gain=2.5`` a float, ``timed=false`` a bool, ``params={"range": 0.3}`` JSON), see
-    :meth:`planbench.registry.Registry.configure`."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"settings are key=value, got {text!r}")
-    return key.strip(), value
-
-
-def settings_text(pairs: Sequence[tuple[str, str]] | None) -> dict[str, str]:
-    """``--set`` pairs as a dict; a key given twice is an error (which one was meant?)."""
-    out: dict[str, str] = {}
-    for key, value in pairs or ():
-        if key in out and out[key] != value:
-            raise PlanbenchError(f"--set {key} is given twice ({out[key]!r} and {value!r}); give it once")
-        out[key] = value
-    return out
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -322,13 +303,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     outcome = check_in_subprocess(args.name, kind, args.timeout)
     if outcome.unknown:
         raise PlanbenchError(outcome.failure)
-    if outcome.conformant:
-        print(f"{kind} {args.name}: conformant")
-        return 0
-    print(f"{kind} {args.name}: NOT conformant")
-    for line in [outcome.failure] if outcome.failure else outcome.findings:
-        print(f"  - {line}")
-    return 1
+    print("\n".join(outcome.lines()))
+    return 0 if outcome.conformant else 1
 
 
 def _array(a: Any) -> Any:
@@ -426,7 +402,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the conformance checker on a planner or controller, in a process of its own",
         description="Check a planner (or, with --controller, a controller) against planbench's interface and "
         "behaviour rules, in a separate process: a plugin that crashes or hangs fails its check, nothing else. "
-        "Exit code 0: conformant; 1: not (what was found is listed); 2: unknown name.",
+        "Every named check is listed as passed, failed (with what was found) or not run. Exit code 0: "
+        "conformant; 1: not; 2: unknown name.",
     )
     p.add_argument("name", help="a registered name, a family:variant preset, or module:Attr")
     p.add_argument("--controller", action="store_true", help="NAME is a closed-loop controller")

@@ -5,10 +5,11 @@ benchmark does (through :data:`~planbench.registry.CONTROLLERS`), drives it on a
 the closed-loop runner does (``setup``, ``reset``, ``step`` before the first frame, ``update`` at
 about the sensor rate, ``step`` every tick, the velocity clipped to the limits and integrated) and
 returns what it finds, each :class:`Finding` under one of the names of :data:`CHECKS` (an empty list:
-conformant). The task: the Panda of MotionBenchMaker ``box/0001``, its start and goal, a control
-period of 10 ms; observed with truth sensing (its scene voxelized at 2 cm, the scene attached) and,
-for the goal check, an empty grid of the same origin and shape without a scene (as a depth sensor
-sees free space).
+conformant); :func:`controller_report` gives the verdict of every check (passed, failed, not run), in
+the shape of the planners' (:class:`~planbench.conformance.ConformanceReport`). The task: the Panda
+of MotionBenchMaker ``box/0001``, its start and goal, a control period of 10 ms; observed with truth
+sensing (its scene voxelized at 2 cm, the scene attached) and, for the goal check, an empty grid of
+the same origin and shape without a scene (as a depth sensor sees free space).
 """
 
 from __future__ import annotations
@@ -21,13 +22,14 @@ from typing import Any
 
 import numpy as np
 
+from planbench.conformance import CheckRecord, ConformanceReport, Finding
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Goal, pose_error
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import CONTROLLERS, NAME_PATTERN, Registry
 
-__all__ = ["CHECKS", "ConformanceTask", "Finding", "check_controller", "conformance_task"]
+__all__ = ["CHECKS", "ConformanceTask", "Finding", "check_controller", "conformance_task", "controller_report"]
 
 CHECKS = {
     "interface": "a kebab-case name, a dataclass Config, callable setup/reset/update/step",
@@ -42,20 +44,12 @@ CHECKS = {
 }
 """The name of each check, and what failing it means."""
 
+TICK_CHECKS = ("raises", "wrong-shape", "nan", "non-finite")
+"""The checks of every call in every run: passed only when all runs got to their end."""
+
 TASK_PROBLEM = "mbm:box/0001"
 ROTATION_WEIGHT = 0.1
 """[m/rad] Goal error ``|p - p_goal| + ROTATION_WEIGHT * angle`` of the goal check (the IK loop's)."""
-
-
-@dataclass(frozen=True)
-class Finding:
-    """One problem found: the check's name (a key of :data:`CHECKS`) and what happened."""
-
-    check: str
-    message: str
-
-    def __str__(self) -> str:
-        return f"{self.check}: {self.message}"
 
 
 class _Fault(Exception):
@@ -106,15 +100,40 @@ def check_controller(
     frame every this many ticks (30 Hz at the default 10 ms period); ``goal_progress``: the fraction
     of the goal error the free-space run must remove at least.
     """
+    report = controller_report(
+        controller,
+        config,
+        steps=steps,
+        seed=seed,
+        goal_progress=goal_progress,
+        frame_every=frame_every,
+        registry=registry,
+    )
+    return list(report.findings)
+
+
+def controller_report(
+    controller: Any,
+    config: Any = None,
+    *,
+    steps: int = 300,
+    seed: int = 0,
+    goal_progress: float = 0.25,
+    frame_every: int = 3,
+    registry: Registry | None = None,
+) -> ConformanceReport:
+    """The verdict of each of :data:`CHECKS` on ``controller`` (arguments: :func:`check_controller`)."""
     if steps < 1 or frame_every < 1 or not 0.0 < goal_progress < 1.0:
         raise ValueError(
             "steps and frame_every must be >= 1 and goal_progress in (0, 1), "
             f"got {steps}, {frame_every} and {goal_progress}"
         )
     registry = registry or CONTROLLERS
-    found = _interface(controller, config, registry)
-    if found:
-        return found
+    record = CheckRecord(CHECKS)
+    _interface(controller, config, registry, record)
+    if record.findings:
+        record.skip(c for c in CHECKS if c not in ("interface", "settings"))
+        return record.report()
     _, cls, _ = registry.resolve(controller)
 
     def make() -> Any:
@@ -130,64 +149,67 @@ def check_controller(
         _check_info(first)
         runs.append(_run(_construct(make), where.task, where.obstacles, steps, seed, frame_every, nq))
     except _Fault as fault:
-        found.append(fault.finding)
+        record.fail(fault.finding.check, fault.finding.message)
+        record.skip(["info", *TICK_CHECKS] if len(runs) < 2 else TICK_CHECKS)
     if len(runs) == 3:
         for other, how in ((runs[1], "after reset with the same seed"), (runs[2], "on a new instance")):
             if not (other.shape == runs[0].shape and np.allclose(other, runs[0], atol=1e-9, rtol=0)):
                 at = _first_difference(runs[0], other)
-                found.append(
-                    Finding(
-                        "non-deterministic",
-                        f"a second run {how} took another trajectory (from tick {at} on); "
-                        "use only the rng handed to reset, and reset every state a run leaves behind",
-                    )
+                record.fail(
+                    "non-deterministic",
+                    f"a second run {how} took another trajectory (from tick {at} on); "
+                    "use only the rng handed to reset, and reset every state a run leaves behind",
                 )
                 break
-    if any(f.check != "non-deterministic" for f in found):
-        return found
+    else:
+        record.skip(["non-deterministic"])
+    if any(f.check != "non-deterministic" for f in record.findings):
+        record.skip(["ignores-goal"])
+        return record.report()
     try:
         free = _construct(make)
         path = _run(free, where.task, where.free, steps, seed, frame_every, nq)
     except _Fault as fault:
-        found.append(fault.finding)
-        return found
+        record.fail(fault.finding.check, fault.finding.message)
+        record.skip(["ignores-goal", *TICK_CHECKS])
+        return record.report()
     before, after = _goal_error(where.task, path[0]), _goal_error(where.task, path[-1])
     if not after <= (1.0 - goal_progress) * before:
-        found.append(
-            Finding(
-                "ignores-goal",
-                f"in free space, {steps} ticks of {where.task.period * 1000:g} ms took the goal error from "
-                f"{before:.3f} to {after:.3f} (|p - p_goal| + {ROTATION_WEIGHT} m/rad x angle); "
-                f"at least {goal_progress:.0%} of it must go",
-            )
+        record.fail(
+            "ignores-goal",
+            f"in free space, {steps} ticks of {where.task.period * 1000:g} ms took the goal error from "
+            f"{before:.3f} to {after:.3f} (|p - p_goal| + {ROTATION_WEIGHT} m/rad x angle); "
+            f"at least {goal_progress:.0%} of it must go",
         )
-    return found
+    return record.report()
 
 
-def _interface(controller: Any, config: Any, registry: Registry) -> list[Finding]:
+def _interface(controller: Any, config: Any, registry: Registry, record: CheckRecord) -> None:
     """The checks that need no call of the controller's code besides its ``Config``."""
-    found = []
     try:
         _, cls, implied = registry.resolve(controller)
     except PlanbenchError as exc:
-        return [Finding("interface", f"cannot find controller {controller!r}: {exc}")]
+        record.fail("interface", f"cannot find controller {controller!r}: {exc}")
+        record.skip(["settings"])
+        return
     name = getattr(cls, "name", "")
     if not isinstance(name, str) or not NAME_PATTERN.match(name):
-        found.append(Finding("interface", f"'name' must be a kebab-case string like 'my-controller', got {name!r}"))
+        record.fail("interface", f"'name' must be a kebab-case string like 'my-controller', got {name!r}")
     Config = getattr(cls, "Config", None)
     if Config is None or not dataclasses.is_dataclass(Config):
-        what = "'Config' must be a dataclass of the controller's settings (units in its docstrings)"
-        found.append(Finding("interface", what))
+        record.fail("interface", "'Config' must be a dataclass of the controller's settings (units in its docstrings)")
+        record.skip(["settings"])
     elif config is None:
         try:
             registry.configure(controller)
         except InvalidConfigError as exc:
             what = "Config() must work with its defaults only" if not implied else f"the settings {implied}"
-            found.append(Finding("settings", f"{what}: {exc}"))
+            record.fail("settings", f"{what}: {exc}")
+    else:
+        record.skip(["settings"])  # a Config given: its defaults are not built
     for method in ("setup", "reset", "update", "step"):
         if not callable(getattr(cls, method, None)):
-            found.append(Finding("interface", f"missing method {method}()"))
-    return found
+            record.fail("interface", f"missing method {method}()")
 
 
 def _construct(make: Callable[[], Any]) -> Any:
