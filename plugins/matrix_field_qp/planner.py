@@ -9,7 +9,8 @@ Joint position and velocity limits are hard constraints of the QP instead of a s
 after the fact, and so (``collision_constraints``, default on) is collision avoidance: velocity
 dampers on coal's exact distances between the robot's geometries and the obstacles, and between
 the robot's own geometries (:mod:`.distances`, :func:`.formulation.collision_constraints`), built
-in :meth:`setup` from the problem's robot and scene.
+in :meth:`setup` from the problem's robot and scene (a controller gives its observed geometry with
+:meth:`~MatrixFieldQPPlanner.use_distances`).
 
 Extra per-step diagnostics (``result.info``, one entry per path row): ``qp_build_time`` [s]
 (task terms, QP matrices, the bounds check and qpsolvers' problem wrapping), ``qp_solve_time`` [s]
