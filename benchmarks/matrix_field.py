@@ -24,6 +24,7 @@ solved problems, and the failure reasons, per family, next to the straight-line 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import statistics
 import sys
@@ -70,17 +71,19 @@ def bench_step(
     planner.plan(problem, time_limit=60.0, rng=rng)
 
     # the query's own objects, as the loop uses them (prepared by setup), at a configuration near the start
-    prep = planner._prepared
-    assert prep is not None  # set by setup
-    kin, inputs, repulsion = prep["kin"], prep["inputs"], prep["repulsion"]
+    stepper = planner.stepper
+    kin, inputs, repulsion = stepper.kin, stepper.inputs, stepper.repulsion
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)
     points, F, support, joint = repulsion.forces(kin)
     model, data, fid = kin.model, kin.data, kin.frame_id
-    qd, dg, tool = prep["qd"], prep["dg"], prep["tool"]
-    step = prep["step"]
-    advance = prep["advance"]
+    qd, dg, tool = stepper.qd, stepper.diag, stepper.tool
+    step = stepper.solve
     lower, upper = inputs.lower, inputs.upper
+    args = (stepper.q, qd, cfg.dt, lower, upper, np.empty((2, len(q))))  # the loop's integration, as plan binds it
+    advance = functools.partial(
+        fast.bind(fast.compiled().advance, *args, 0) if planner.use_numba else fast.advance_numpy, *args
+    )
 
     def pin_calls() -> None:  # what ArmKinematics.update asks of pinocchio
         pin.computeJointJacobians(model, data, q)
@@ -131,7 +134,7 @@ def bench_step(
         for k, v in row.items():
             rounds.setdefault(k, []).append(v)
     out = {k: statistics.median(v) for k, v in rounds.items()}
-    out["control_points"] = float(len(prep["points"]))
+    out["control_points"] = float(len(stepper.control_points))
     return out
 
 

@@ -65,13 +65,11 @@ def bench_step(problem_ids: tuple[str, ...] = STEP_PROBLEMS, n_configs: int = 8)
                 stall_ratio=0.0, max_steps=500, collision_check_every=0, verify_path=False, goal_tolerance_scale=1e-9
             )
             planner.setup(problem)
-            prep = planner._prepared
-            assert prep is not None
-            rep = prep["repulsion"]
+            rep = planner.stepper.repulsion
             kin = ArmKinematics(
                 problem.robot,
                 problem.robot.frame_id(problem.goal.pose.frame),
-                prep["points"],
+                planner.stepper.control_points,
                 compiled=planner.use_numba,
             )
             for q in ref.path[idx]:

@@ -30,7 +30,7 @@ def test_the_push_separates_the_closest_pair(near_itself):
     problem, q = near_itself
     planner = MatrixFieldPlanner()
     planner.setup(problem)
-    kin = planner._prepared["kin"]
+    kin = planner.stepper.kin
     push = SelfCollisionPush(ZeroRepulsion(), problem.robot, problem.scene, influence=0.05, gain=3.0, speed_max=0.25)
     kin.update(q)
     points, F, support, joint = push.forces(kin)
@@ -52,16 +52,16 @@ def test_the_setting_adds_the_push_and_the_paper_preset_leaves_it_out(near_itsel
     problem, _ = near_itself
     on = MatrixFieldPlanner()
     on.setup(problem)
-    assert isinstance(on._prepared["repulsion"], SelfCollisionPush)
+    assert isinstance(on.stepper.repulsion, SelfCollisionPush)
     off = planbench.make_planner("matrix-field", self_collision=False)
     off.setup(problem)
-    assert not isinstance(off._prepared["repulsion"], SelfCollisionPush)
+    assert not isinstance(off.stepper.repulsion, SelfCollisionPush)
     paper = planbench.make_planner("matrix-field:paper")
     paper.setup(problem)
-    assert not isinstance(paper._prepared["repulsion"], SelfCollisionPush)
+    assert not isinstance(paper.stepper.repulsion, SelfCollisionPush)
     qp = planbench.make_planner("matrix-field-qp")  # its collision constraints hold the self pairs
     qp.setup(problem)
-    assert not isinstance(qp._prepared["repulsion"], SelfCollisionPush)
+    assert not isinstance(qp.stepper.repulsion, SelfCollisionPush)
 
 
 def test_a_query_asks_the_distances_afresh_however_the_last_one_ended(near_itself):
@@ -71,7 +71,7 @@ def test_a_query_asks_the_distances_afresh_however_the_last_one_ended(near_itsel
     planner = MatrixFieldPlanner(max_steps=1)
     planner.setup(problem)  # then plan() twice on it, as a caller that reuses a prepared planner does
     planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
-    push = planner._prepared["repulsion"]
+    push = planner.stepper.repulsion
     assert isinstance(push, SelfCollisionPush)
     asked = []
     near = push.distances.near

@@ -220,6 +220,33 @@ class CertifiedChecker:
         buffers may be half-built, the next one starts from a fresh checker."""
         _CHECKERS.pop(problem, None)
 
+    # -- the scene's geometry ----------------------------------------------------------------------
+
+    @property
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """The checked pairs, ``(first, second)`` geometry indices in :attr:`geometry_model`, in the
+        order of :attr:`pair_margin` (and of the verdicts' pair numbers)."""
+        return tuple(self._pairs)
+
+    def pairs_with(self, obstacle: str) -> list[int]:
+        """Indices of the pairs (:attr:`pairs`) that involve the scene's obstacle named ``obstacle``."""
+        g = self._obstacle_id(obstacle)
+        return [k for k, (a, b) in enumerate(self._pairs) if g in (a, b)]
+
+    def place_obstacle(self, obstacle: str, placement: Any) -> None:
+        """Move the scene's obstacle named ``obstacle`` to ``placement`` (a pinocchio ``SE3``, base
+        frame) in the exact and the hull geometry alike: for obstacles that move between checks
+        (:mod:`planbench.reactive.checker`)."""
+        g = self._obstacle_id(obstacle)
+        self.geometry_model.geometryObjects[g].placement = placement
+        self._hull_model.geometryObjects[g].placement = placement
+
+    def _obstacle_id(self, obstacle: str) -> int:
+        name = f"obstacle:{obstacle}"
+        if not self.geometry_model.existGeometryName(name):
+            raise KeyError(f"no obstacle {obstacle!r} in the checker's scene")
+        return int(self.geometry_model.getGeometryId(name))
+
     # -- distances ---------------------------------------------------------------------------------
 
     def _new_sample(self, u: float, q: np.ndarray) -> _Sample:

@@ -49,19 +49,8 @@ class TickChecker:
         problem = scenario.problem
         rest = Scene(tuple(problem.scene.obstacles) + tuple(m.obstacle for m in scenario.moving), problem.scene.name)
         self.checker = CertifiedChecker(problem.robot, rest, self.settings)
-        names = [o.name for o in self.checker.geometry_model.geometryObjects]
-        models = (self.checker.geometry_model, self.checker._hull_model)
-        self._objects = [
-            [gm.geometryObjects[names.index(f"obstacle:{m.name}")] for gm in models] for m in scenario.moving
-        ]
         self._speeds = [m.speed_bound() for m in scenario.moving]
-        index = {f"obstacle:{m.name}": i for i, m in enumerate(scenario.moving)}
-        n = self.checker.n_robot_geoms
-        self._pairs_of: list[list[int]] = [[] for _ in scenario.moving]  # pair indices per moving obstacle
-        for k, (a, b) in enumerate(self.checker._pairs):
-            for g in (a, b):
-                if g >= n and names[g] in index:
-                    self._pairs_of[index[names[g]]].append(k)
+        self._pairs_of = [self.checker.pairs_with(m.name) for m in scenario.moving]  # pair indices per moving obstacle
         self._moving_pair = {f"obstacle:{m.name}" for m in scenario.moving}
 
     def place(self, t0: float, t1: float | None = None) -> None:
@@ -69,17 +58,15 @@ class TickChecker:
         half its travel (``t1`` omitted: at ``t0``, no margin); absent ones far away."""
         t1 = t0 if t1 is None else t1
         tm, half = 0.5 * (t0 + t1), 0.5 * (t1 - t0)
-        margins = self.checker.pair_margin
-        for m, objects, speed, pairs in zip(
-            self.scenario.moving, self._objects, self._speeds, self._pairs_of, strict=True
-        ):
+        checker = self.checker
+        margins = checker.pair_margin
+        for m, speed, pairs in zip(self.scenario.moving, self._speeds, self._pairs_of, strict=True):
             if m.present(t0, t1):
                 M = m.motion.pose(m.obstacle.placement(), tm)
                 margin = speed * half
             else:
                 M, margin = pin.SE3(np.eye(3), _FAR), 0.0
-            for obj in objects:
-                obj.placement = M
+            checker.place_obstacle(m.name, M)
             for k in pairs:
                 margins[k] = margin
 

@@ -249,7 +249,7 @@ def _base_clearance(checker: TickChecker, q: np.ndarray, t: float) -> float:
     gm = c.geometry_model
     n = c.n_robot_geoms
     base = {i for i in range(n) if gm.geometryObjects[i].parentJoint <= 1}
-    pairs = [k for k, (a, b) in enumerate(c._pairs) if (a in base or b in base) and max(a, b) >= n]
+    pairs = [k for k, (a, b) in enumerate(c.pairs) if (a in base or b in base) and max(a, b) >= n]
     data, gdata = c.robot.model.createData(), pin.GeometryData(gm)
     pin.computeDistances(c.robot.model, data, gm, gdata, q)
     return min((gdata.distanceResults[k].min_distance for k in pairs), default=np.inf)

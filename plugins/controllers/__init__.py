@@ -2,10 +2,9 @@
 steps run at the control rate on observed occupancy grids (docs/writing-a-controller.md).
 
 Modules: ``adapter`` (:class:`IKLoopController`: an IK-loop planner's step as a controller),
-``live`` (the repulsion whose source each frame replaces), ``hooks`` (the one place that reads the
-loop's private step state), ``crop`` (the block of a grid that holds its occupied cells), ``cells``
-(occupied cells as box obstacles), and one module per controller: ``matrix_field``,
-``matrix_field_qp``, ``edt_field``, ``distance_field``.
+``live`` (the repulsion whose source each frame replaces), ``crop`` (the block of a grid that holds
+its occupied cells), ``cells`` (occupied cells as box obstacles), and one module per controller:
+``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``.
 """
 
 from planbench_plugins.controllers.adapter import PLANNING_ONLY, IKLoopController

@@ -6,13 +6,15 @@ that step without the integration: the runner gives ``q`` every tick and integra
 itself. :class:`IKLoopController` runs one planner class's step that way:
 
 - ``setup(task)`` builds the planner from the controller's config (its ``Config`` *is* the
-  planner's, so every planner setting is a controller setting) and sets it up on the task with an
-  empty scene: the controller knows obstacles only from observations. The planner's repulsion is
-  a :class:`~.live.LiveRepulsion`, whose source each ``update(observation)`` replaces
+  planner's, so every planner setting is a controller setting) and prepares its loop for the
+  task's robot and goal (:meth:`~planbench_plugins.ik_loop.IKLoopPlanner.prepare`): no scene, the
+  controller knows obstacles only from observations. The loop's repulsion is a
+  :class:`~.live.LiveRepulsion`, whose source each ``update(observation)`` replaces
   (:meth:`IKLoopController.make_source`, the one method a subclass writes). The self-collision
   push (``self_collision``, on by default) wraps it as in the planner: it needs the robot only.
-- ``step`` writes ``q`` into the loop's buffers, updates the kinematics, asks the repulsion and runs
-  the planner's step (compiled, or the QP): the joint velocity [rad/s], a copy.
+- ``step`` runs the prepared :class:`~planbench_plugins.ik_loop.LoopStepper` from ``q``: the
+  kinematics, the repulsion and the planner's step (compiled, or the QP); the joint velocity
+  [rad/s], a copy.
 
 What the loop's ``plan`` adds around its steps is planning, not control, and is switched off:
 the integration (the runner integrates), endings and the local-minimum test, escapes
@@ -31,36 +33,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from planbench.problem import Goal, Pose, Problem
+from planbench.problem import Goal
 from planbench.reactive.controller import Controller, ControlTask, Observation
-from planbench.scene import Scene
-from planbench_plugins.controllers.hooks import LoopState, loop_state
 from planbench_plugins.controllers.live import LiveRepulsion
-from planbench_plugins.ik_loop import ControlPoints, IKLoopConfig, IKLoopPlanner, Repulsion, StepFailure
+from planbench_plugins.ik_loop import IKLoopConfig, IKLoopPlanner, LoopStepper, Repulsion, StepFailure
 
 __all__ = ["IKLoopController", "PLANNING_ONLY"]
 
 PLANNING_ONLY = {"escape_attempts": 0, "collision_check_every": 0, "verify_path": False}
 """Loop settings that belong to planning (module docstring), set so for the controller's planner."""
-
-
-class _FedByController:
-    """Mixin of the controller's planner: its repulsion is the controller's live one."""
-
-    live: LiveRepulsion
-
-    def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
-        return self.live
-
-
-_FED: dict[type, type] = {}
-
-
-def _fed(cls: type[IKLoopPlanner]) -> type[IKLoopPlanner]:
-    """``cls`` with its repulsion replaced by the controller's (one subclass per planner class)."""
-    if cls not in _FED:
-        _FED[cls] = type(f"{cls.__name__}InController", (_FedByController, cls), {"__module__": __name__})
-    return _FED[cls]
 
 
 class IKLoopController(Controller):
@@ -82,11 +63,10 @@ class IKLoopController(Controller):
         """The loop's repulsion; its source is replaced on every frame."""
         self.planner: IKLoopPlanner | None = None
         """The planner whose step runs (after :meth:`setup`)."""
+        self.stepper: LoopStepper | None = None
+        """The planner's loop, prepared for the task (after :meth:`setup`)."""
         self.task: ControlTask | None = None
-        self._state: LoopState | None = None
         self._goal: Goal | None = None
-        self._joint: np.ndarray | None = None
-        self._tool = np.zeros(0, dtype=np.intp)
         self._counts = {"steps": 0, "frames": 0, "step_failures": 0}
         self._last_failure = ""
         self._largest_push = 0.0
@@ -101,39 +81,29 @@ class IKLoopController(Controller):
         planning-only features off (:data:`PLANNING_ONLY`)."""
         return dataclasses.replace(self.config, dt=float(task.period), **PLANNING_ONLY)
 
+    def make_planner(self, task: ControlTask) -> IKLoopPlanner:
+        """The planner whose step runs, before its loop is prepared (a subclass gives it what it
+        measures besides the repulsion, as ``matrix-field-qp``'s collision constraints)."""
+        return self.planner_class(self.planner_config(task))
+
     def extra_info(self) -> dict[str, Any]:
         """What a subclass adds to :meth:`info`."""
         return {}
 
     # --- the controller interface -------------------------------------------------------------------
     def setup(self, task: ControlTask) -> None:
-        """Build and set up the planner on ``task`` with an empty scene (module docstring)."""
+        """Build the planner and prepare its loop for ``task`` (module docstring)."""
         self.task = task
-        pose = task.goal.pose  # copied: the step's goal arrays are written when the goal moves (_aim)
-        problem = Problem.create(
-            task.robot,
-            Scene(name="observed"),
-            np.array(task.start, dtype=float),
-            goal_q=task.goal.q,
-            goal_pose=Pose(np.array(pose.position, dtype=float), np.array(pose.rotation, dtype=float), pose.frame),
-            tolerances=task.tolerances,
-            id=task.id,
-        )
-        planner = _fed(self.planner_class)(self.planner_config(task))
-        planner.live = self.repulsion  # type: ignore[attr-defined]
+        planner = self.make_planner(task)
         self.repulsion.replace(None)
-        planner.setup(problem)
+        self.stepper = planner.prepare(task.robot, task.goal.pose, self.repulsion, start=task.start)
         self.planner = planner
-        self._state = state = loop_state(planner)
         self._goal = task.goal
-        self._joint, self._tool = state.joint, state.tool  # the arrays the compiled step is bound to
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run: no obstacle known until the first frame, counters at zero."""
         self.repulsion.replace(None)
-        restart = getattr(self._require().repulsion, "restart", None)  # the self-collision push's
-        if callable(restart):
-            restart()
+        self._require().restart()
         self._counts = dict.fromkeys(self._counts, 0)
         self._last_failure = ""
         self._largest_push = 0.0
@@ -147,23 +117,18 @@ class IKLoopController(Controller):
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
         """One step of the planner from ``q`` [rad]: joint velocities [rad/s] (zeros when the step
         has no valid answer)."""
-        state = self._require()
+        stepper = self._require()
         if goal is not self._goal:
-            self._aim(state, goal)
-        state.q[:] = q
-        state.kin.update(state.q)
-        points, F, support, joint = state.repulsion.forces(state.kin)
-        if joint is not self._joint:  # sources on the control points return the same array
-            self._tool, self._joint = np.flatnonzero(joint == state.inputs.tool_joint), joint
+            self._aim(stepper, goal)
         try:
-            state.step(points, F, support, self._tool)
+            qd = stepper(q)
         except StepFailure as exc:
             self._counts["step_failures"] += 1
             self._last_failure = f"t = {t:.3f} s: {exc.message}"
-            return np.zeros_like(state.qd)
+            return np.zeros_like(stepper.qd)
         self._counts["steps"] += 1
-        self._largest_push = max(self._largest_push, float(state.diag[2]))
-        return state.qd.copy()
+        self._largest_push = max(self._largest_push, float(stepper.diag[2]))
+        return qd.copy()
 
     def info(self) -> dict[str, Any]:
         """Steps, frames and failed steps of the run, the largest push [m/s], the gain in use."""
@@ -171,27 +136,25 @@ class IKLoopController(Controller):
         out["last_step_failure"] = self._last_failure
         out["largest_push"] = self._largest_push
         out["field_gain"] = self.repulsion.gain
-        if self.planner is not None and self.task is not None:
-            out["hierarchy"] = self.planner.hierarchy_for(self.task.robot.nq)
-            points = self.planner.control_points
-            out["n_control_points"] = 0 if points is None else len(points)
+        if self.stepper is not None:
+            out["hierarchy"] = self.stepper.hierarchy
+            out["n_control_points"] = len(self.stepper.control_points)
         out.update(self.extra_info())
         return out
 
     # --- internals --------------------------------------------------------------------------------
-    def _require(self) -> LoopState:
-        if self._state is None:
+    def _require(self) -> LoopStepper:
+        if self.stepper is None:
             raise RuntimeError(f"{self.name}: call setup(task) before reset, update or step")
-        return self._state
+        return self.stepper
 
-    def _aim(self, state: LoopState, goal: Goal) -> None:
-        """Steer to ``goal`` from now on (written into the arrays the compiled step is bound to)."""
+    def _aim(self, stepper: LoopStepper, goal: Goal) -> None:
+        """Steer to ``goal`` from now on (:meth:`~planbench_plugins.ik_loop.LoopStepper.aim`)."""
         frame = self.task.goal.pose.frame if self.task is not None else goal.pose.frame
         if goal.pose.frame != frame:
             raise ValueError(
                 f"{self.name}: the goal's frame changed from {frame!r} to {goal.pose.frame!r}; "
                 "a controller steers one frame, set up a new task for another"
             )
-        state.inputs.p_goal[:] = np.asarray(goal.pose.position, dtype=float)
-        state.inputs.R_goal[:] = np.asarray(goal.pose.rotation, dtype=float)
+        stepper.aim(goal.pose)
         self._goal = goal

@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 
 from planbench.reactive.controller import ControlTask, Observation
+from planbench.scene import Scene
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.cells import observed_scene
-from planbench_plugins.controllers.hooks import forget_checked_steps
 from planbench_plugins.controllers.matrix_field import GridField
-from planbench_plugins.ik_loop import DistanceModel, Repulsion
+from planbench_plugins.ik_loop import DistanceModel, IKLoopPlanner, Repulsion
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner
 
 __all__ = ["MatrixFieldQPController", "MatrixFieldQPControllerConfig"]
@@ -58,10 +58,16 @@ class MatrixFieldQPController(IKLoopController):
         ``"none"`` (no frame yet, or ``collision_constraints`` off)."""
         self._own_pairs: DistanceModel | None = None  # the robot's own pairs only (no obstacle known)
 
-    def setup(self, task: ControlTask) -> None:
-        super().setup(task)
-        assert isinstance(self.planner, MatrixFieldQPPlanner)
-        self._own_pairs = self.planner.distances  # set up on an empty scene: the robot's own pairs
+    def make_planner(self, task: ControlTask) -> IKLoopPlanner:
+        """The planner, its collision constraints on the robot's own pairs (no obstacle known yet)."""
+        planner = super().make_planner(task)
+        assert isinstance(planner, MatrixFieldQPPlanner)
+        if self.config.collision_constraints:
+            planner.use_distances(DistanceModel(task.robot, Scene(name="observed"), self.config.collision_influence))
+        else:
+            planner.use_distances(None)
+        self._own_pairs = planner.distances
+        return planner
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         super().reset(q, rng)
@@ -82,6 +88,5 @@ class MatrixFieldQPController(IKLoopController):
         """The collision constraints measure ``distances`` from the next step on."""
         planner = self.planner
         assert isinstance(planner, MatrixFieldQPPlanner)
-        planner.distances = distances if distances is not None and distances.n_pairs else None
-        forget_checked_steps(planner)
+        planner.use_distances(distances)
         self.geometry = geometry if self.config.collision_constraints else "none"

@@ -17,7 +17,9 @@ settings) and a planner (subclass :class:`IKLoopPlanner`, give ``make_repulsion`
 
 The two seams are :class:`Repulsion` (where the push comes from) and
 :meth:`IKLoopPlanner.solve_step` (how one step's joint velocity is solved; ``matrix-field-qp``
-replaces it with a quadratic program). Modules: ``config``, ``loop``, ``tasks`` (one function per
+replaces it with a quadratic program). :meth:`IKLoopPlanner.prepare` gives the step for a robot, a
+goal and a repulsion as a :class:`LoopStepper`, to call from any configuration (the controllers
+do, once per tick). Modules: ``config``, ``loop``, ``stepper``, ``tasks`` (one function per
 task term), ``control_points``, ``kinematics``, ``fast`` and ``_compiled`` (the step in one
 compiled call), ``escape`` (leaving local minima), ``distances`` (coal's exact distances, robot to
 obstacles and robot to itself), ``self_collision`` (the push between the robot's own links),
@@ -40,16 +42,19 @@ from planbench_plugins.ik_loop.loop import (
     ZeroRepulsion,
     stalled,
 )
+from planbench_plugins.ik_loop.stepper import ArmRepulsion, LoopStepper
 
 __all__ = [
     "DAMPING_MODES",
     "DIAGNOSTICS",
     "ArmKinematics",
+    "ArmRepulsion",
     "ControlPoints",
     "DistanceModel",
     "PairDistances",
     "IKLoopConfig",
     "IKLoopPlanner",
+    "LoopStepper",
     "Repulsion",
     "StepFailure",
     "StepInputs",

@@ -18,6 +18,9 @@ docs/method.md, section 4. Per step ``k`` (``t = k dt``), from ``q``:
 8. ``q <- q + qd dt``.
 
 Steps 3-7 are :meth:`IKLoopPlanner.solve_step`; ``matrix-field-qp`` replaces only that method.
+Steps 1-7 from any configuration are a :class:`~.stepper.LoopStepper`, which
+:meth:`IKLoopPlanner.prepare` builds for a robot, a goal and a repulsion: ``plan`` integrates it,
+a controller calls it once per tick (:mod:`planbench_plugins.controllers`).
 
 Endings (:class:`~planbench.planner.PlanStatus`):
 
@@ -52,8 +55,9 @@ import numpy as np
 
 from planbench.checking.collision import CollisionChecker
 from planbench.planner import Planner, PlanResult, PlanStatus
-from planbench.problem import Problem
+from planbench.problem import Pose, Problem
 from planbench.runtime import backend as field_backend
+from planbench.scene import Scene
 from planbench.validate import verdict_checker
 from planbench_plugins.ik_loop import fast
 from planbench_plugins.ik_loop.config import IKLoopConfig, resolve_hierarchy
@@ -61,6 +65,7 @@ from planbench_plugins.ik_loop.control_points import ControlPoints, place_contro
 from planbench_plugins.ik_loop.escape import escape_motion
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
 from planbench_plugins.ik_loop.self_collision import SelfCollisionPush
+from planbench_plugins.ik_loop.stepper import LoopStepper
 
 __all__ = ["IKLoopPlanner", "Repulsion", "StepFailure", "StepInputs", "stalled", "DIAGNOSTICS"]
 
@@ -111,7 +116,7 @@ class Repulsion(Protocol):
     """
 
     @property
-    def gain(self) -> float: ...
+    def gain(self) -> float: ...  # read-only here: an attribute or a property (the controllers' live holder)
 
     def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]: ...
 
@@ -131,7 +136,8 @@ class ZeroRepulsion:
 
 
 class StepInputs:
-    """What :meth:`IKLoopPlanner.solve_step` reads besides the kinematics (fixed for one query)."""
+    """What :meth:`IKLoopPlanner.solve_step` reads besides the kinematics (fixed for one query;
+    a controller moves the goal between steps with :meth:`.LoopStepper.aim`)."""
 
     def __init__(
         self,
@@ -165,8 +171,11 @@ class IKLoopPlanner(Planner):
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
-        self._prepared: dict[str, Any] | None = None
-        self._hierarchy = "nullspace"
+        self._stepper: LoopStepper | None = None
+        self._problem: Problem | None = None  # the problem of the last setup (None after a bare prepare)
+        self._checker: CollisionChecker | None = None
+        self._path = np.empty((0, 0))  # the query's trajectory, written in place by _advance
+        self._advance: Callable[[int], None] = lambda k: None
 
     # --- for subclasses ---------------------------------------------------------------------
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
@@ -228,74 +237,110 @@ class IKLoopPlanner(Planner):
         return resolve_hierarchy(self.config, n_joints, self.auto_hierarchy_redundant).mode
 
     def setup(self, problem: Problem) -> None:
-        """Place control points, build the repulsion source and the collision checker."""
+        """Place control points, build the repulsion source, :meth:`prepare` the loop on them, and
+        the collision checker and trajectory buffer of the queries."""
         cfg = self.config
-        n = problem.robot.nq
-        self._hierarchy = self.hierarchy_for(n)
-        points = place_control_points(problem.robot, cfg.control_point_spacing, self.control_point_overrides(problem))
+        robot = problem.robot
+        self._problem = None
+        points = place_control_points(robot, cfg.control_point_spacing, self.control_point_overrides(robot))
         checker = None
         if cfg.collision_check_every > 0 or cfg.verify_path:
-            checker = CollisionChecker(problem.robot, problem.scene)
-        self._step = fast.compiled().step if self.use_numba else fast.step_numpy
-        self._prepared = {"problem": problem, "points": points, "checker": checker}
+            checker = CollisionChecker(robot, problem.scene)
         repulsion = self.make_repulsion(problem, points)
-        self._prepared["warnings"] = self._warnings(problem, repulsion)
+        stepper = self.prepare(robot, problem.goal.pose, repulsion, start=problem.start, points=points)
+        path = np.empty((cfg.max_steps + 1, robot.nq))  # plan returns a copy
+        args = (stepper.q, stepper.qd, cfg.dt, stepper.inputs.lower, stepper.inputs.upper, path)
+        advance = fast.bind(fast.compiled().advance, *args, 0) if self.use_numba else fast.advance_numpy
+        self._advance = functools.partial(advance, *args)  # (k): q <- clip(q + qd dt); path[k] = q
+        self._path, self._checker, self._problem = path, checker, problem
+
+    def prepare(
+        self,
+        robot: Any,
+        goal: Pose,
+        repulsion: Repulsion,
+        *,
+        start: np.ndarray | None = None,
+        points: ControlPoints | None = None,
+    ) -> LoopStepper:
+        """The loop's step for ``robot`` steering ``goal.frame`` to ``goal`` with ``repulsion``, as
+        a :class:`~.stepper.LoopStepper` (also :attr:`stepper` from now on).
+
+        ``points``: the control points (default: placed from the settings and the robot's
+        ``[control_points]``). The repulsion is wrapped in the self-collision push when
+        :meth:`pushes_off_itself`. The kinematics, step inputs and buffers are made here, the
+        repulsion asked and one step taken at ``start`` (default: the robot's home), so that
+        compilation (or loading numba's cache), first-call costs and the binding of the compiled
+        step stay out of the timed steps. A start without a valid step (:class:`StepFailure`) is
+        left for the first real step to report."""
+        cfg = self.config
+        n = robot.nq
+        q = np.array(robot.home if start is None else start, dtype=float)
+        if q.shape != (n,):
+            raise ValueError(f"{self.name}: start has shape {q.shape}, robot {robot.name!r} has {n} joints")
+        if points is None:
+            points = place_control_points(robot, cfg.control_point_spacing, self.control_point_overrides(robot))
+        hierarchy = self.hierarchy_for(n)
+        self._step = fast.compiled().step if self.use_numba else fast.step_numpy
+        warnings = self._warnings(robot, hierarchy, repulsion)
         if self.pushes_off_itself():
             push = SelfCollisionPush(
                 repulsion,
-                problem.robot,
-                problem.scene,
+                robot,
+                Scene(name="own links"),  # the push measures the robot's own pairs only
                 influence=cfg.self_collision_influence,
                 gain=cfg.self_collision_gain,
                 speed_max=cfg.speed_max,
             )
             repulsion = push if push.n_pairs else repulsion
-        self._prepared["repulsion"] = repulsion
-        self._prepare_query(problem)
+        frame_id = robot.frame_id(goal.frame)
+        kin = ArmKinematics(robot, frame_id, points, compiled=self.use_numba)
+        kin.update(q)
+        inputs = self._inputs(robot, goal, frame_id)
+        at, F, support, joint = repulsion.forces(kin)
+        tool = np.flatnonzero(joint == inputs.tool_joint)
+        qd = np.zeros(n)
+        dg = np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics))
+        solve = self._step_function(kin, q, inputs, qd, dg, at, F, support, tool)
+        stepper = LoopStepper(robot, kin, repulsion, inputs, q, qd, dg, solve, joint, tool, hierarchy, tuple(warnings))
+        self._stepper, self._problem = stepper, None
+        try:
+            self.solve_step(kin, q, inputs, at, np.zeros_like(F), support, tool, qd, dg)
+        except StepFailure:
+            pass  # the first step of a plan (or a controller's) meets it again and reports it
+        return stepper
+
+    @property
+    def stepper(self) -> LoopStepper:
+        """The loop's step prepared by the last :meth:`setup` or :meth:`prepare`."""
+        if self._stepper is None:
+            raise RuntimeError(f"{self.name}: call setup(problem) or prepare(...) first")
+        return self._stepper
+
+    @property
+    def problem(self) -> Problem | None:
+        """The problem of the last :meth:`setup` (None before one, and after a bare :meth:`prepare`)."""
+        return self._problem
 
     def pushes_off_itself(self) -> bool:
         """Whether the self-collision push (:mod:`.self_collision`) is added to the repulsion: the
         ``self_collision`` setting (a planner that avoids self-collision otherwise says False)."""
         return bool(self.config.self_collision)
 
-    def _warnings(self, problem: Problem, repulsion: Repulsion) -> list[str]:
-        """What the configuration cannot do on this arm (logged once per setup, and reported in
+    def _warnings(self, robot: Any, hierarchy: str, repulsion: Repulsion) -> list[str]:
+        """What the configuration cannot do on this arm (logged once per preparation, and reported in
         every result's ``info["warnings"]``)."""
         out = []
-        n = problem.robot.nq
+        n = robot.nq
         nullspace_step = type(self).solve_step is IKLoopPlanner.solve_step
-        if nullspace_step and self._hierarchy == "nullspace" and n <= 6 and not isinstance(repulsion, ZeroRepulsion):
+        if nullspace_step and hierarchy == "nullspace" and n <= 6 and not isinstance(repulsion, ZeroRepulsion):
             out.append(
-                f"robot {problem.robot.name!r} has {n} joints: the 6-D pose task leaves no null space, so the "
+                f"robot {robot.name!r} has {n} joints: the 6-D pose task leaves no null space, so the "
                 "repulsion, projected into it, cannot move the arm (hierarchy='priority' or 'auto' lets it act)"
             )
         for text in out:
             log.warning("%s: %s", self.name, text)
         return out
-
-    def _prepare_query(self, problem: Problem) -> None:
-        """The query's kinematics, step inputs and buffers (reused by every ``plan`` of this
-        problem), one repulsion query and one step: compilation (or loading numba's cache),
-        first-call costs and the binding of the compiled step stay out of the timed query."""
-        prep = self._prepared
-        assert prep is not None
-        robot = problem.robot
-        frame_id = robot.frame_id(problem.goal.pose.frame)
-        kin = ArmKinematics(robot, frame_id, prep["points"], compiled=self.use_numba)
-        q = np.array(problem.start, dtype=float)
-        kin.update(q)
-        inputs = self._inputs(problem, frame_id)
-        points, F, support, joint = prep["repulsion"].forces(kin)
-        tool = np.flatnonzero(joint == inputs.tool_joint)
-        qd = np.zeros(robot.nq)
-        dg = np.zeros(len(DIAGNOSTICS) + len(self.extra_diagnostics))
-        prep.update(kin=kin, inputs=inputs, q=q, qd=qd, dg=dg, joint=joint, tool=tool)
-        prep["step"] = self._step_function(kin, q, inputs, qd, dg, points, F, support, tool)
-        path = prep["path"] = np.empty((self.config.max_steps + 1, robot.nq))  # plan returns a copy
-        args = (q, qd, self.config.dt, inputs.lower, inputs.upper, path)
-        advance = fast.bind(fast.compiled().advance, *args, 0) if self.use_numba else fast.advance_numpy
-        prep["advance"] = functools.partial(advance, *args)  # (k): q <- clip(q + qd dt); path[k] = q
-        self.solve_step(kin, q, inputs, points, np.zeros_like(F), support, tool, qd, dg)
 
     def _step_function(
         self,
@@ -336,12 +381,11 @@ class IKLoopPlanner(Planner):
 
         return bound
 
-    def _inputs(self, problem: Problem, frame_id: int) -> StepInputs:
-        robot = problem.robot
-        goal = problem.goal.pose
+    def _inputs(self, robot: Any, goal: Pose, frame_id: int) -> StepInputs:
+        """The step's inputs; the goal's arrays are copies, which :meth:`.LoopStepper.aim` writes."""
         return StepInputs(
-            np.asarray(goal.position, dtype=float),
-            np.asarray(goal.rotation, dtype=float),
+            np.array(goal.position, dtype=float),
+            np.array(goal.rotation, dtype=float),
             np.asarray(robot.lower, dtype=float),
             np.asarray(robot.upper, dtype=float),
             self.config.velocity_scale * np.asarray(robot.velocity_limit, dtype=float),
@@ -349,59 +393,52 @@ class IKLoopPlanner(Planner):
             fast.step_params(self.config, robot.nq, self.auto_hierarchy_redundant),
         )
 
-    def control_point_overrides(self, problem: Problem) -> list[tuple[str, Any]]:
+    def control_point_overrides(self, robot: Any) -> list[tuple[str, Any]]:
         """Per-link control points: the robot's (``[control_points]`` in ``robots/<name>.toml``),
         then the planner settings' ``control_points`` on top (a link named in both takes the
         settings' points)."""
-        merged = dict(problem.robot.settings.control_points)
+        merged = dict(robot.settings.control_points)
         merged.update(dict(self.config.control_points or ()))
         return list(merged.items())
 
     @property
     def control_points(self) -> ControlPoints | None:
-        return None if self._prepared is None else self._prepared["points"]
+        """The control points of the prepared loop (None before :meth:`setup` or :meth:`prepare`)."""
+        return None if self._stepper is None else self._stepper.control_points
 
     def repulsion_at(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(points, F)``: the points on the arm at ``q`` where the repulsion acts [m] and the
-        repulsive velocities there [m/s] (for plots and inspection)."""
-        prep = self._prepared
-        assert prep is not None, "call setup(problem) first"
-        problem = prep["problem"]
-        kin = ArmKinematics(problem.robot, problem.robot.frame_id(problem.goal.pose.frame), prep["points"])
-        kin.update(np.asarray(q, dtype=float))
-        points, F, _, _ = prep["repulsion"].forces(kin)
-        return points.copy(), F.copy()
+        repulsive velocities there [m/s] (for plots and inspection; :meth:`.LoopStepper.forces_at`)."""
+        return self.stepper.forces_at(q)
 
     # --- the timed query ---------------------------------------------------------------------
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        if self._prepared is None or self._prepared["problem"] is not problem:
+        if self._problem is not problem:
             self.setup(problem)
-        prep = self._prepared
-        assert prep is not None
+        stepper = self.stepper
         cfg = self.config
         t_start = time.perf_counter()
-        kin, inputs, q, dg = prep["kin"], prep["inputs"], prep["q"], prep["dg"]
+        kin, inputs, q, dg = stepper.kin, stepper.inputs, stepper.q, stepper.diag
         q[:] = problem.start  # advanced in place, copied into path every step
-        if isinstance(prep["repulsion"], SelfCollisionPush):
-            prep["repulsion"].restart()  # the same answer however the previous query ended
+        stepper.restart()  # the same answer however the previous query ended
         tol_p = cfg.goal_tolerance_scale * problem.tolerances.position
         tol_r = cfg.goal_tolerance_scale * problem.tolerances.orientation
         dt = cfg.dt
-        repulsion: Repulsion = prep["repulsion"]
-        checker = prep["checker"]
+        repulsion: Repulsion = stepper.repulsion
+        checker = self._checker
         check_every = cfg.collision_check_every
         window = cfg.stall_steps
         n_max = cfg.max_steps + 1
         names = DIAGNOSTICS + self.extra_diagnostics
-        path = prep["path"]
+        path = self._path
         diag = np.full((n_max, len(names)), np.nan)
         best: list[float] = []  # best[k]: the smallest goal error in steps 0..k
         budget_spent = PlanStatus.STEP_LIMIT, f"step budget of {cfg.max_steps} steps spent"
         status, message = budget_spent
         rho = cfg.rotation_weight
-        last_joint, tool = prep["joint"], prep["tool"]
+        last_joint, tool = stepper.joint, stepper.tool
         failure: dict[str, Any] = {}
-        update, forces, step, advance = kin.update, repulsion.forces, prep["step"], prep["advance"]
+        update, forces, step, advance = kin.update, repulsion.forces, stepper.solve, self._advance
         stall_ratio = cfg.stall_ratio
         best_k = np.inf
         escapes: list[tuple[str, int, bool]] = []  # (what it escaped, the step it left from, towards the goal)
@@ -454,7 +491,7 @@ class IKLoopPlanner(Planner):
                 status, message = PlanStatus.SUCCESS, f"goal reached in {k} steps"
                 if checker is not None and len(escapes) < cfg.escape_attempts:
                     # certified now, so that a collision can still be escaped (else after the loop)
-                    hit = self._first_collision(checker, prep["problem"], path[: k + 1])
+                    hit = self._first_collision(checker, problem, path[: k + 1])
                     verified = hit is None
                     if hit is not None and escape("collision", max(0, hit - max(1, check_every))):
                         continue
@@ -478,7 +515,7 @@ class IKLoopPlanner(Planner):
             k += 1
         n = k + 1
         if checker is not None and status is not PlanStatus.COLLISION and not verified:
-            hit = self._first_collision(checker, prep["problem"], path[:n])
+            hit = self._first_collision(checker, problem, path[:n])
             if hit is not None:
                 n = hit + 1
                 status, message = (
@@ -490,14 +527,14 @@ class IKLoopPlanner(Planner):
                 )
         info: dict[str, Any] = {name: diag[:n, i].copy() for i, name in enumerate(names)}
         info.update(failure)
-        info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(prep["points"]))
-        info["hierarchy"] = self._hierarchy
+        info.update(steps=n - 1, dt=dt, field_gain=repulsion.gain, n_control_points=len(stepper.control_points))
+        info["hierarchy"] = stepper.hierarchy
         info["escapes"] = len(escapes)
         info["escape_after"] = [what for what, _, _ in escapes]
         info["escape_steps"] = [step for _, step, _ in escapes]
         info["escape_toward_goal"] = [toward for _, _, toward in escapes]
-        if prep["warnings"]:
-            info["warnings"] = list(prep["warnings"])
+        if stepper.warnings:
+            info["warnings"] = list(stepper.warnings)
         return PlanResult(status, path[:n].copy(), np.arange(n) * dt, target="pose", message=message, info=info)
 
     def escape_target_ok(self, q: np.ndarray) -> bool:
@@ -522,8 +559,8 @@ class IKLoopPlanner(Planner):
         ``q`` set to its end; returns its number of steps (0 when no escape was found or the step
         budget cannot hold it) and whether its target was drawn towards the goal configuration."""
         cfg = self.config
-        assert self._prepared is not None
-        problem = self._prepared["problem"]
+        problem = self._problem
+        assert problem is not None
         certified = verdict_checker(problem)
 
         def segment_free(a: np.ndarray, b: np.ndarray) -> bool:

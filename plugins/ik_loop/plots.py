@@ -13,7 +13,7 @@ Any planner built on the shared IK loop (:class:`~planbench_plugins.ik_loop.loop
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pinocchio as pin
@@ -21,7 +21,9 @@ from matplotlib.figure import Figure
 
 from planbench.planner import PlanResult
 from planbench.problem import Problem
-from planbench_plugins.ik_loop.loop import IKLoopPlanner
+
+if TYPE_CHECKING:  # the loop imports this module on use (its plot_result): no import back at run time
+    from planbench_plugins.ik_loop.loop import IKLoopPlanner
 
 __all__ = ["plot_result", "plot_arm_field", "plot_ee_path", "plot_diagnostics"]
 
@@ -60,7 +62,7 @@ def _equal(ax: Any, pts: np.ndarray) -> None:
 
 
 def _prepared(problem: Problem, planner: IKLoopPlanner) -> IKLoopPlanner:
-    if planner.control_points is None or planner._prepared["problem"] is not problem:  # type: ignore[index]
+    if planner.problem is not problem:
         planner.setup(problem)
     return planner
 

@@ -52,9 +52,7 @@ class MatrixFieldPlanner(IKLoopPlanner):
 
     def field_at(self, points: np.ndarray) -> np.ndarray:
         """Field (N, 3) at world points [m] for the prepared problem (zeros without obstacles)."""
-        prep = self._prepared
-        assert prep is not None, "call setup(problem) first"
-        rep = prep["repulsion"]
+        rep = self.stepper.repulsion
         rep = getattr(rep, "inner", rep)  # under the self-collision push
         if not isinstance(rep, FieldRepulsion):
             return np.zeros((len(points), 3))

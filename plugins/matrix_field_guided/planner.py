@@ -41,7 +41,7 @@ from planbench.planner import Planner, PlanResult, PlanStatus
 from planbench.problem import Problem
 from planbench.registry import make_planner
 from planbench.validate import verdict_checker
-from planbench_plugins.ik_loop import ArmKinematics, Repulsion, ZeroRepulsion, place_control_points
+from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, Repulsion, ZeroRepulsion, place_control_points
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_guided.config import MatrixFieldGuidedConfig
 from planbench_plugins.matrix_field_guided.reference import Reference, departure
@@ -57,7 +57,9 @@ class MatrixFieldGuidedPlanner(Planner):
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
-        self._prepared: dict[str, Any] | None = None
+        self._problem: Problem | None = None  # the problem of the last setup
+        self._global: Planner | None = None
+        self._arm: ArmRepulsion | None = None
 
     def setup(self, problem: Problem) -> None:
         """The global planner's setup, the control points, the field and the certified checker."""
@@ -70,24 +72,18 @@ class MatrixFieldGuidedPlanner(Planner):
         points = place_control_points(robot, cfg.control_point_spacing, list(overrides.items()))
         kin = ArmKinematics(robot, robot.frame_id(problem.goal.pose.frame), points)
         repulsion: Repulsion = scene_repulsion(problem, cfg) or ZeroRepulsion()
-        kin.update(np.asarray(problem.start, dtype=float))
-        repulsion.forces(kin)  # first-call costs (the compiled sampler) out of the timed query
+        arm = ArmRepulsion(robot, kin, repulsion)
+        arm.at(np.asarray(problem.start, dtype=float))  # first-call costs (the compiled sampler) out of the query
         verdict_checker(problem)
-        self._prepared = {
-            "problem": problem,
-            "global": global_planner,
-            "kin": kin,
-            "repulsion": repulsion,
-        }
+        self._problem, self._global, self._arm = problem, global_planner, arm
 
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        if self._prepared is None or self._prepared["problem"] is not problem:
+        if self._problem is not problem:
             self.setup(problem)
-        prep = self._prepared
-        assert prep is not None
+        assert self._global is not None
         cfg = self.config
         t0 = time.perf_counter()
-        found = prep["global"].plan(problem, time_limit=cfg.global_time_share * time_limit, rng=rng)
+        found = self._global.plan(problem, time_limit=cfg.global_time_share * time_limit, rng=rng)
         info: dict[str, Any] = {
             "global_planner": cfg.global_planner,
             "global_status": found.status.value,
@@ -144,16 +140,15 @@ class MatrixFieldGuidedPlanner(Planner):
     ) -> tuple[np.ndarray, np.ndarray, str | None, dict[str, Any]]:
         """``(path, reference times, reason it failed or None, stats)``: the tracking loop of the
         module docstring, without a push while the reference time lies in a ``quiet`` interval."""
-        prep = self._prepared
-        assert prep is not None
+        arm = self._arm
+        assert arm is not None
         cfg = self.config
         robot = problem.robot
-        kin, repulsion = prep["kin"], prep["repulsion"]
         lower, upper = np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float)
         qd_max = np.asarray(robot.velocity_limit, dtype=float)
         reference = Reference(waypoints, cfg.velocity_scale * qd_max)
         dt, gain, lag_max = cfg.dt, cfg.tracking_gain, cfg.max_lag
-        push = cfg.repulsion_gain > 0 and not isinstance(repulsion, ZeroRepulsion)
+        push = cfg.repulsion_gain > 0 and not isinstance(arm.repulsion, ZeroRepulsion)
         path = np.empty((cfg.max_steps + 2, robot.nq))
         stamps = np.zeros(cfg.max_steps + 2)  # the reference time of each path row
         q = path[0] = np.array(problem.start, dtype=float)
@@ -180,9 +175,8 @@ class MatrixFieldGuidedPlanner(Planner):
             if cfg.goal_fade > 0:
                 w *= T.smoothstep(remaining / cfg.goal_fade)
             if push and w > 0:
-                kin.update(q)
-                points, F, support, _ = repulsion.forces(kin)
-                qd_rep = T.repulsion_joint_velocity(kin.S, points, F, support)
+                points, F, support, _ = arm.at(q)
+                qd_rep = T.repulsion_joint_velocity(arm.kin.S, points, F, support)
                 push_max = max(push_max, float(np.linalg.norm(qd_rep)))
                 qd = qd + w * qd_rep
             qd, _ = T.scale_to_velocity_limits(qd, qd_max)

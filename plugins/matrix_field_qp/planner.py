@@ -9,7 +9,8 @@ Joint position and velocity limits are hard constraints of the QP instead of a s
 after the fact, and so (``collision_constraints``, default on) is collision avoidance: velocity
 dampers on coal's exact distances between the robot's geometries and the obstacles, and between
 the robot's own geometries (:mod:`.distances`, :func:`.formulation.collision_constraints`), built
-in :meth:`setup` from the problem's robot and scene.
+in :meth:`setup` from the problem's robot and scene (a controller gives its observed geometry with
+:meth:`~MatrixFieldQPPlanner.use_distances`).
 
 Extra per-step diagnostics (``result.info``, one entry per path row): ``qp_build_time`` [s]
 (task terms, QP matrices, the bounds check and qpsolvers' problem wrapping), ``qp_solve_time`` [s]
@@ -31,12 +32,13 @@ import numpy as np
 
 from planbench.field.scene_field import scene_repulsion
 from planbench.planner import PlanResult
-from planbench.problem import Problem
+from planbench.problem import Pose, Problem
 from planbench_plugins.ik_loop import (
     ArmKinematics,
     ControlPoints,
     DistanceModel,
     IKLoopPlanner,
+    LoopStepper,
     PairDistances,
     Repulsion,
     StepInputs,
@@ -106,19 +108,39 @@ class MatrixFieldQPPlanner(IKLoopPlanner):
         return not len(pairs) or float(pairs.distance.min()) >= self.config.collision_safety
 
     def setup(self, problem: Problem) -> None:
-        """The loop's setup, and the distance model of the collision constraints."""
-        self._joint_names = list(problem.robot.joint_names)
-        self.distances = None
-        self._next = None
-        self._kept = {}
-        if self.config.collision_constraints:
-            distances = DistanceModel(problem.robot, problem.scene, self.config.collision_influence)
-            self.distances = distances if distances.n_pairs else None
-        try:
-            super().setup(problem)
-        except QPFailure:
-            pass  # the untimed warm-up step at an infeasible start: plan() reports it
+        """The loop's setup, and the distance model of the collision constraints (the problem's robot
+        and scene)."""
+        cfg = self.config
+        if cfg.collision_constraints:
+            self.use_distances(DistanceModel(problem.robot, problem.scene, cfg.collision_influence))
+        else:
+            self.use_distances(None)
+        super().setup(problem)
+
+    def prepare(
+        self,
+        robot: Any,
+        goal: Pose,
+        repulsion: Repulsion,
+        *,
+        start: np.ndarray | None = None,
+        points: ControlPoints | None = None,
+    ) -> LoopStepper:
+        """The loop's :meth:`~planbench_plugins.ik_loop.IKLoopPlanner.prepare`; the collision
+        constraints measure :attr:`distances` as they are (:meth:`setup` or :meth:`use_distances`
+        set them)."""
+        self._joint_names = list(robot.joint_names)
+        stepper = super().prepare(robot, goal, repulsion, start=start, points=points)
         self._next, self._kept = None, {}  # nothing of the warm-up step carries over
+        return stepper
+
+    def use_distances(self, model: DistanceModel | None) -> None:
+        """The collision constraints measure ``model`` from the next step on (None, or a model
+        without pairs: no constraints). What earlier steps remembered of their distances (the pairs
+        checked ahead, the witness points kept) is dropped: it belongs to the geometry it was
+        measured in (a controller's observed scene changes every frame)."""
+        self.distances = model if model is not None and model.n_pairs else None
+        self._next, self._kept = None, {}
 
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """The matrix field of the scene, as ``matrix-field``'s (:mod:`planbench.field.scene_field`)."""
@@ -344,22 +366,16 @@ class MatrixFieldQPPlanner(IKLoopPlanner):
         return out
 
     def step_at(self, q: np.ndarray) -> tuple[StepQP, np.ndarray, np.ndarray]:
-        """``(qp, qd, diag)`` of one step at ``q`` for the prepared problem (tests, inspection).
-        Raises :class:`~.solve.QPFailure` like the step itself."""
-        prep = self._prepared
-        if prep is None:
-            raise RuntimeError("call setup(problem) first")
-        problem = prep["problem"]
-        frame_id = problem.robot.frame_id(problem.goal.pose.frame)
-        kin = ArmKinematics(problem.robot, frame_id, prep["points"])
+        """``(qp, qd, diag)`` of one step at ``q`` for the prepared loop (tests, inspection), on
+        kinematics and buffers of its own. Raises :class:`~.solve.QPFailure` like the step itself."""
+        stepper = self.stepper
         q = np.asarray(q, dtype=float)
-        kin.update(q)
-        inputs = self._inputs(problem, frame_id)
-        points, F, support, joint = prep["repulsion"].forces(kin)
-        tool = np.flatnonzero(joint == inputs.tool_joint)
+        kin = stepper.kinematics_at(q)
+        points, F, support, joint = stepper.repulsion.forces(kin)
+        tool = stepper.tool_points(joint)
         diag = np.full(6 + len(self.extra_diagnostics), np.nan)
-        qd = np.zeros(problem.robot.nq)
-        self.solve_step(kin, q, inputs, points, F, support, tool, qd, diag)
+        qd = np.zeros_like(q)
+        self.solve_step(kin, q, stepper.inputs, points, F, support, tool, qd, diag)
         assert self._last_qp is not None
         return self._last_qp, qd, diag
 
