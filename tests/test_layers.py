@@ -151,6 +151,31 @@ def test_no_circle_of_imports() -> None:
     assert not circles, "modules that import each other: " + "; ".join(" <-> ".join(c) for c in circles)
 
 
+PUBLIC_UNDERSCORE = {"_exit", "_fields", "_replace", "_asdict", "_make"}
+"""Underscore names that are public API: ``os._exit`` and namedtuples' methods."""
+
+
+def test_no_private_state_across_modules() -> None:
+    """A module reads no underscore attribute of another object (only of ``self`` and ``cls``),
+    and imports no underscore name from another part: what a module keeps private stays there."""
+    bad = []
+    for module, path in sorted(modules().items()):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+                receiver = node.value
+                if isinstance(receiver, ast.Name) and receiver.id in ("self", "cls"):
+                    continue
+                if node.attr not in PUBLIC_UNDERSCORE:
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno} reads {ast.unparse(node)}")
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                for alias in node.names:
+                    name = alias.name
+                    private = name.startswith("_") and not name.startswith("__")
+                    if private and part_of(node.module) != part_of(module):
+                        bad.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {node.module}.{name}")
+    assert not bad, "\n".join(bad)
+
+
 def test_the_top_level_stays_small() -> None:
     top = sorted(p.name for p in PACKAGES["planbench"].glob("*.py"))
     assert len(top) <= 12, f"{len(top)} modules at the top of planbench/ (at most 12; put the new one in a subpackage)"
