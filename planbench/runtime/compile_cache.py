@@ -4,7 +4,7 @@ The field kernels and the IK loop's step are compiled by numba on first use and 
 (``cache=True``); compiling them all takes 8 s on the 2-core VM, loading them from the cache
 well under a second. A first ``planbench plan`` on a fresh install should not wait for that:
 when the cache is cold, ``plan`` computes with the numpy implementations (the same numbers to
-rounding, a few times slower per step) and starts ``python -m planbench.runtime.compile_cache`` in the
+rounding, a few times slower per step) and starts ``python -m planbench.cli.compile`` in the
 background, which compiles the kernels, at low priority, then leaves a marker saying so. The
 benchmark never takes this route: its workers compile before their first timed setup.
 
