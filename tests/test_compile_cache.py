@@ -75,3 +75,13 @@ def test_a_workers_private_cache_is_found_where_numba_looks_for_it(tmp_path):
 
     for src in compile_cache.kernel_sources():
         assert compile_cache.cache_subpath(src) == caching._CacheLocator.get_suitable_cache_subpath(str(src))
+
+
+def test_the_kernel_modules_are_the_ones_packages_declare():
+    """The cache keys on what installed packages declare (entry points ``planbench.kernels``): the
+    field's and the IK loop's kernels here; the core names no plugin module itself."""
+    import inspect
+
+    assert compile_cache.kernel_modules() == ["planbench.field._compiled", "planbench_plugins.ik_loop._compiled"]
+    assert [p.name for p in compile_cache.kernel_sources()] == ["_compiled.py", "_compiled.py"]
+    assert "planbench_plugins" not in inspect.getsource(compile_cache)
