@@ -53,13 +53,13 @@ def __getattr__(name: str) -> object:
 
 
 MOVED = {
-    "planbench.checking.certified": "planbench.checking.certified",
-    "planbench.checking.collision": "planbench.checking.collision",
-    "planbench.problems.datasets": "planbench.problems.datasets",
-    "planbench.geometry.occupancy": "planbench.geometry.occupancy",
-    "planbench.files.outputs": "planbench.files.outputs",
-    "planbench.geometry.pointcloud": "planbench.geometry.pointcloud",
-    "planbench.bench.results": "planbench.bench.results",
+    "planbench.certified": "planbench.checking.certified",
+    "planbench.collision": "planbench.checking.collision",
+    "planbench.datasets": "planbench.problems.datasets",
+    "planbench.occupancy": "planbench.geometry.occupancy",
+    "planbench.outputs": "planbench.files.outputs",
+    "planbench.pointcloud": "planbench.geometry.pointcloud",
+    "planbench.results": "planbench.bench.results",
 }
 """Modules of release 0.1 that moved into subpackages in 0.2: importable under their old names,
 with a ``DeprecationWarning``, until 0.3 (CHANGELOG.md)."""

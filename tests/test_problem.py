@@ -6,9 +6,10 @@ import pytest
 
 import planbench
 from conftest import box
-from planbench import PlanStatus, Problem, Scene, datasets
+from planbench import PlanStatus, Problem, Scene
 from planbench.errors import PlanbenchError, ProblemFileError, UnknownNameError
 from planbench.problem import Pose
+from planbench.problems import datasets
 from planbench.robot import load_robot
 
 # Goals whose joint 4 lies above example-robot-data's (Franka datasheet) limit of -0.0698 rad; the
