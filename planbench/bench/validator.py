@@ -149,6 +149,12 @@ def validator_main(conn: Any, output_path: str, parent_pid: int, threads: int = 
     limit_threads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     OutputFile(output_path).open_for_child()
+    # Validation imports toppra on first use (metrics.limited_duration), and toppra maps matplotlib:
+    # imported now, they count in the address space a validation's limit is set above, not in the
+    # share one validation may add (validate_fields).
+    import toppra.algorithm  # noqa: F401
+    import toppra.constraint  # noqa: F401
+
     conn.send_bytes(encode({"type": "ready", "pid": os.getpid()}))
     while True:
         try:

@@ -88,7 +88,7 @@ __all__ = [
 ]
 
 GENERATOR_VERSION = 1
-GENERATOR = f"planbench.problems.generators/{GENERATOR_VERSION}"  # the generator's name in the files: kept across moves
+GENERATOR = f"planbench.generators/{GENERATOR_VERSION}"  # the generator's name in the files: kept across moves
 FAMILIES = ("shelf", "window", "pillars", "table_clutter")
 GEN_FORMAT = "planbench-gen/1"
 MANIFEST_FORMAT = "planbench-gen-manifest/1"
