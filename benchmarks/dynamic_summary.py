@@ -22,7 +22,7 @@ import numpy as np
 
 from planbench.bench.closed_loop_plots import scenario_keys
 from planbench.bench.db import ResultsDB
-from planbench.bench.report import wilson_interval
+from planbench.metrics import wilson_interval
 
 ORDER = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
 

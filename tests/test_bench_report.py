@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from planbench.bench.report import summarize, to_csv, to_markdown, wilson_interval
+from planbench.bench.report import summarize, to_csv, to_markdown
+from planbench.metrics import wilson_interval
 
 
 def test_wilson_interval_known_values():

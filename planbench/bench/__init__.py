@@ -21,7 +21,7 @@ from typing import Any
 from planbench.bench.benchmark import BenchmarkOutcome, run_benchmark, select
 from planbench.bench.db import ResultsDB
 from planbench.bench.executors import make_executor
-from planbench.bench.report import summarize, wilson_interval
+from planbench.bench.report import summarize
 from planbench.bench.suite import PlannerEntry, Suite, SuiteFileError, load_suite, parse_suite
 
 __all__ = [
@@ -35,7 +35,6 @@ __all__ = [
     "parse_suite",
     "run_benchmark",
     "summarize",
-    "wilson_interval",
 ]
 
 

@@ -40,11 +40,10 @@ import threading
 import time
 from collections.abc import Iterator
 
-from planbench.runtime.threads import THREAD_VARIABLES  # re-exported: the variables a worker sets
+from planbench.runtime.threads import THREAD_VARIABLES
 from planbench.runtime.threads import limit_threads as limit_compute_threads
 
 __all__ = [
-    "THREAD_VARIABLES",
     "Cgroups",
     "OutputFile",
     "descendants",

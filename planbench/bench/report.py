@@ -26,7 +26,7 @@ from rich.table import Table
 from rich.text import Text
 
 from planbench.files.outputs import csv_cell
-from planbench.metrics import wilson_interval  # re-exported: report users import it from here
+from planbench.metrics import wilson_interval
 
 __all__ = [
     "summary_cells",
@@ -35,7 +35,6 @@ __all__ = [
     "METRICS",
     "Metric",
     "metrics_for",
-    "wilson_interval",
     "summarize",
     "to_markdown",
     "to_csv",

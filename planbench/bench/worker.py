@@ -58,7 +58,6 @@ from typing import Any
 from planbench.bench import sandbox
 from planbench.bench.kinds import kind_of
 from planbench.bench.procs import (
-    THREAD_VARIABLES,
     OutputFile,
     detach,
     join_cgroup,
@@ -75,7 +74,7 @@ from planbench.planner import PlanResult, PlanStatus
 from planbench.problems.datasets import load_problem
 from planbench.registry import REGISTRY
 
-__all__ = ["THREAD_VARIABLES", "WORK", "error_fields", "plan_one", "run_one", "worker_main"]
+__all__ = ["WORK", "error_fields", "plan_one", "run_one", "worker_main"]
 
 
 class _PhaseReporter:

@@ -59,8 +59,8 @@ EXAMPLE = DepthExample()
 def example_cloud(spec: DepthExample = EXAMPLE) -> tuple[Any, np.ndarray]:
     """The source problem and the cameras' (N, 3) points [m], one per occupied cube."""
     from planbench.problems.datasets import load_problems
-    from planbench.reactive.scenario import CameraSettings, SensingSettings
-    from planbench.reactive.sensing import Sensor, default_bounds
+    from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds
+    from planbench.reactive.sensing import Sensor
 
     problem = load_problems(spec.source)[0]
     cameras = tuple(

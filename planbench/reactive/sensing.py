@@ -55,11 +55,11 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from planbench.geometry.occupancy import OccupancyGrid, cover_block
 from planbench.reactive.controller import Observation
-from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds  # default_bounds re-exported
+from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds
 from planbench.robot import Robot
 from planbench.scene import Obstacle, Scene
 
-__all__ = ["ROBOT_EDGE", "Sensor", "camera_rays", "default_bounds"]
+__all__ = ["ROBOT_EDGE", "Sensor", "camera_rays"]
 
 ROBOT_EDGE = 0.01
 """Longest edge of the subdivided robot meshes of the margin test [m] (the test may drop points
