@@ -213,6 +213,75 @@ def test_noisy_points_near_the_arm_are_removed_too(panda):
     assert distance_to_robot(panda, Q_ARM, obs.points).min() >= 0.03
 
 
+# --- depth: what a frame knows --------------------------------------------------------------------
+def _state(grid, point):
+    """``"occupied"``, ``"free"`` or ``"unknown"``: the cell of ``point`` [m]."""
+    i = tuple(grid.index_of(np.array([point]))[0])
+    if not grid.known_mask[i]:
+        return "unknown"
+    return "occupied" if grid.data[i] > 0 else "free"
+
+
+def test_a_box_in_view_leaves_free_space_before_it_and_an_unknown_shadow_behind_it(panda):
+    scene = Scene((box("b", (1.1, 0.0, 0.4), (0.2, 0.3, 0.3)),))  # front face x = 1.0, back x = 1.2
+    grid = cloud_of(panda, scene).grid
+    assert grid.known is not None and grid.known.dtype == bool and grid.known.shape == grid.shape
+    assert _state(grid, (0.9, 0.0, 0.4)) == "free"  # between the camera and the face
+    assert _state(grid, (1.005, 0.0, 0.4)) == "occupied"  # the face (in the cell [1.0, 1.02))
+    for x in (1.05, 1.15, 1.25, 1.35):  # inside the box, its back face, the shadow beyond it
+        assert _state(grid, (x, 0.0, 0.4)) == "unknown", x
+    assert _state(grid, (0.95, 0.1, 0.4)) == "free"  # in front of the face, off the axis
+    assert _state(grid, (0.4, 0.0, 0.4)) == "unknown"  # behind the camera: never in view
+    assert np.all(grid.known[grid.data > 0])  # every occupied cell was seen
+
+
+def test_a_ray_that_meets_nothing_is_free_up_to_max_range_and_a_dropped_pixel_says_nothing(panda):
+    far = cloud_of(panda, Scene(()), max_range=0.6).grid  # from x = 0.8: free up to x = 1.4
+    assert _state(far, (1.3, 0.0, 0.4)) == "free" and _state(far, (1.41, 0.0, 0.4)) == "unknown"
+    blind = cloud_of(panda, wall(1.9), dropout=0.999).grid
+    seeing = cloud_of(panda, wall(1.9)).grid
+    assert blind.known.sum() < 0.1 * seeing.known.sum()  # 1 pixel in 1,000 left: its few rays
+
+
+def test_the_arm_and_what_touches_it_are_not_claimed_free(panda):
+    grid = cloud_of(panda, TABLE, Q_ARM, **ARM_CAMERA).grid
+    free = grid.known & (grid.data == 0)
+    # a ray stops robot_margin short of the arm it meets, so a free cell holds a point outside the
+    # arm: its centre lies at most half a cell's diagonal inside the arm's surface
+    assert distance_to_robot(panda, Q_ARM, grid.cell_centers()[free]).min() > -RES * math.sqrt(3) / 2
+
+
+def test_truth_knows_every_cell(panda):
+    obs = Sensor(SensingSettings(model="truth", resolution=RES), panda).capture(TABLE, panda.home, 0.0, 0, None)
+    assert obs.grid.known is None and obs.grid.known_mask.all() and obs.grid.known_mask.shape == obs.grid.shape
+
+
+def test_the_known_mask_crosses_to_the_controller_unchanged(panda):
+    from planbench.reactive.remote import GridRing, GridView
+
+    sensor = Sensor(depth(), panda)
+    ring, view = GridRing(), GridView()
+    shape = sensor.capture(Scene(()), panda.home, 0, 0, np.random.default_rng(0)).grid.shape
+    ring.prepared(shape)
+    view.prepare(shape)
+    for k in range(6):  # more frames than the ring has slots, the box moving across the view
+        scene = Scene((box("b", (1.3, -0.3 + 0.1 * k, 0.4), (0.2, 0.2, 0.2)),))
+        sent = sensor.capture(scene, panda.home, 0.03 * k, k, np.random.default_rng(k))
+        got = view.read(ring.write(sent))
+        assert np.array_equal(got.grid.known, sent.grid.known) and not got.grid.known.flags.writeable
+        assert np.array_equal(got.grid.data, sent.grid.data)
+        del got
+    truth = Sensor(SensingSettings(model="truth", resolution=RES), panda).capture(TABLE, panda.home, 0.0, 0, None)
+    assert view.read(ring.write(truth)).grid.known is None
+
+
+def test_a_known_mask_of_another_shape_or_type_is_refused():
+    with pytest.raises(ValueError, match="known must be a bool array"):
+        OccupancyGrid(np.zeros((2, 2, 2)), np.zeros(3), 0.1, known=np.ones((2, 2, 3), bool))
+    with pytest.raises(ValueError, match="known must be a bool array"):
+        OccupancyGrid(np.zeros((2, 2, 2)), np.zeros(3), 0.1, known=np.ones((2, 2, 2)))
+
+
 # --- truth --------------------------------------------------------------------------------------
 def test_truth_is_the_voxelised_scene(panda):
     scene = TABLE.with_obstacles([box("b", (0.5, 0.2, 0.3), (0.1, 0.1, 0.2))])

@@ -11,6 +11,9 @@ from __future__ import annotations
 import fcntl
 import os
 
+import numpy as np
+
+from planbench.geometry.views import mark_seen
 from planbench.runtime import compile_cache
 
 __all__ = ["main", "warm_up"]
@@ -21,12 +24,15 @@ PLANNERS = ("matrix-field", "edt-field", "distance-field")
 
 def warm_up() -> None:
     """Compile (or load) the kernels of one plan of each of :data:`PLANNERS` on a small
-    MotionBenchMaker problem, then write the marker."""
+    MotionBenchMaker problem, and the depth sensor's view marking, then write the marker."""
     import planbench  # the whole library: this is a command
 
     problem = planbench.load_problems("mbm:box/0001")[0]
     for planner in PLANNERS:
         planbench.plan(problem, planner, seed=0, time_limit=30.0, backend="numba", max_steps=50)
+    mark_seen(
+        np.zeros((4, 4, 4), bool), -np.ones(3), 0.5, np.zeros(3), np.eye(3), 0.1, 2, 2, np.ones(4), backend="numba"
+    )
     compile_cache.mark_warm()
 
 

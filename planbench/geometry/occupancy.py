@@ -5,6 +5,12 @@
 binary (a voxelized scene) or probabilistic (a sensor); nothing here thresholds them away.
 ``outside`` is the occupancy assumed beyond the grid: 0 = free, 1 = walled in.
 
+``known`` says which cells were observed (a bool array of the grid's shape): a cell a sensor has
+not seen is *unknown*, whatever its ``data`` value (0 there: no evidence of an obstacle, not
+evidence of free space). ``None``, the default, means every cell is known: a grid voxelised from
+the exact scene (static problems, ``truth`` sensing). So a cell is in one of three states: known
+occupied, known free, unknown (docs/sensing.md).
+
 Rule for partly covered cells when voxelizing a scene (``rule=``):
 
 - ``"any"`` (default): 1 if any part of the cell overlaps an obstacle, else 0. Conservative: an
@@ -72,12 +78,14 @@ def grid_shape(lower: np.ndarray, upper: np.ndarray, resolution: float) -> tuple
 
 @dataclass(frozen=True, eq=False)
 class OccupancyGrid:
-    """A 3D occupancy grid. ``origin`` [m] is the corner of cell (0, 0, 0); ``resolution`` [m/cell]."""
+    """A 3D occupancy grid. ``origin`` [m] is the corner of cell (0, 0, 0); ``resolution`` [m/cell];
+    ``known``: which cells were observed (module docstring; None: all)."""
 
     data: np.ndarray
     origin: np.ndarray
     resolution: float
     outside: float = 0.0
+    known: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         data = np.asarray(self.data)
@@ -94,9 +102,23 @@ class OccupancyGrid:
             raise ValueError(f"resolution must be > 0 [m/cell], got {self.resolution}")
         if not 0.0 <= self.outside <= 1.0:
             raise ValueError(f"outside occupancy must be in [0, 1], got {self.outside}")
+        if self.known is not None:
+            known = np.asarray(self.known)
+            if known.dtype != np.bool_ or known.shape != data.shape:
+                raise ValueError(
+                    f"known must be a bool array of the grid's shape {data.shape}, got {known.dtype} {known.shape}"
+                )
+            object.__setattr__(self, "known", known)
         object.__setattr__(self, "data", data)
         object.__setattr__(self, "origin", origin)
         object.__setattr__(self, "resolution", float(self.resolution))
+
+    @property
+    def known_mask(self) -> np.ndarray:
+        """Which cells were observed: :attr:`known`, or a read-only all-true view when every cell is."""
+        if self.known is not None:
+            return self.known
+        return np.broadcast_to(np.True_, self.data.shape)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -187,10 +209,16 @@ class OccupancyGrid:
         bounds: tuple[np.ndarray, np.ndarray] | None = None,
         min_points: int = 1,
         outside: float = 0.0,
+        known: np.ndarray | None = None,
     ) -> OccupancyGrid:
         """A binary grid from an (N, 3) point cloud [m]: a cell is occupied when it holds at least
         ``min_points`` points. Points outside ``bounds`` are dropped; NaN rows (invalid depth
         pixels) are ignored. Default bounds: the cloud's bounding box plus one cell.
+
+        ``known``: the cells the sensor saw free (bool, the grid's shape, for instance from
+        :func:`planbench.geometry.views.mark_seen`); the grid's :attr:`known` is then those and
+        every cell that holds a point (it is modified in place). Without it, every cell counts as
+        known.
         """
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -206,6 +234,14 @@ class OccupancyGrid:
         counts = np.zeros(grid.shape, dtype=np.int64)
         np.add.at(counts, tuple(idx[keep].T), 1)
         grid.data[...] = counts >= min_points
+        if known is None:
+            return grid
+        if known.dtype != np.bool_ or known.shape != grid.shape:
+            raise ValueError(
+                f"known must be a bool array of the grid's shape {grid.shape}, got {known.dtype} {known.shape}"
+            )
+        known |= counts > 0
+        object.__setattr__(grid, "known", known)  # this constructor's own grid, not yet handed out
         return grid
 
 

@@ -138,7 +138,11 @@ def _as_delivered(frame: Any) -> Any:
     if frame.points is not None:
         points = frame.points.view()
         points.setflags(write=False)
-    grid = _grid_as_checked(data, frame.grid.origin, frame.grid.resolution, frame.grid.outside)
+    known = frame.grid.known
+    if known is not None:
+        known = known.view()
+        known.setflags(write=False)
+    grid = _grid_as_checked(data, frame.grid.origin, frame.grid.resolution, frame.grid.outside, known)
     return replace(frame, grid=grid, points=points)
 
 

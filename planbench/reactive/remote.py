@@ -42,6 +42,7 @@ import socket
 import struct
 import sys
 import time
+import zlib
 from typing import Any
 
 import numpy as np
@@ -171,6 +172,9 @@ class GridRing:
             fresh = False
         self._held[j] = (grid.shape, cells, values)
         set_cells, set_values = cells[changed], values[changed]
+        known = None
+        if obs.grid.known is not None:  # a bit per cell, deflated: the controller reads 4x fewer bytes
+            known = zlib.compress(np.packbits(obs.grid.known.reshape(-1)).tobytes(), 1)
         ones = bool(np.all(set_values == 1.0))
         points = None if obs.points is None else np.ascontiguousarray(obs.points, dtype="<f8")
         header = {
@@ -188,12 +192,15 @@ class GridRing:
                 "outside": float(obs.grid.outside),
             },
             "points": None if points is None else list(points.shape),
+            "known": None if known is None else len(known),
             "scene": None if obs.scene is None else json.dumps(obs.scene.to_dict()),
         }
         head = json.dumps(header).encode()
         parts = [struct.pack("<I", len(head)), head, clear.astype("<i8").tobytes(), set_cells.astype("<i8").tobytes()]
         if not ones:
             parts.append(set_values.astype("<f8").tobytes())
+        if known is not None:
+            parts.append(known)
         if points is not None:
             parts.append(points.tobytes())
         return b"".join(parts)
@@ -244,11 +251,17 @@ class GridView:
         slot[cells] = values
         grid = slot.reshape(shape)
         grid.flags.writeable = False
+        packed = None
+        if h["known"] is not None:
+            packed = bytes(memoryview(message)[at : at + h["known"]])
+            at += h["known"]
         points = None
         if h["points"] is not None:
             count = int(np.prod(h["points"]))
             points = np.frombuffer(message, dtype="<f8", count=count, offset=at).reshape(h["points"])
         occupancy = _grid_as_checked(grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"])
+        if packed is not None:
+            occupancy = _with_packed_known(occupancy, packed)
         return _delivered(h["time"], occupancy, h["frame"], points, h["scene"])
 
 
@@ -274,6 +287,36 @@ def _delivered(t: float, grid: OccupancyGrid, frame: int, points: np.ndarray | N
     for name, value in (("time", t), ("grid", grid), ("frame", frame), ("points", points), ("_scene_json", scene)):
         obs.__dict__[name] = value
     return obs
+
+
+class _DeliveredGrid(OccupancyGrid):
+    """An :class:`OccupancyGrid` whose ``known`` mask arrives packed (a bit per cell, deflated)
+    and is unpacked when first read: a controller that never reads it is charged only for
+    receiving its bytes."""
+
+    @property  # type: ignore[override]
+    def known(self) -> np.ndarray | None:
+        cached = self.__dict__.get("_known")
+        if cached is None:
+            cells = int(np.prod(self.data.shape))
+            bits = np.frombuffer(zlib.decompress(self.__dict__["_packed"]), dtype=np.uint8)
+            cached = np.unpackbits(bits, count=cells).view(bool).reshape(self.data.shape)
+            cached.flags.writeable = False
+            self.__dict__["_known"] = cached
+        return cached
+
+    @known.setter
+    def known(self, value: np.ndarray | None) -> None:  # dataclasses.replace sets it
+        self.__dict__["_known"] = value
+
+
+def _with_packed_known(grid: OccupancyGrid, packed: bytes) -> OccupancyGrid:
+    """``grid`` (made by :func:`_grid_as_checked`) with a known mask to unpack on first read."""
+    out = object.__new__(_DeliveredGrid)
+    out.__dict__.update(grid.__dict__)
+    out.__dict__.pop("known", None)
+    out.__dict__["_packed"] = packed
+    return out
 
 
 def _grid_as_checked(data: np.ndarray, origin: np.ndarray, resolution: float, outside: float) -> OccupancyGrid:

@@ -53,13 +53,14 @@ import trimesh
 from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from planbench.geometry.occupancy import OccupancyGrid, cover_block
+from planbench.geometry.occupancy import OccupancyGrid, cover_block, grid_shape
+from planbench.geometry.views import mark_seen
 from planbench.reactive.controller import Observation
 from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds
 from planbench.robot import Robot
 from planbench.scene import Obstacle, Scene
 
-__all__ = ["ROBOT_EDGE", "Sensor", "camera_rays"]
+__all__ = ["ROBOT_EDGE", "Sensor", "camera_frame", "camera_rays"]
 
 ROBOT_EDGE = 0.01
 """Longest edge of the subdivided robot meshes of the margin test [m] (the test may drop points
@@ -74,17 +75,24 @@ Triangles = tuple[np.ndarray, np.ndarray]
 
 
 # --- cameras --------------------------------------------------------------------------------------
-def camera_rays(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray]:
-    """The optical centre (3,) [m] and unit ray directions (height * width, 3) of a pinhole camera,
-    pixels row by row from the top-left corner, each ray through its pixel's centre."""
+def camera_frame(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray, float]:
+    """The optical centre (3,) [m], the axes (3, 3: rows forward, right, up) and the pixel size at
+    unit focal length of a pinhole camera."""
     origin = np.asarray(camera.position, dtype=float)
     forward = np.asarray(camera.look_at, dtype=float) - origin
     forward /= np.linalg.norm(forward)
     right = np.cross(forward, np.asarray(camera.up, dtype=float))
     right /= np.linalg.norm(right)
     up = np.cross(right, forward)
+    pixel = 2.0 * math.tan(math.radians(camera.fov) / 2.0) / int(camera.height)
+    return origin, np.stack([forward, right, up]), pixel
+
+
+def camera_rays(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The optical centre (3,) [m] and unit ray directions (height * width, 3) of a pinhole camera,
+    pixels row by row from the top-left corner, each ray through its pixel's centre."""
+    origin, (forward, right, up), pixel = camera_frame(camera)
     w, h = int(camera.width), int(camera.height)
-    pixel = 2.0 * math.tan(math.radians(camera.fov) / 2.0) / h  # pixel size at unit focal length
     x = (np.arange(w) + 0.5 - w / 2.0) * pixel
     y = (h / 2.0 - np.arange(h) - 0.5) * pixel
     xx, yy = np.meshgrid(x, y)  # (h, w): rows top to bottom
@@ -234,10 +242,14 @@ class Sensor:
         q = self._checked_q(q)
         if self.settings.model == "truth":
             return Observation(time=t, grid=self.truth_grid(scene), frame=frame, points=None, scene=scene)
-        cloud = self.point_cloud(scene, q, rng)
-        grid = OccupancyGrid.from_points(
-            cloud, self.settings.resolution, bounds=(self.bounds[0].copy(), self.bounds[1])
-        )
+        cloud, free = self._sense(scene, q, rng)
+        res = self.settings.resolution
+        seen = np.zeros(grid_shape(self.bounds[0], self.bounds[1], res), dtype=bool)
+        for camera, lengths in zip(self.settings.cameras, free, strict=True):
+            origin, axes, pixel = camera_frame(camera)
+            mark_seen(seen, self.bounds[0], res, origin, axes, pixel, camera.width, camera.height, lengths)
+        bounds = (self.bounds[0].copy(), self.bounds[1])
+        grid = OccupancyGrid.from_points(cloud, res, bounds=bounds, known=seen)
         return Observation(time=t, grid=grid, frame=frame, points=cloud, scene=None)
 
     # --- truth ----------------------------------------------------------------------------------
@@ -281,21 +293,39 @@ class Sensor:
 
     def point_cloud(self, scene: Scene, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The (N, 3) points [m] all cameras return, the robot removed (module docstring)."""
+        return self._sense(scene, q, rng)[0]
+
+    def _sense(self, scene: Scene, q: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The point cloud, and per camera the length [m] from the optical centre that each pixel
+        saw free (docs/sensing.md, "What a frame knows"): up to the point it returned; up to
+        ``max_range`` when nothing was in range; up to ``robot_margin`` short of the arm, or of a
+        point the robot filter removed; nothing for a pixel that dropped out."""
         q = self._checked_q(q)
         poses = self._robot_poses(q)
         scene_tri = self._scene_triangles(scene)
         robot_tri = _stack([_placed(part.triangles, R, p) for part, (R, p) in zip(self._parts, poses, strict=True)])
         ranges, robot_hit = self._cast(_stack([scene_tri, robot_tri]), len(scene_tri[1]))
-        clouds, start = [], 0
+        margin = self.settings.robot_margin
+        clouds, rays, start = [], [], 0
         for camera, (origin, dirs) in zip(self.settings.cameras, self._rays, strict=True):
             r = ranges[start : start + len(dirs)]
-            keep = self._measure(camera, r, robot_hit[start : start + len(dirs)], rng)
-            clouds.append(origin + r[keep, None] * dirs[keep])
+            robot = robot_hit[start : start + len(dirs)]
+            in_range = np.isfinite(r) & (r <= camera.max_range)  # before the noise
+            keep, returned = self._measure(camera, r, robot, rng)
+            free = np.where(keep, r, 0.0)
+            free[returned & robot] = np.maximum(r[returned & robot] - margin, 0.0)
+            free[returned & ~in_range] = camera.max_range  # nothing within range: all of it seen free
+            points = origin + r[keep, None] * dirs[keep]
+            if margin > 0 and len(points):
+                near = self._near_robot(points, poses)
+                pixels = np.flatnonzero(keep)[near]
+                free[pixels] = np.maximum(r[pixels] - margin, 0.0)
+                points = points[~near]
+            clouds.append(points)
+            rays.append(free)
             start += len(dirs)
         cloud = np.concatenate(clouds) if clouds else np.zeros((0, 3))
-        if self.settings.robot_margin > 0 and len(cloud):
-            cloud = cloud[~self._near_robot(cloud, poses)]
-        return cloud
+        return cloud, rays
 
     def _scene_triangles(self, scene: Scene) -> Triangles:
         """All obstacles' triangles in the scene frame; an obstacle equal to one of the previous
@@ -327,16 +357,21 @@ class Sensor:
         return ranges, robot_hit
 
     @staticmethod
-    def _measure(camera: CameraSettings, ranges: np.ndarray, robot_hit: np.ndarray, rng: np.random.Generator) -> Any:
-        """Which pixels return a point; adds the range noise to ``ranges`` in place. Noise and
-        dropout are drawn for every pixel, so the stream does not depend on what was hit."""
+    def _measure(
+        camera: CameraSettings, ranges: np.ndarray, robot_hit: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Which pixels return a point, and which did not drop out; adds the range noise to
+        ``ranges`` in place. Noise and dropout are drawn for every pixel, so the stream does not
+        depend on what was hit."""
         keep = np.isfinite(ranges) & (ranges <= camera.max_range) & ~robot_hit
+        returned = np.ones(len(ranges), dtype=bool)
         if camera.noise_std > 0:
             ranges += rng.normal(0.0, camera.noise_std, len(ranges))
             keep &= ranges > 0
         if camera.dropout > 0:
-            keep &= rng.random(len(ranges)) >= camera.dropout
-        return keep
+            returned = rng.random(len(ranges)) >= camera.dropout
+            keep &= returned
+        return keep, returned
 
     def _near_robot(self, points: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Points [m] within ``robot_margin`` of the robot's surface (and a few mm beyond: module
