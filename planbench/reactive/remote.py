@@ -319,12 +319,15 @@ def _with_packed_known(grid: OccupancyGrid, packed: bytes) -> OccupancyGrid:
     return out
 
 
-def _grid_as_checked(data: np.ndarray, origin: np.ndarray, resolution: float, outside: float) -> OccupancyGrid:
+def _grid_as_checked(
+    data: np.ndarray, origin: np.ndarray, resolution: float, outside: float, known: np.ndarray | None = None
+) -> OccupancyGrid:
     """The grid without :class:`OccupancyGrid`'s checks of every cell (milliseconds on a sensed
     grid, which the controller would be charged for): the simulation's sensor built and checked
     it, and the file comes from the simulation."""
     grid = object.__new__(OccupancyGrid)
-    for name, value in (("data", data), ("origin", origin), ("resolution", resolution), ("outside", float(outside))):
+    fields = (("data", data), ("origin", origin), ("resolution", resolution), ("outside", float(outside)))
+    for name, value in (*fields, ("known", known)):
         object.__setattr__(grid, name, value)
     return grid
 
