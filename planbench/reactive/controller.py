@@ -53,7 +53,8 @@ class ControlTask:
 class Observation:
     """One sensor frame as delivered to the controller.
 
-    ``grid``: the observed occupancy grid (robot base frame); ``time``: when the frame was captured
+    ``grid``: the observed occupancy grid (robot base frame; ``grid.known``: the cells the frame
+    observed, None when all were, docs/sensing.md); ``time``: when the frame was captured
     [s] (delivered ``latency`` later); ``points``: the (N, 3) point cloud it was built from
     (``depth`` sensing; None for ``truth``); ``scene``: the exact geometry at capture time
     (``truth`` sensing only, for controllers that measure distances to geometry; None otherwise).
