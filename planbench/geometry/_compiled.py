@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 __all__ = ["mark_seen"]
@@ -22,19 +23,23 @@ def mark_seen(lower, resolution, origin, axes, pixel, width, height, free, out):
     ux, uy, uz = axes[2, 0], axes[2, 1], axes[2, 2]  # up
     half_w, half_h = width / 2.0, height / 2.0
     free2 = free * free
+    vz = np.empty(n2)
+    for k in range(n2):
+        vz[k] = lower[2] + (k + 0.5) * resolution - origin[2]
+    zf, zr, zu, zz = vz * fz, vz * rz, vz * uz, vz * vz  # the last terms of the sums below, per k
     for i in range(n0):
         vx = lower[0] + (i + 0.5) * resolution - origin[0]
         for j in range(n1):
             vy = lower[1] + (j + 0.5) * resolution - origin[1]
+            af, ar, au, aa = vx * fx + vy * fy, vx * rx + vy * ry, vx * ux + vy * uy, vx * vx + vy * vy
             for k in range(n2):
-                vz = lower[2] + (k + 0.5) * resolution - origin[2]
-                z = vx * fx + vy * fy + vz * fz
+                z = af + zf[k]
                 if not z > 0.0:
                     continue
                 inv = 1.0 / (z * pixel)
-                col = math.floor((vx * rx + vy * ry + vz * rz) * inv + half_w)
-                row = math.floor(half_h - (vx * ux + vy * uy + vz * uz) * inv)
+                col = math.floor((ar + zr[k]) * inv + half_w)
+                row = math.floor(half_h - (au + zu[k]) * inv)
                 if col < 0 or col >= width or row < 0 or row >= height:
                     continue
-                if vx * vx + vy * vy + vz * vz <= free2[row * width + col]:
+                if aa + zz[k] <= free2[row * width + col]:
                     out[i, j, k] = True
