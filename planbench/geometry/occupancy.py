@@ -76,6 +76,16 @@ def grid_shape(lower: np.ndarray, upper: np.ndarray, resolution: float) -> tuple
     return tuple(int(x) for x in cells)  # type: ignore[return-value]
 
 
+def _checked_known(known: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``known`` as a bool array of ``shape`` (a ``ValueError`` naming both otherwise)."""
+    known = np.asarray(known)
+    if known.dtype != np.bool_ or known.shape != tuple(shape):
+        raise ValueError(
+            f"known must be a bool array of the grid's shape {tuple(shape)}, got {known.dtype} {known.shape}"
+        )
+    return known
+
+
 @dataclass(frozen=True, eq=False)
 class OccupancyGrid:
     """A 3D occupancy grid. ``origin`` [m] is the corner of cell (0, 0, 0); ``resolution`` [m/cell];
@@ -103,12 +113,7 @@ class OccupancyGrid:
         if not 0.0 <= self.outside <= 1.0:
             raise ValueError(f"outside occupancy must be in [0, 1], got {self.outside}")
         if self.known is not None:
-            known = np.asarray(self.known)
-            if known.dtype != np.bool_ or known.shape != data.shape:
-                raise ValueError(
-                    f"known must be a bool array of the grid's shape {data.shape}, got {known.dtype} {known.shape}"
-                )
-            object.__setattr__(self, "known", known)
+            object.__setattr__(self, "known", _checked_known(self.known, data.shape))
         object.__setattr__(self, "data", data)
         object.__setattr__(self, "origin", origin)
         object.__setattr__(self, "resolution", float(self.resolution))
@@ -236,10 +241,7 @@ class OccupancyGrid:
         grid.data[...] = counts >= min_points
         if known is None:
             return grid
-        if known.dtype != np.bool_ or known.shape != grid.shape:
-            raise ValueError(
-                f"known must be a bool array of the grid's shape {grid.shape}, got {known.dtype} {known.shape}"
-            )
+        known = _checked_known(known, grid.shape)
         known |= counts > 0
         object.__setattr__(grid, "known", known)  # this constructor's own grid, not yet handed out
         return grid

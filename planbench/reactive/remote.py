@@ -259,9 +259,9 @@ class GridView:
         if h["points"] is not None:
             count = int(np.prod(h["points"]))
             points = np.frombuffer(message, dtype="<f8", count=count, offset=at).reshape(h["points"])
-        occupancy = _grid_as_checked(grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"])
-        if packed is not None:
-            occupancy = _with_packed_known(occupancy, packed)
+        occupancy = _grid_as_checked(
+            grid, np.array(g["origin"], dtype=float), float(g["resolution"]), g["outside"], packed=packed
+        )
         return _delivered(h["time"], occupancy, h["frame"], points, h["scene"])
 
 
@@ -310,25 +310,21 @@ class _DeliveredGrid(OccupancyGrid):
         self.__dict__["_known"] = value
 
 
-def _with_packed_known(grid: OccupancyGrid, packed: bytes) -> OccupancyGrid:
-    """``grid`` (made by :func:`_grid_as_checked`) with a known mask to unpack on first read."""
-    out = object.__new__(_DeliveredGrid)
-    out.__dict__.update(grid.__dict__)
-    out.__dict__.pop("known", None)
-    out.__dict__["_packed"] = packed
-    return out
-
-
 def _grid_as_checked(
-    data: np.ndarray, origin: np.ndarray, resolution: float, outside: float, known: np.ndarray | None = None
+    data: np.ndarray,
+    origin: np.ndarray,
+    resolution: float,
+    outside: float,
+    known: np.ndarray | None = None,
+    packed: bytes | None = None,
 ) -> OccupancyGrid:
     """The grid without :class:`OccupancyGrid`'s checks of every cell (milliseconds on a sensed
     grid, which the controller would be charged for): the simulation's sensor built and checked
-    it, and the file comes from the simulation."""
-    grid = object.__new__(OccupancyGrid)
-    fields = (("data", data), ("origin", origin), ("resolution", resolution), ("outside", float(outside)))
-    for name, value in (*fields, ("known", known)):
-        object.__setattr__(grid, name, value)
+    it, and the file comes from the simulation. ``packed``: its known mask as sent, unpacked when
+    first read (:class:`_DeliveredGrid`), instead of ``known``."""
+    grid = object.__new__(OccupancyGrid if packed is None else _DeliveredGrid)
+    fields = {"data": data, "origin": origin, "resolution": resolution, "outside": float(outside)}
+    grid.__dict__.update(fields, **({"known": known} if packed is None else {"_packed": packed}))
     return grid
 
 

@@ -232,6 +232,7 @@ class Sensor:
         self._base: np.ndarray | None = None
         # depth: rays, the robot's local meshes (built on first use) and the triangles of unmoved obstacles
         self._rays = [camera_rays(c) for c in settings.cameras]
+        self._frames = [camera_frame(c) for c in settings.cameras]
         self._triangles: dict[Obstacle, Triangles] = {}
         self._data = robot.model.createData()
         self._geometry_data = pin.GeometryData(robot.collision_model)
@@ -245,8 +246,7 @@ class Sensor:
         cloud, free = self._sense(scene, q, rng)
         res = self.settings.resolution
         seen = np.zeros(grid_shape(self.bounds[0], self.bounds[1], res), dtype=bool)
-        for camera, lengths in zip(self.settings.cameras, free, strict=True):
-            origin, axes, pixel = camera_frame(camera)
+        for camera, (origin, axes, pixel), lengths in zip(self.settings.cameras, self._frames, free, strict=True):
             mark_seen(seen, self.bounds[0], res, origin, axes, pixel, camera.width, camera.height, lengths)
         bounds = (self.bounds[0].copy(), self.bounds[1])
         grid = OccupancyGrid.from_points(cloud, res, bounds=bounds, known=seen)

@@ -11,7 +11,7 @@ from typing import Any
 from planbench.files.outputs import check_output
 from planbench.metrics import wilson_interval
 
-__all__ = ["pyplot", "rate_bar", "save", "success_bar"]
+__all__ = ["pyplot", "save", "success_bar"]
 
 
 def pyplot() -> Any:
@@ -35,30 +35,15 @@ def save(fig: Any, path: str | Path, dpi: int = 150) -> Path:
     return target
 
 
-def rate_bar(
-    ax: Any,
-    x: float,
-    solved: int,
-    runs: int,
-    interval: tuple[float, float],
-    width: float,
-    color: int,
-    label: str | None,
-) -> None:
-    """One bar of the success rate ``solved / runs`` at ``x`` with its ``interval`` (low, high) as
-    an error bar and a ``k/n`` label; nothing without runs. A 0 % bar keeps a sliver of height and
-    its label: it reads as 0 of n, not as no data."""
-    if not runs:
+def success_bar(ax: Any, x: float, runs: Sequence[dict[str, Any]], width: float, color: int, label: str | None) -> None:
+    """The success-rate bar of ``runs`` (rows with a ``success`` flag) at ``x``: its Wilson 95 %
+    interval as an error bar and a ``k/n`` label; nothing without runs. A 0 % bar keeps a sliver
+    of height and its label: it reads as 0 of n, not as no data."""
+    n, solved = len(runs), sum(1 for r in runs if r["success"])
+    if not n:
         return
-    rate = solved / runs
-    lo, hi = interval
+    rate = solved / n
+    lo, hi = wilson_interval(solved, n)
     ax.bar(x, max(rate, 0.006), width, color=f"C{color}", label=label)
     ax.errorbar(x, rate, yerr=[[rate - lo], [hi - rate]], color="k", capsize=2, lw=0.8)
-    ax.text(x, hi + 0.015, f"{solved}/{runs}", ha="center", fontsize="xx-small")
-
-
-def success_bar(ax: Any, x: float, runs: Sequence[dict[str, Any]], width: float, color: int, label: str | None) -> None:
-    """The success-rate bar of ``runs`` (rows with a ``success`` flag) at ``x``, with its Wilson
-    95 % interval (:func:`rate_bar`)."""
-    solved = sum(1 for r in runs if r["success"])
-    rate_bar(ax, x, solved, len(runs), wilson_interval(solved, len(runs)), width, color, label)
+    ax.text(x, hi + 0.015, f"{solved}/{n}", ha="center", fontsize="xx-small")
