@@ -161,6 +161,8 @@ class Evaluation:
     field_update_time: float = math.nan  # [s] median per sensor frame taken in
     stalled_time: float = math.nan  # [s] the arm commanded slower than the stall speed, goal not reached
     path_length: float = math.nan  # [rad] joint-space length of the executed trajectory
+    unobserved_motion: float = math.nan  # [s] the arm moving through cells its latest observation did not know
+    collision_observed: bool | None = None  # the obstacle hit had been shown to the controller (None: no such hit)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -70,6 +70,7 @@ DYNAMIC_METRICS: tuple[Metric, ...] = (
     Metric("min_clearance", "min clearance [mm]", 1e3, "clearance [mm]", lower_is_better=False),
     Metric("path_length", "path length [rad]", 1.0, "length [rad]"),
     Metric("stalled_time", "stalled time [s]", 1.0, "stalled [s]", over_all_runs=True),
+    Metric("unobserved_motion", "motion through unknown space [s]", 1.0, "unobserved [s]", over_all_runs=True),
     Metric("tick_time_median", "tick time, median [ms]", 1e3, "tick [ms]", over_all_runs=True),
     Metric("tick_time_p99", "tick time, p99 [ms]", 1e3, "tick p99 [ms]", over_all_runs=True),
     Metric("deadline_misses", "deadline misses", 1.0, "misses", over_all_runs=True),
@@ -89,7 +90,7 @@ def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple
 FAILURE_STATUSES = ("error", "timeout", "crash")
 VALID_PATH_FAILURES = ("late", "claimed_failure")
 """Counts of :func:`summarize` for failed runs whose path is valid (see :func:`valid_path_failure`)."""
-LOCATED = ("collision", "self-collision", "claimed-failure")
+LOCATED = ("collision", "unseen-collision", "self-collision", "claimed-failure")
 """Failure reasons counted with their detail (a link, the status claimed) by :func:`failure_text`."""
 
 
@@ -162,7 +163,8 @@ def valid_path_failure(row: dict[str, Any]) -> str:
 
 def failure_reason(row: dict[str, Any]) -> str:
     """Why a run failed, in a few words ("" for a success): ``collision <robot link>``,
-    ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``late`` (an
+    ``unseen-collision <robot link>`` (a closed-loop run's collision with an obstacle no observation
+    had shown), ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``late`` (an
     answer after the time limit), ``claimed-failure <status>`` (a valid path, a failure status),
     ``horizon`` (a closed-loop run that did not reach its goal in time), ``error``, ``crash``, or
     the planner's own status (``step limit``, ``infeasible``, ...)."""
@@ -179,7 +181,10 @@ def failure_reason(row: dict[str, Any]) -> str:
     pair = str(row.get("collision_pair") or "")
     if pair:
         a, _, b = pair.partition(" / ")
-        return f"collision {a}" if not b or b.startswith("obstacle:") else f"self-collision {a}/{b}"
+        if b and not b.startswith("obstacle:"):
+            return f"self-collision {a}/{b}"
+        observed = row.get("collision_observed")  # None, or a bool (an integer from the results file)
+        return f"unseen-collision {a}" if observed is not None and not observed else f"collision {a}"
     if status == "timeout":
         return "horizon" if row.get("deadline_misses") is not None else "time limit"
     return {"local_minimum": "stall"}.get(status, status.replace("_", " ") or "failed")

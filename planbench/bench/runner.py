@@ -513,6 +513,8 @@ class Runner:
         return _Child(kind, proc, parent, output, scratch=scratch, cgroup=cgroup)
 
     def _kill(self, child: _Child, dump_stack: bool = False) -> None:
+        if child.closed:  # already reaped and closed (the other process of a closed-loop run died first)
+            return
         pid = child.proc.pid
         if dump_stack and child.proc.is_alive() and pid is not None:  # faulthandler writes the stack
             with contextlib.suppress(OSError):

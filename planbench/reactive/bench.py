@@ -245,6 +245,7 @@ def _record_info(record: RunRecord, handoff: list[float]) -> dict[str, Any]:
         "velocity_clipped": int(record.velocity_clipped),
         "position_clamped": int(record.position_clamped),
         "collision": list(record.collision) if record.collision else None,
+        "first_seen": dict(record.first_seen),
         "handoff_median": float(np.median(h)) if len(h) else None,
         "handoff_p99": float(np.percentile(h, 99)) if len(h) else None,
         "handoff_calls": len(h),
@@ -291,4 +292,6 @@ def evaluate_record(scenario: Scenario, record: RunRecord, planning_time: float 
         "field_update_time": m.field_update_time,
         "stalled_time": m.stalled_time,
         "path_length": m.path_length,
+        "unobserved_motion": m.unobserved_motion,
+        "collision_observed": m.collision_observed,
     }

@@ -40,6 +40,7 @@ import numpy as np
 from planbench.problem import pose_error
 from planbench.reactive.checker import TickChecker
 from planbench.reactive.controller import BadCommand, Controller, ControlTask, Observation, as_command
+from planbench.reactive.exposure import Exposure
 from planbench.reactive.scenario import Scenario
 
 __all__ = [
@@ -109,6 +110,10 @@ class RunRecord:
     """[s] the controller's ``setup`` and ``reset`` (untimed by the loop)."""
     overrun: str = ""
     """Why a call was abandoned (its command never came), when one was."""
+    unobserved: np.ndarray | None = None
+    """(n,) bool: the ticks of unobserved motion (:mod:`planbench.reactive.exposure`); None: not recorded."""
+    first_seen: dict[str, float] = field(default_factory=dict)
+    """Obstacle name -> when an observation delivered to the controller first showed it [s]."""
 
 
 class ControllerFault(Exception):
@@ -235,6 +240,7 @@ def simulate(
 
         sensor = Sensor(scenario.sensing, robot)
     checker = TickChecker(scenario) if settings.check_collisions else None
+    exposure = Exposure(scenario)
     lower, upper = np.asarray(robot.lower, dtype=float), np.asarray(robot.upper, dtype=float)
     vmax = np.asarray(robot.velocity_limit, dtype=float)
     tol_p, tol_r = problem.tolerances.position, problem.tolerances.orientation
@@ -244,6 +250,7 @@ def simulate(
     commands = np.full((n_ticks, robot.nq), np.nan)
     compute = np.full(n_ticks, np.nan)
     measured = np.full(n_ticks, np.nan)
+    unobserved = np.zeros(n_ticks, dtype=bool)
     q = np.array(problem.start, dtype=float)
     path[0] = q
     held = np.zeros(robot.nq)
@@ -264,6 +271,7 @@ def simulate(
             next_frame += 1
         while pending and pending[0].time + scenario.sensing.latency <= t + _EPS:
             latest, fresh = pending.pop(0), True
+            exposure.delivered(latest, t)
         if k >= free_at:
             port.budget = (n_ticks - k) * T
             try:
@@ -296,6 +304,7 @@ def simulate(
         clamped = np.clip(q_next, lower, upper)
         rec.position_clamped += int(not np.array_equal(clamped, q_next))
         commands[k] = (clamped - q) / T
+        unobserved[k] = not np.array_equal(clamped, q) and exposure.in_unknown(clamped)
         if checker is not None:
             verdict = checker.check_tick(q, clamped, t, times[k + 1])
             if not verdict.free:
@@ -315,6 +324,7 @@ def simulate(
     rec.status, rec.message = status, message
     rec.times, rec.path = times[: n_done + 1], path[: n_done + 1]
     rec.commands, rec.compute, rec.measured = commands[:n_done], compute[:n_done], measured[:n_done]
+    rec.unobserved, rec.first_seen = unobserved[:n_done], dict(exposure.first_seen)
     try:
         rec.info = dict(port.info())
     except Exception as exc:  # diagnostics must not lose the run
@@ -374,6 +384,10 @@ class RunMetrics:
     field_update_time: float
     stalled_time: float
     path_length: float
+    unobserved_motion: float
+    """[s] the arm moving through cells its latest observation did not know (NaN: not recorded)."""
+    collision_observed: bool | None
+    """Whether the obstacle hit had been shown to the controller before (None: no collision with an obstacle)."""
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -399,11 +413,17 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
     if violations and not failure:
         failure = "joint limits violated: " + "; ".join(violations)
     clearance = checker.clearance(path[0], times[0])
+    observed: bool | None = None
     for k in range(n - 1):
         verdict = checker.check_tick(path[k], path[k + 1], times[k], times[k + 1])
         if not verdict.free:
             when = times[k] + verdict.fraction * (times[k + 1] - times[k])
-            failure = failure or f"collision with {verdict.pair[1]} ({verdict.pair[0]}) at t = {when:.3f} s"
+            body = verdict.pair[1]
+            if body.startswith("obstacle:") and record.unobserved is not None:  # a record of simulate()
+                seen_at = record.first_seen.get(body.removeprefix("obstacle:"))
+                observed = bool(seen_at is not None and seen_at <= times[k + 1] + _EPS)
+            unseen = ", never observed" if observed is False else ""
+            failure = failure or f"collision with {body} ({verdict.pair[0]}) at t = {when:.3f} s{unseen}"
             break
         clearance = min(clearance, checker.clearance(path[k + 1], times[k + 1]))
     err_p, err_r = pose_error(problem.robot, path[-1], problem.goal.pose)
@@ -418,6 +438,12 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
     dt = np.diff(times)
     speed = np.linalg.norm(np.diff(path, axis=0), axis=1) / dt  # the applied command: the path is its integral
     updates = np.asarray(record.field_update_times, dtype=float)
+    unobserved = math.nan
+    if record.unobserved is not None:
+        flags = np.asarray(record.unobserved, dtype=bool)
+        if flags.shape != dt.shape:
+            raise ValueError(f"run record of {record.scenario!r}: one unobserved flag per tick expected")
+        unobserved = float(np.sum(dt[flags]))
     return RunMetrics(
         success=not failure,
         failure=failure,
@@ -429,4 +455,6 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
         field_update_time=float(np.median(updates)) if len(updates) else math.nan,
         stalled_time=float(np.sum(dt[speed < settings.stall_speed])),
         path_length=float(np.sum(np.linalg.norm(np.diff(path, axis=0), axis=1))),
+        unobserved_motion=unobserved,
+        collision_observed=observed,
     )

@@ -1,0 +1,133 @@
+"""What the controller had observed: ``unobserved_motion`` and collisions with obstacles no
+observation had shown, decided by the simulation from the observations it delivered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from bench_controllers import ToGoalController
+
+from conftest import box
+from planbench.bench.report import failure_reason, failure_text
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.reactive.body import ArmBody
+from planbench.reactive.controller import Observation
+from planbench.reactive.runner import RunSettings, evaluate_run, run_scenario
+from planbench.reactive.scenario import MovingObstacle, Scenario, SensingSettings
+from planbench.scene import Scene
+
+RES = 0.04
+BOUNDS = (np.full(3, -1.2), np.full(3, 1.2))
+IDEAL = RunSettings(timing="ideal")
+
+
+class MaskedSensor:
+    """Empty grids whose ``known`` mask is given (None: every cell known), one per frame."""
+
+    def __init__(self, known):
+        self.known = known
+
+    def capture(self, scene, q, t, frame, rng):
+        grid = OccupancyGrid.empty(*BOUNDS, RES)
+        known = None if self.known is None else self.known.copy()
+        return Observation(t, OccupancyGrid(grid.data, grid.origin, RES, known=known), frame, None, None)
+
+
+class Still(ToGoalController):
+    def step(self, t, q, observation, goal):
+        return np.zeros_like(q)
+
+
+def scenario(problem, *moving, rate=30.0, horizon=3.0):
+    return Scenario(problem, tuple(moving), SensingSettings(rate=rate), horizon=horizon)
+
+
+def test_moving_through_known_space_is_not_counted(free_problem):
+    rec = run_scenario(scenario(free_problem), ToGoalController(), sensor=MaskedSensor(None), settings=IDEAL)
+    m = evaluate_run(scenario(free_problem), rec)
+    assert m.success and m.unobserved_motion == 0.0
+
+
+def test_standing_still_in_unknown_space_is_not_counted(free_problem):
+    nothing = np.zeros(OccupancyGrid.empty(*BOUNDS, RES).shape, dtype=bool)
+    rec = run_scenario(scenario(free_problem), Still(), sensor=MaskedSensor(nothing), settings=IDEAL)
+    assert evaluate_run(scenario(free_problem), rec).unobserved_motion == 0.0
+
+
+def test_unobserved_motion_is_the_time_the_moving_arm_fills_unknown_cells(free_problem):
+    s = scenario(free_problem)
+    shape = OccupancyGrid.empty(*BOUNDS, RES).shape
+    known = np.ones(shape, dtype=bool)
+    hand = free_problem.robot.frame_pose(free_problem.goal.q).translation
+    i = np.floor((hand - BOUNDS[0]) / RES).astype(int)
+    known[i[0] - 1 : i[0] + 2, i[1] - 1 : i[1] + 2, i[2] - 1 : i[2] + 2] = False  # a blind spot at the goal
+    rec = run_scenario(s, ToGoalController(), sensor=MaskedSensor(known), settings=IDEAL)
+    m = evaluate_run(s, rec)
+    # recount from the trajectory: the ticks whose end fills a blind cell (the arm moves on every tick)
+    body = ArmBody(free_problem.robot, BOUNDS[0], shape, RES)
+    expected = sum(s.period for q in rec.path[1:] if body.in_unknown(q, known))
+    assert m.success and 0 < m.unobserved_motion == pytest.approx(expected)
+    assert m.unobserved_motion < rec.times[-1]
+
+
+def test_before_the_first_delivery_every_cell_is_unknown(free_problem):
+    s = Scenario(free_problem, (), SensingSettings(rate=30.0, latency=0.2), horizon=3.0)
+    rec = run_scenario(s, ToGoalController(), sensor=MaskedSensor(None), settings=IDEAL)
+    assert evaluate_run(s, rec).unobserved_motion == pytest.approx(0.2)  # 20 ticks, the arm moving
+
+
+def on_the_way(problem, appear=0.0):
+    """A ball where the arm's hand passes halfway to the goal, present from ``appear`` [s]."""
+    mid = problem.robot.frame_pose(0.5 * (np.asarray(problem.start) + problem.goal.q)).translation
+    return MovingObstacle(box("ball", mid, (0.08, 0.08, 0.08)), appear=appear)
+
+
+def test_a_collision_with_an_obstacle_no_observation_showed_is_told_apart(free_problem):
+    # truth sensing at 1 Hz: the frame at t = 0 holds no ball, the next comes after the collision
+    s = scenario(free_problem, on_the_way(free_problem, appear=0.05), rate=1.0)
+    rec = run_scenario(s, ToGoalController(), settings=IDEAL)
+    m = evaluate_run(s, rec)
+    assert rec.status == "collision" and m.collision_observed is False
+    assert m.failure.endswith("never observed") and "ball" not in rec.first_seen
+
+    seen = scenario(free_problem, on_the_way(free_problem), rate=1.0)  # there from the first frame
+    rec = run_scenario(seen, ToGoalController(), settings=IDEAL)
+    m = evaluate_run(seen, rec)
+    assert rec.status == "collision" and m.collision_observed is True and rec.first_seen["ball"] == 0.0
+    assert "never observed" not in m.failure
+
+
+def test_depth_shows_an_obstacle_by_its_occupied_cells(panda):
+    from planbench.problem import Problem
+    from planbench.reactive.exposure import Exposure
+    from planbench.reactive.scenario import CameraSettings
+    from planbench.reactive.sensing import Sensor
+
+    wall = box("wall", (1.1, 0.0, 0.4), (0.2, 0.3, 0.3))
+    hidden = box("hidden", (1.6, 0.0, 0.4), (0.1, 0.1, 0.1))  # in the wall's shadow
+    problem = Problem.create(panda, Scene((wall, hidden)), panda.home, panda.home + 0.1)
+    camera = CameraSettings(position=(0.8, 0.0, 0.4), look_at=(2.0, 0.0, 0.4))
+    s = Scenario(problem, (), SensingSettings(model="depth", cameras=(camera,)))
+    exposure = Exposure(s)
+    exposure.delivered(Sensor(s.sensing, panda).capture(problem.scene, panda.home, 0.0, 0, None), 0.03)
+    assert exposure.first_seen == {"wall": 0.03}
+
+
+def test_reports_count_unseen_collisions_apart():
+    rows = [
+        {
+            "success": False,
+            "status": "collision",
+            "collision_pair": "panda_hand / obstacle:ball",
+            "collision_observed": 0,
+        },
+        {
+            "success": False,
+            "status": "collision",
+            "collision_pair": "panda_hand / obstacle:ball",
+            "collision_observed": 1,
+        },
+        {"success": False, "status": "collision", "collision_pair": "panda_hand / obstacle:ball"},
+    ]
+    assert [failure_reason(r) for r in rows] == ["unseen-collision panda_hand"] + ["collision panda_hand"] * 2
+    assert failure_text(rows) == "collision 2 (panda_hand 2), unseen-collision 1 (panda_hand 1)"
