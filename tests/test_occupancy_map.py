@@ -172,3 +172,18 @@ def test_the_map_settings_go_through_json(free_problem):
     d["sensing"]["map"] = {"hit": 0.3}
     with pytest.raises(ScenarioFileError, match="map hit must be > 0.5"):
         Scenario.from_dict(d)
+
+
+def test_the_compiled_and_the_numpy_update_agree_cell_for_cell():
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(0)
+    maps = [OccupancyMap(np.zeros(3), (20, 30, 40), 0.02, backend=b) for b in ("numba", "numpy")]
+    for _ in range(12):  # random frames, enough to reach both clamps
+        seen = rng.random(maps[0].shape) < 0.6
+        hits = np.unique(rng.integers(0, seen.size, 3000))
+        body = rng.random(maps[0].shape) < 0.05
+        for m in maps:
+            m.integrate(seen.copy(), hits, known=body)
+    (a, b) = maps
+    assert np.array_equal(a.log_odds, b.log_odds) and np.array_equal(a.known, b.known)
+    assert np.array_equal(a.grid().data, b.grid().data) and a.occupied().any() and not a.occupied().all()

@@ -70,3 +70,23 @@ def part_cells(local, part, rotations, translations, lower, resolution, shape, m
         else:
             out[flat] = True
     return False
+
+
+@njit(cache=True)
+def fuse_free(seen, hit, log_odds, known, miss, lowest):  # type: ignore[no-untyped-def]
+    """The map's update of the cells a frame saw free (module docstring of ``occupancy_map``), all
+    arrays flat: a seen cell becomes known, and unless it was hit, its log-odds drop by ``miss``
+    (negative) down to ``lowest``."""
+    for n in range(seen.shape[0]):
+        if seen[n]:
+            known[n] = True
+            if not hit[n]:
+                value = log_odds[n] + miss
+                log_odds[n] = value if value > lowest else lowest
+
+
+@njit(cache=True)
+def above(log_odds, threshold, out):  # type: ignore[no-untyped-def]
+    """``out[n] = 1.0`` where ``log_odds[n] > threshold``, else 0.0 (flat arrays)."""
+    for n in range(log_odds.shape[0]):
+        out[n] = 1.0 if log_odds[n] > threshold else 0.0

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planbench.geometry.occupancy import OccupancyGrid
+from planbench.runtime import backend as _backend
 
 __all__ = ["MapSettings", "OccupancyMap"]
 
@@ -74,13 +75,23 @@ class OccupancyMap:
     """A dense log-odds grid (cell ``(0, 0, 0)``'s corner at ``origin`` [m]) fused frame by frame."""
 
     def __init__(
-        self, origin: np.ndarray, shape: tuple[int, int, int], resolution: float, settings: MapSettings | None = None
+        self,
+        origin: np.ndarray,
+        shape: tuple[int, int, int],
+        resolution: float,
+        settings: MapSettings | None = None,
+        backend: str = "auto",
     ) -> None:
+        """``backend``: the update's loops compiled (``"numba"``) or in numpy (``"numpy"``); the
+        same cells and values either way (:mod:`planbench.runtime.backend`; ``"auto"``: numba
+        when installed)."""
         self.settings = settings or MapSettings()
+        self.backend = _backend.resolve(backend)
         self.origin = np.asarray(origin, dtype=float).copy()
         self.resolution = float(resolution)
         self.log_odds = np.zeros(shape, dtype=np.float32)
         self.known = np.zeros(shape, dtype=bool)
+        self._hit_mask = np.zeros(shape, dtype=bool)  # scratch: the cells hit in the frame being fused
         s = self.settings
         self._hit, self._miss = np.float32(_logit(s.hit)), np.float32(_logit(s.miss))
         self._lo, self._hi = np.float32(_logit(s.clamp_min)), np.float32(_logit(s.clamp_max))
@@ -91,21 +102,29 @@ class OccupancyMap:
         return self.log_odds.shape  # type: ignore[return-value]
 
     def integrate(self, seen: np.ndarray, hits: np.ndarray, known: np.ndarray | None = None) -> None:
-        """Fuse one frame: ``seen`` (bool, the map's shape; modified) the cells its rays saw free,
-        ``hits`` the flat indices (C order, unique) of the cells holding its points, ``known``
-        (bool, the map's shape) further cells to mark known without evidence (the arm's own body)."""
+        """Fuse one frame: ``seen`` (bool, the map's shape) the cells its rays saw free, ``hits``
+        the flat indices (C order, unique) of the cells holding its points, ``known`` (bool, the
+        map's shape) further cells to mark known without evidence (the arm's own body)."""
         if seen.shape != self.shape or seen.dtype != np.bool_:
             raise ValueError(
                 f"seen must be a bool array of the map's shape {self.shape}, got {seen.dtype} {seen.shape}"
             )
         hits = np.asarray(hits, dtype=np.int64)
-        log_odds, flat_seen = self.log_odds.reshape(-1), seen.reshape(-1)
-        np.logical_or(self.known, seen, out=self.known)
-        flat_seen[hits] = False  # a hit counts once, as a hit
-        np.add(self.log_odds, self._miss, out=self.log_odds, where=seen)
-        np.maximum(self.log_odds, self._lo, out=self.log_odds, where=seen)
+        log_odds, known_flat = self.log_odds.reshape(-1), self.known.reshape(-1)
+        hit = self._hit_mask.reshape(-1)
+        hit[hits] = True
+        flat_seen = np.ascontiguousarray(seen).reshape(-1)
+        if self.backend == "numba":
+            from planbench.geometry import _compiled  # on use: numba is optional
+
+            _compiled.fuse_free(flat_seen, hit, log_odds, known_flat, self._miss, self._lo)
+        else:
+            free = flat_seen & ~hit
+            np.logical_or(known_flat, flat_seen, out=known_flat)
+            np.add(log_odds, self._miss, out=log_odds, where=free)
+            np.maximum(log_odds, self._lo, out=log_odds, where=free)
+        hit[hits] = False  # the scratch mask back to all false
         log_odds[hits] = np.minimum(log_odds[hits] + self._hit, self._hi)
-        known_flat = self.known.reshape(-1)
         known_flat[hits] = True
         if known is not None:
             np.logical_or(self.known, known, out=self.known)
@@ -116,9 +135,14 @@ class OccupancyMap:
 
     def grid(self) -> OccupancyGrid:
         """The map as a binary occupancy grid whose ``known`` is a copy of the map's."""
-        return OccupancyGrid(
-            self.occupied().astype(np.float64), self.origin.copy(), self.resolution, 0.0, self.known.copy()
-        )
+        data = np.empty(self.shape, dtype=np.float64)
+        if self.backend == "numba":
+            from planbench.geometry import _compiled
+
+            _compiled.above(self.log_odds.reshape(-1), self._threshold, data.reshape(-1))
+        else:
+            np.greater(self.log_odds, self._threshold, out=data, casting="unsafe")
+        return OccupancyGrid(data, self.origin.copy(), self.resolution, 0.0, self.known.copy())
 
     def clear(self) -> None:
         """Forget everything."""

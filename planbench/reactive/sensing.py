@@ -159,7 +159,7 @@ class Sensor:
         q = self._checked_q(q)
         if self.settings.model == "truth":
             return Observation(time=t, grid=self.truth_grid(scene), frame=frame, points=None, scene=scene)
-        cloud, free = self._sense(scene, q, rng)
+        cloud, free = self.sense(scene, q, rng)
         res = self.settings.resolution
         seen = np.zeros(self._shape, dtype=bool)
         for camera, (origin, axes, pixel), lengths in zip(self.settings.cameras, self._frames, free, strict=True):
@@ -221,9 +221,9 @@ class Sensor:
 
     def point_cloud(self, scene: Scene, q: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The (N, 3) points [m] all cameras return, the robot removed (module docstring)."""
-        return self._sense(scene, q, rng)[0]
+        return self.sense(scene, q, rng)[0]
 
-    def _sense(self, scene: Scene, q: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
+    def sense(self, scene: Scene, q: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, list[np.ndarray]]:
         """The point cloud, and per camera the length [m] from the optical centre that each pixel
         saw free (docs/sensing.md, "What a frame knows"): up to the point it returned; up to
         ``max_range`` when nothing was in range; up to ``robot_margin`` short of the arm, or of a
