@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 
 import planbench
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.conformance import conformance_task
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
+from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
 
@@ -117,3 +119,45 @@ def test_every_controller_defaults_to_unknown_as_free(name):
 def free_task() -> ControlTask:
     p = planbench.load_problems("mbm:table_pick/0001")[0]
     return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
+
+
+def _plan_of(task: ControlTask, observation: Observation, **settings) -> tuple[np.ndarray, dict]:
+    """The first path ``ompl-replan`` plans from the start on ``observation`` (start first), and its info."""
+    c = make_controller("ompl-replan", **settings)
+    c.setup(task)
+    q = np.array(task.start, dtype=float)
+    c.reset(q.copy(), np.random.default_rng(0))
+    c.update(observation)
+    c.step(0.0, q.copy(), observation, task.goal)
+    assert c.path is not None, c.info()
+    return np.vstack([q, c.path]), c.info()
+
+
+def _touches(task: ControlTask, scene, path: np.ndarray) -> bool:
+    checker = CollisionChecker(task.robot, scene)
+    dense = [a + u * (b - a) for a, b in zip(path[:-1], path[1:], strict=True) for u in np.linspace(0, 1, 25)]
+    return any(checker.in_collision(x) for x in dense)
+
+
+def test_ompl_replan_safe_mode_does_not_plan_through_an_unknown_block_near_its_path(free_task):
+    robot = free_task.robot
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    seen_all = Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=np.ones(grid.shape, bool)))
+    path, _ = _plan_of(free_task, seen_all)
+    dense = [a + u * (b - a) for a, b in zip(path[:-1], path[1:], strict=True) for u in np.linspace(0, 1, 25)]
+    # a 10 cm cube no camera saw, on the hand's way, within 0.3 m of it (near the arm) and off the arm
+    hands = [robot.frame_pose(x, free_task.goal.pose.frame).translation for x in dense]
+    start_checker = CollisionChecker(robot, Scene())
+    for hand in hands:
+        centre = grid.origin + (grid.index_of(hand[None])[0] + 0.5) * grid.resolution
+        block = Scene((Obstacle("unseen", "box", position=tuple(centre), size=(0.1, 0.1, 0.1)),))
+        start_checker = CollisionChecker(robot, block)
+        if np.linalg.norm(hand - hands[0]) < 0.28 and not start_checker.in_collision(path[0]):
+            break
+    assert np.linalg.norm(hand - hands[0]) < 0.28 and not start_checker.in_collision(path[0])
+    blind = unknown_block(grid, centre, half=2)
+    through, _ = _plan_of(free_task, blind)  # "free": the same plan, through the block
+    assert _touches(free_task, block, through)
+    around, info = _plan_of(free_task, blind, unknown="occupied")
+    assert info["unknown_boxes"] > 0 and info["failed_plans"] == 0
+    assert not _touches(free_task, block, around)
