@@ -39,11 +39,11 @@ import numpy as np
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
-from planbench.geometry.occupancy import OccupancyGrid
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes, cell_scene
 from planbench_plugins.controllers.unknown import UnknownSettings, arm_spheres, near_unknown
