@@ -3,6 +3,7 @@ depth cameras (front surfaces, range noise, dropout, max range, the robot remove
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -14,6 +15,7 @@ import trimesh
 
 from conftest import box
 from planbench import Obstacle, OccupancyGrid, Scene
+from planbench.reactive.meshes import geometry_triangles
 from planbench.reactive.scenario import CameraSettings, SensingSettings
 from planbench.reactive.sensing import ROBOT_EDGE, Sensor, camera_rays
 
@@ -240,15 +242,42 @@ def test_a_ray_that_meets_nothing_is_free_up_to_max_range_and_a_dropped_pixel_sa
     assert _state(far, (1.3, 0.0, 0.4)) == "free" and _state(far, (1.41, 0.0, 0.4)) == "unknown"
     blind = cloud_of(panda, wall(1.9), dropout=0.999).grid
     seeing = cloud_of(panda, wall(1.9)).grid
-    assert blind.known.sum() < 0.1 * seeing.known.sum()  # 1 pixel in 1,000 left: its few rays
+    arm = arm_cells(panda, blind, panda.home)
+    assert np.all(blind.known.reshape(-1)[arm])  # the arm's own cells are known without a ray
+    by_rays = [np.count_nonzero(np.delete(g.known.reshape(-1), arm)) for g in (blind, seeing)]
+    assert by_rays[0] < 0.1 * by_rays[1]  # 1 pixel in 1,000 left: its few rays
 
 
-def test_the_arm_and_what_touches_it_are_not_claimed_free(panda):
-    grid = cloud_of(panda, TABLE, Q_ARM, **ARM_CAMERA).grid
+def arm_cells(robot, grid, q):
+    from planbench.reactive.body import ArmBody
+
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution).mark(np.zeros(grid.shape, dtype=bool), q)
+    return np.flatnonzero(body)
+
+
+@pytest.mark.parametrize("memory", ["frame", "map"])
+def test_the_arm_is_known_free_of_obstacles_and_what_touches_it_is_not_claimed_free(panda, memory):
+    settings = replace(depth(**ARM_CAMERA), memory=memory)
+    grid = cloud_of(panda, TABLE, Q_ARM, settings=settings).grid
+    arm = arm_cells(panda, grid, Q_ARM)
+    assert np.all(grid.known.reshape(-1)[arm]) and not np.any(grid.data.reshape(-1)[arm])
+    # every cell the arm's body covers whole is one of them (the cell's 8 corners inside a link)
+    centres = grid.cell_centers().reshape(-1, 3)
+    deep = np.zeros(len(centres), dtype=bool)
+    data, gdata = panda.model.createData(), pin.GeometryData(panda.collision_model)
+    pin.updateGeometryPlacements(panda.model, data, panda.collision_model, gdata, Q_ARM)
+    for obj, M in zip(panda.collision_model.geometryObjects, gdata.oMg, strict=True):
+        mesh = trimesh.Trimesh(*geometry_triangles(obj))
+        near = np.flatnonzero(np.all(np.abs(centres - M.translation) < 0.3, axis=1))
+        corners = centres[near, None, :] + RES / 2 * np.array(list(itertools.product((-1, 1), repeat=3)))
+        inside = mesh.contains(((corners - M.translation) @ M.rotation).reshape(-1, 3)).reshape(-1, 8)
+        deep[near[inside.all(axis=1)]] = True
+    assert deep.sum() > 100 and np.isin(np.flatnonzero(deep), arm).all()
+    # beyond them, a ray stops robot_margin short of the arm it meets, so a free cell holds a point
+    # outside the arm: its centre lies at most half a cell's diagonal inside the arm's surface
     free = grid.known & (grid.data == 0)
-    # a ray stops robot_margin short of the arm it meets, so a free cell holds a point outside the
-    # arm: its centre lies at most half a cell's diagonal inside the arm's surface
-    assert distance_to_robot(panda, Q_ARM, grid.cell_centers()[free]).min() > -RES * math.sqrt(3) / 2
+    free.reshape(-1)[arm] = False
+    assert distance_to_robot(panda, Q_ARM, centres[free.reshape(-1)]).min() > -RES * math.sqrt(3) / 2
 
 
 def test_truth_knows_every_cell(panda):

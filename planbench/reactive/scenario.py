@@ -33,6 +33,7 @@ import numpy as np
 
 from planbench.errors import PlanbenchError, ProblemFileError, ResourceLimitError, ScenarioFileError
 from planbench.files.inputs import InputFileError, read_json
+from planbench.geometry.occupancy_map import MapSettings
 from planbench.problem import Problem
 from planbench.problems.datasets import load_problem
 from planbench.reactive.motion import Motion
@@ -42,6 +43,7 @@ __all__ = ["CameraSettings", "MovingObstacle", "Scenario", "SensingSettings", "S
 
 SCENARIO_FORMAT = "planbench-scenario/1"
 SENSING_MODELS = ("truth", "depth")
+MEMORIES = ("map", "frame")
 BOUNDS_PADDING = 0.1
 """Padding of the default sensing grid around the robot's reach [m]."""
 
@@ -135,6 +137,12 @@ class SensingSettings:
     """Depth points closer than this to the robot's own collision geometry are removed [m]."""
     cameras: tuple[CameraSettings, ...] = ()
     """The depth cameras (``depth`` only; one default camera when empty)."""
+    memory: str = ""
+    """What an observation holds (``depth`` only): ``"map"`` (the default), every frame so far fused
+    into a persistent occupancy map (:mod:`planbench.geometry.occupancy_map`); ``"frame"``, the
+    latest frame alone. Truth sensing observes the whole scene at every frame: ``"frame"``."""
+    map: MapSettings = field(default_factory=MapSettings)
+    """The map's sensor model (``memory="map"``)."""
 
     def __post_init__(self) -> None:
         if self.model not in SENSING_MODELS:
@@ -149,11 +157,24 @@ class SensingSettings:
             raise ValueError(f"robot_margin must be >= 0 [m], got {self.robot_margin}")
         if self.model == "depth" and not self.cameras:
             object.__setattr__(self, "cameras", (CameraSettings(),))
+        if not self.memory:
+            object.__setattr__(self, "memory", "map" if self.model == "depth" else "frame")
+        if self.memory not in MEMORIES:
+            raise ValueError(f"sensing memory must be one of {MEMORIES}, got {self.memory!r}")
+        if self.model == "truth" and self.memory != "frame":
+            raise ValueError(
+                "sensing memory 'map' applies to depth sensing; truth sensing observes the whole scene at "
+                "every frame (leave memory out or use 'frame')"
+            )
+        if not isinstance(self.map, MapSettings):
+            raise ValueError(f"sensing map must be map settings, got {type(self.map).__name__}")
 
     def to_dict(self) -> dict[str, Any]:
-        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "cameras"}
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("cameras", "map")}
         if self.model == "depth":
             d["cameras"] = [_dataclass_dict(c) for c in self.cameras]
+        if self.memory == "map":
+            d["map"] = _dataclass_dict(self.map)
         return d
 
     @classmethod
@@ -162,7 +183,12 @@ class SensingSettings:
             raise ValueError(f"'sensing' must be a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(cls)}
         _no_unknown(d, known, "sensing")
-        args = {k: v for k, v in d.items() if k != "cameras"}
+        args = {k: v for k, v in d.items() if k not in ("cameras", "map")}
+        if "map" in d:
+            if not isinstance(d["map"], dict):
+                raise ValueError("sensing 'map' must be a JSON object")
+            _no_unknown(d["map"], {f.name for f in fields(MapSettings)}, "sensing map")
+            args["map"] = MapSettings(**d["map"])
         cams = d.get("cameras", [])
         if not isinstance(cams, list):
             raise ValueError("sensing 'cameras' must be a list of camera objects")

@@ -54,8 +54,11 @@ from scipy.spatial import cKDTree
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from planbench.geometry.occupancy import OccupancyGrid, cover_block, grid_shape
+from planbench.geometry.occupancy_map import OccupancyMap
 from planbench.geometry.views import mark_seen
+from planbench.reactive.body import ArmBody
 from planbench.reactive.controller import Observation
+from planbench.reactive.meshes import Triangles, geometry_triangles, obstacle_triangles, placed, stack
 from planbench.reactive.scenario import CameraSettings, SensingSettings, default_bounds
 from planbench.robot import Robot
 from planbench.scene import Obstacle, Scene
@@ -65,13 +68,6 @@ __all__ = ["ROBOT_EDGE", "Sensor", "camera_frame", "camera_rays"]
 ROBOT_EDGE = 0.01
 """Longest edge of the subdivided robot meshes of the margin test [m] (the test may drop points
 up to ``ROBOT_EDGE / sqrt(3)`` beyond ``robot_margin``)."""
-SPHERE_SUBDIVISIONS = 3
-"""Icosphere subdivisions of sphere obstacles (1,280 triangles, surface within 0.5 % of r)."""
-ROUND_SECTIONS = 64
-"""Sections around cylinders and capsules (surface within 0.12 % of r)."""
-
-Triangles = tuple[np.ndarray, np.ndarray]
-"""(vertices (V, 3) [m], faces (F, 3) int) of a triangle mesh."""
 
 
 # --- cameras --------------------------------------------------------------------------------------
@@ -100,74 +96,6 @@ def camera_rays(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray]:
     return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-# --- shapes ---------------------------------------------------------------------------------------
-def _shape_key(o: Obstacle) -> tuple[Any, ...]:
-    return (o.type, o.size, o.radius, o.length, o.path, o.scale)
-
-
-@functools.lru_cache(maxsize=256)
-def _shape_triangles(key: tuple[Any, ...]) -> Triangles:
-    """Triangles of an obstacle's shape in its local frame (cached per shape, not per pose)."""
-    kind, size, radius, length, path, scale = key
-    if kind == "box":
-        mesh = trimesh.creation.box(extents=size)
-    elif kind == "sphere":
-        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=radius)
-    elif kind == "cylinder":
-        mesh = trimesh.creation.cylinder(radius=radius, height=length, sections=ROUND_SECTIONS)
-    elif kind == "capsule":
-        mesh = _capsule(radius, length)
-    elif kind == "pointcloud":
-        raise ValueError(
-            "a pointcloud obstacle has no surface for the simulated depth cameras; "
-            "use sensing model 'truth', or give the scene as primitives or meshes"
-        )
-    else:
-        mesh = _load_mesh(path, scale)
-    return _frozen(mesh.vertices), _frozen(mesh.faces.astype(np.int64))
-
-
-def _capsule(radius: float, length: float) -> trimesh.Trimesh:
-    """A capsule centred on its segment along local z (trimesh's docstring and code disagree on
-    where it puts the segment, so centre it here)."""
-    mesh = trimesh.creation.capsule(height=length, radius=radius, count=[ROUND_SECTIONS, ROUND_SECTIONS // 2])
-    mesh.apply_translation(-mesh.bounds.mean(axis=0))
-    return mesh
-
-
-def _load_mesh(path: str, scale: Any) -> trimesh.Trimesh:
-    mesh = trimesh.load(str(path), force="mesh")
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"mesh file {path} holds no triangles")
-    mesh.apply_scale(np.asarray(scale, dtype=float))
-    return mesh
-
-
-def _placed(tri: Triangles, R: np.ndarray, p: np.ndarray) -> Triangles:
-    return tri[0] @ R.T + p, tri[1]
-
-
-def _obstacle_triangles(o: Obstacle) -> Triangles:
-    """An obstacle's triangles in the scene frame."""
-    return _placed(_shape_triangles(_shape_key(o)), o.rotation, np.asarray(o.position, dtype=float))
-
-
-def _stack(parts: list[Triangles]) -> Triangles:
-    """One mesh from many: vertices concatenated, faces offset to match."""
-    if not parts:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
-    return np.concatenate([v for v, _ in parts]), np.concatenate(
-        [f + k for (_, f), k in zip(parts, offsets, strict=True)]
-    )
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a)
-    a.setflags(write=False)
-    return a
-
-
 # --- the robot's own geometry ---------------------------------------------------------------------
 @dataclass(frozen=True)
 class _RobotPart:
@@ -181,26 +109,6 @@ class _RobotPart:
     edge: float  # longest edge of the subdivided mesh [m]
 
 
-def _geometry_triangles(obj: Any) -> Triangles:
-    """Triangles of a pinocchio ``GeometryObject`` in its frame: its mesh file (scaled) or primitive."""
-    import coal
-
-    g = obj.geometry
-    if isinstance(g, coal.Box):
-        mesh = trimesh.creation.box(extents=2.0 * np.asarray(g.halfSide))
-    elif isinstance(g, coal.Sphere):
-        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=g.radius)
-    elif isinstance(g, coal.Cylinder):
-        mesh = trimesh.creation.cylinder(radius=g.radius, height=2.0 * g.halfLength, sections=ROUND_SECTIONS)
-    elif isinstance(g, coal.Capsule):
-        mesh = _capsule(g.radius, 2.0 * g.halfLength)
-    elif obj.meshPath and obj.meshPath not in ("BOX", "SPHERE", "CYLINDER", "CAPSULE"):
-        mesh = _load_mesh(obj.meshPath, obj.meshScale)
-    else:
-        raise ValueError(f"robot collision geometry {obj.name!r}: unsupported shape {type(g).__name__}")
-    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
-
-
 def _robot_part(tri: Triangles) -> _RobotPart:
     v, f = trimesh.remesh.subdivide_to_size(tri[0], tri[1], max_edge=ROBOT_EDGE, max_iter=20)
     edges = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
@@ -211,7 +119,7 @@ def _robot_part(tri: Triangles) -> _RobotPart:
 @functools.lru_cache(maxsize=8)
 def _robot_parts(robot: Robot) -> tuple[_RobotPart, ...]:
     """The robot's collision objects, in ``collision_model`` order (built once per robot)."""
-    return tuple(_robot_part(_geometry_triangles(obj)) for obj in robot.collision_model.geometryObjects)
+    return tuple(_robot_part(geometry_triangles(obj)) for obj in robot.collision_model.geometryObjects)
 
 
 # --- the sensor -----------------------------------------------------------------------------------
@@ -236,6 +144,14 @@ class Sensor:
         self._triangles: dict[Obstacle, Triangles] = {}
         self._data = robot.model.createData()
         self._geometry_data = pin.GeometryData(robot.collision_model)
+        self._shape = grid_shape(self.bounds[0], self.bounds[1], settings.resolution)
+        depth = settings.model == "depth"
+        self._body = ArmBody(robot, self.bounds[0], self._shape, settings.resolution) if depth else None
+        self._map = (
+            OccupancyMap(self.bounds[0], self._shape, settings.resolution, settings.map)
+            if depth and settings.memory == "map"
+            else None
+        )
 
     def capture(self, scene: Scene, q: np.ndarray, t: float, frame: int, rng: np.random.Generator) -> Observation:
         """The observation of ``scene`` captured at time ``t`` [s] with the arm at ``q`` [rad]
@@ -245,12 +161,24 @@ class Sensor:
             return Observation(time=t, grid=self.truth_grid(scene), frame=frame, points=None, scene=scene)
         cloud, free = self._sense(scene, q, rng)
         res = self.settings.resolution
-        seen = np.zeros(grid_shape(self.bounds[0], self.bounds[1], res), dtype=bool)
+        seen = np.zeros(self._shape, dtype=bool)
         for camera, (origin, axes, pixel), lengths in zip(self.settings.cameras, self._frames, free, strict=True):
             mark_seen(seen, self.bounds[0], res, origin, axes, pixel, camera.width, camera.height, lengths)
-        bounds = (self.bounds[0].copy(), self.bounds[1])
-        grid = OccupancyGrid.from_points(cloud, res, bounds=bounds, known=seen)
+        assert self._body is not None  # made for depth sensing
+        body = self._body.mark(np.zeros(self._shape, dtype=bool), q)  # no obstacle is where the arm is
+        if self._map is not None:
+            self._map.integrate(seen, self._hit_cells(cloud), known=body)
+            grid = self._map.grid()
+        else:
+            seen |= body
+            grid = OccupancyGrid.from_points(cloud, res, bounds=(self.bounds[0].copy(), self.bounds[1]), known=seen)
         return Observation(time=t, grid=grid, frame=frame, points=cloud, scene=None)
+
+    def _hit_cells(self, cloud: np.ndarray) -> np.ndarray:
+        """Flat indices (C order, unique) of the grid cells holding a point of ``cloud``."""
+        idx = np.floor((cloud - self.bounds[0]) / self.settings.resolution).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < np.array(self._shape)), axis=1)
+        return np.unique(np.ravel_multi_index(idx[inside].T, self._shape))
 
     # --- truth ----------------------------------------------------------------------------------
     def truth_grid(self, scene: Scene) -> OccupancyGrid:
@@ -303,8 +231,8 @@ class Sensor:
         q = self._checked_q(q)
         poses = self._robot_poses(q)
         scene_tri = self._scene_triangles(scene)
-        robot_tri = _stack([_placed(part.triangles, R, p) for part, (R, p) in zip(self._parts, poses, strict=True)])
-        ranges, robot_hit = self._cast(_stack([scene_tri, robot_tri]), len(scene_tri[1]))
+        robot_tri = stack([placed(part.triangles, R, p) for part, (R, p) in zip(self._parts, poses, strict=True)])
+        ranges, robot_hit = self._cast(stack([scene_tri, robot_tri]), len(scene_tri[1]))
         margin = self.settings.robot_margin
         clouds, rays, start = [], [], 0
         for camera, (origin, dirs) in zip(self.settings.cameras, self._rays, strict=True):
@@ -330,9 +258,9 @@ class Sensor:
     def _scene_triangles(self, scene: Scene) -> Triangles:
         """All obstacles' triangles in the scene frame; an obstacle equal to one of the previous
         frame reuses its triangles."""
-        placed = {o: self._triangles.get(o) or _obstacle_triangles(o) for o in scene.obstacles}
+        placed = {o: self._triangles.get(o) or obstacle_triangles(o) for o in scene.obstacles}
         self._triangles = placed
-        return _stack(list(placed.values()))
+        return stack(list(placed.values()))
 
     def _robot_poses(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """(rotation, translation) of each robot collision object at ``q``."""
