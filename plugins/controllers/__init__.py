@@ -4,21 +4,25 @@ steps run at the control rate on observed occupancy grids (docs/writing-a-contro
 Modules: ``adapter`` (:class:`IKLoopController`: an IK-loop planner's step as a controller),
 ``live`` (the repulsion whose source each frame replaces), ``crop`` (the block of a grid that holds
 its occupied cells), ``cells`` (occupied cells as box obstacles), and one module per controller:
-``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``.
+``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``, ``ompl_replan``; ``unknown``
+(which unknown cells a controller reads as occupied, the ``unknown`` setting of every one).
 """
 
 from planbench_plugins.controllers.adapter import PLANNING_ONLY, IKLoopController
 from planbench_plugins.controllers.cells import cell_scene, observed_scene
-from planbench_plugins.controllers.distance_field import DistanceFieldController
-from planbench_plugins.controllers.edt_field import EDTFieldController
+from planbench_plugins.controllers.distance_field import DistanceFieldController, DistanceFieldControllerConfig
+from planbench_plugins.controllers.edt_field import EDTFieldController, EDTFieldControllerConfig
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField, MatrixFieldController, MatrixFieldControllerConfig
 from planbench_plugins.controllers.matrix_field_qp import MatrixFieldQPController, MatrixFieldQPControllerConfig
+from planbench_plugins.controllers.unknown import UNKNOWN_MODES, UnknownSettings
 
 __all__ = [
     "PLANNING_ONLY",
     "DistanceFieldController",
+    "DistanceFieldControllerConfig",
     "EDTFieldController",
+    "EDTFieldControllerConfig",
     "GridField",
     "IKLoopController",
     "LiveRepulsion",
@@ -26,6 +30,8 @@ __all__ = [
     "MatrixFieldControllerConfig",
     "MatrixFieldQPController",
     "MatrixFieldQPControllerConfig",
+    "UNKNOWN_MODES",
+    "UnknownSettings",
     "cell_scene",
     "observed_scene",
 ]

@@ -24,6 +24,11 @@ scene (``collision_check_every``, ``verify_path``). ``dt`` is replaced by the ta
 period: the step uses it only to keep ``q + qd dt`` within the joint limits, which must be the
 runner's tick. A step that has no valid answer (:class:`~planbench_plugins.ik_loop.StepFailure`,
 e.g. an infeasible QP) gives zero velocity and is counted in :meth:`~IKLoopController.info`.
+
+Unknown cells (``unknown``, :class:`~.unknown.UnknownSettings`): with ``"occupied"``, ``update``
+hands :meth:`~IKLoopController.make_source` the frame with the unknown cells near the arm (at the
+last step's configuration, :mod:`.unknown`) occupied and no ``points`` (the grid is no longer a
+sensor's surfaces only, so the matrix field's surface pass runs on it).
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import numpy as np
 from planbench.problem import Goal
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
+from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import IKLoopConfig, IKLoopPlanner, LoopStepper, Repulsion, StepFailure
 
 __all__ = ["IKLoopController", "PLANNING_ONLY"]
@@ -70,6 +76,8 @@ class IKLoopController(Controller):
         self._counts = {"steps": 0, "frames": 0, "step_failures": 0}
         self._last_failure = ""
         self._largest_push = 0.0
+        self._unknown_cells = 0  # unknown cells read as occupied in the last frame
+        self._counted: np.ndarray | None = None  # which they were (near_unknown's ``before``)
 
     # --- for subclasses ---------------------------------------------------------------------------
     def make_source(self, observation: Observation) -> Repulsion | None:
@@ -103,15 +111,19 @@ class IKLoopController(Controller):
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run: no obstacle known until the first frame, counters at zero."""
         self.repulsion.replace(None)
-        self._require().restart()
+        stepper = self._require()
+        stepper.restart()
+        stepper.kin.update(np.asarray(q, dtype=float))  # where the arm is until the first step
         self._counts = dict.fromkeys(self._counts, 0)
         self._last_failure = ""
         self._largest_push = 0.0
+        self._unknown_cells = 0
+        self._counted = None
 
     def update(self, observation: Observation) -> None:
-        """The repulsion of the new frame replaces the last one's."""
-        self._require()
-        self.repulsion.replace(self.make_source(observation))
+        """The repulsion of the new frame replaces the last one's (its unknown cells near the arm
+        occupied first, with ``unknown = "occupied"``)."""
+        self.repulsion.replace(self.make_source(self.unknown_read(observation)))
         self._counts["frames"] += 1
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
@@ -136,11 +148,26 @@ class IKLoopController(Controller):
         out["last_step_failure"] = self._last_failure
         out["largest_push"] = self._largest_push
         out["field_gain"] = self.repulsion.gain
+        out["unknown_cells"] = self._unknown_cells
         if self.stepper is not None:
             out["hierarchy"] = self.stepper.hierarchy
             out["n_control_points"] = len(self.stepper.control_points)
         out.update(self.extra_info())
         return out
+
+    def unknown_read(self, observation: Observation) -> Observation:
+        """``observation`` as the ``unknown`` setting reads it: itself with ``"free"`` (or when
+        every cell is known), else with the unknown cells near the arm where the last step left it
+        occupied (:func:`.unknown.near_unknown`) and no ``points``."""
+        stepper = self._require()
+        c = self.config
+        if getattr(c, "unknown", "free") == "free" or observation.grid.known is None:
+            return observation
+        arm = (stepper.kin.points, np.asarray(stepper.control_points.radius, dtype=float))
+        cells = near_unknown(observation.grid, [arm], c.unknown_reach, c.unknown_self_margin, self._counted)
+        self._counted = cells
+        self._unknown_cells = 0 if cells is None else int(np.count_nonzero(cells))
+        return dataclasses.replace(observation, grid=unknown_as_occupied(observation.grid, cells), points=None)
 
     # --- internals --------------------------------------------------------------------------------
     def _require(self) -> LoopStepper:

@@ -14,23 +14,34 @@ from planbench.geometry.occupancy import OccupancyGrid, merge_cells
 from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.crop import occupied_part
 
-__all__ = ["cell_scene", "observed_scene"]
+__all__ = ["cell_boxes", "cell_scene", "observed_scene"]
+
+
+def cell_boxes(cells: np.ndarray, origin: np.ndarray, resolution: float, prefix: str = "cells") -> list[Obstacle]:
+    """The ``True`` cells of a bool array (a grid's shape, its corner at ``origin`` [m], cells of
+    ``resolution`` [m]) merged into boxes named ``<prefix>-<k>``; only the block holding them is
+    visited (the merging visits every column)."""
+    columns = np.asarray(cells.any(axis=2))
+    xs, ys = np.flatnonzero(columns.any(axis=1)), np.flatnonzero(columns.any(axis=0))
+    if not len(xs):
+        return []
+    zs = np.flatnonzero(cells[xs[0] : xs[-1] + 1, ys[0] : ys[-1] + 1].any(axis=(0, 1)))
+    lo0 = np.array([xs[0], ys[0], zs[0]])
+    block = cells[xs[0] : xs[-1] + 1, ys[0] : ys[-1] + 1, zs[0] : zs[-1] + 1]
+    obstacles = []
+    for k, (lo_idx, hi_idx) in enumerate(merge_cells(block)):
+        lo = origin + (lo0 + np.asarray(lo_idx)) * resolution
+        size = (np.asarray(hi_idx) - np.asarray(lo_idx)) * resolution
+        obstacles.append(Obstacle(f"{prefix}-{k}", "box", position=tuple(lo + 0.5 * size), size=tuple(size)))
+    return obstacles
 
 
 def cell_scene(grid: OccupancyGrid, threshold: float = 0.5) -> Scene:
     """The cells of ``grid`` with occupancy ``>= threshold`` as a scene of boxes (empty when none)."""
     part = occupied_part(grid)  # the merging visits every column: only those of the occupied block
-    occupied = None if part is None else np.asarray(part.data) >= threshold
-    if part is None or occupied is None or not occupied.any():
+    if part is None:
         return Scene(name="observed-cells")
-    res = part.resolution
-    obstacles = []
-    for k, (lo_idx, hi_idx) in enumerate(merge_cells(occupied)):
-        lo = part.origin + np.asarray(lo_idx) * res
-        size = (np.asarray(hi_idx) - np.asarray(lo_idx)) * res
-        centre = lo + 0.5 * size
-        obstacles.append(Obstacle(f"cells-{k}", "box", position=tuple(centre), size=tuple(size)))
-    return Scene(tuple(obstacles), name="observed-cells")
+    return Scene(tuple(cell_boxes(np.asarray(part.data) >= threshold, part.origin, part.resolution)), "observed-cells")
 
 
 def observed_scene(observation: object) -> tuple[Scene, str]:

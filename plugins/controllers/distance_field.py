@@ -9,11 +9,13 @@ planner's (:func:`~planbench_plugins.potential_fields.khatib_gain` from the stan
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from planbench.reactive.controller import Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.cells import observed_scene
+from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
 from planbench_plugins.potential_fields import (
     DistanceFieldConfig,
@@ -22,15 +24,27 @@ from planbench_plugins.potential_fields import (
     khatib_gain,
 )
 
-__all__ = ["DistanceFieldController"]
+__all__ = ["DistanceFieldController", "DistanceFieldControllerConfig"]
+
+
+@dataclass(frozen=True)
+class DistanceFieldControllerConfig(DistanceFieldConfig, UnknownSettings):
+    """The planner's settings (:class:`~planbench_plugins.potential_fields.DistanceFieldConfig`) and
+    how unknown cells are read (:class:`~.unknown.UnknownSettings`): ``unknown = "occupied"`` adds
+    the unknown cells near the arm, merged into boxes with the occupied ones (:mod:`.cells`), to
+    the geometry coal measures the links' distances to."""
+
+    def validate(self) -> None:
+        super().validate()
+        self.validate_unknown()
 
 
 class DistanceFieldController(IKLoopController):
-    """``distance-field`` as a controller (module docstring). Settings: the planner's,
-    :class:`~planbench_plugins.potential_fields.DistanceFieldConfig`."""
+    """``distance-field`` as a controller (module docstring). Settings:
+    :class:`DistanceFieldControllerConfig`."""
 
     name = "distance-field"
-    Config = DistanceFieldConfig
+    Config = DistanceFieldControllerConfig
     planner_class = DistanceFieldPlanner
 
     def __init__(self, config: Any = None, **settings: Any) -> None:

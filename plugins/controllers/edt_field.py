@@ -12,23 +12,36 @@ gain is the planner's (:func:`~planbench_plugins.potential_fields.khatib_gain` f
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 from planbench.reactive.controller import Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
+from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
 from planbench_plugins.potential_fields import EDTFieldConfig, EDTFieldPlanner, EDTFieldRepulsion, khatib_gain
 
-__all__ = ["EDTFieldController"]
+__all__ = ["EDTFieldController", "EDTFieldControllerConfig"]
+
+
+@dataclass(frozen=True)
+class EDTFieldControllerConfig(EDTFieldConfig, UnknownSettings):
+    """The planner's settings (:class:`~planbench_plugins.potential_fields.EDTFieldConfig`) and how
+    unknown cells are read (:class:`~.unknown.UnknownSettings`): ``unknown = "occupied"`` adds the
+    unknown cells near the arm to the grid whose distance transform pushes, so the distance a
+    control point keeps is to the nearest obstacle or unseen cell."""
+
+    def validate(self) -> None:
+        super().validate()
+        self.validate_unknown()
 
 
 class EDTFieldController(IKLoopController):
-    """``edt-field`` as a controller (module docstring). Settings: the planner's,
-    :class:`~planbench_plugins.potential_fields.EDTFieldConfig`."""
+    """``edt-field`` as a controller (module docstring). Settings: :class:`EDTFieldControllerConfig`."""
 
     name = "edt-field"
-    Config = EDTFieldConfig
+    Config = EDTFieldControllerConfig
     planner_class = EDTFieldPlanner
 
     def make_source(self, observation: Observation) -> Repulsion | None:

@@ -36,6 +36,7 @@ from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.controller import Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
+from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
 
@@ -43,9 +44,12 @@ __all__ = ["GridField", "MatrixFieldController", "MatrixFieldControllerConfig"]
 
 
 @dataclass(frozen=True)
-class MatrixFieldControllerConfig(MatrixFieldConfig):
+class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings):
     """The planner's settings (:class:`~planbench_plugins.matrix_field.MatrixFieldConfig`), with the
-    cheaper field mode for a grid that changes every frame (module docstring).
+    cheaper field mode for a grid that changes every frame (module docstring), and how unknown
+    cells are read (:class:`~.unknown.UnknownSettings`): ``unknown = "occupied"`` adds the unknown
+    cells near the arm to the grid whose field pushes, so the arm keeps the stand-off from space
+    no camera saw as from an obstacle's surface (the surface pass keeps their boundary).
 
     ``grid_resolution`` is not used: the kernels are built at the resolution of the grid observed.
     ``dt``, ``escape_attempts``, ``collision_check_every`` and ``verify_path`` are planning settings
@@ -54,6 +58,10 @@ class MatrixFieldControllerConfig(MatrixFieldConfig):
     field_mode: str = "lazy"
     """``"lazy"``: window sums at the control points every step (default: measured cheaper for a
     grid observed at 30 frames/s, module docstring); ``"full"``: the whole field every frame."""
+
+    def validate(self) -> None:
+        super().validate()
+        self.validate_unknown()
 
 
 class GridField:

@@ -27,6 +27,7 @@ from planbench.scene import Scene
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.cells import observed_scene
 from planbench_plugins.controllers.matrix_field import GridField
+from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import DistanceModel, IKLoopPlanner, Repulsion
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner
 
@@ -34,12 +35,19 @@ __all__ = ["MatrixFieldQPController", "MatrixFieldQPControllerConfig"]
 
 
 @dataclass(frozen=True)
-class MatrixFieldQPControllerConfig(MatrixFieldQPConfig):
+class MatrixFieldQPControllerConfig(MatrixFieldQPConfig, UnknownSettings):
     """The planner's settings (:class:`~planbench_plugins.matrix_field_qp.MatrixFieldQPConfig`)
-    with the lazy field, as :class:`~.matrix_field.MatrixFieldControllerConfig` (same reasons)."""
+    with the lazy field, as :class:`~.matrix_field.MatrixFieldControllerConfig` (same reasons).
+    ``unknown = "occupied"`` (:class:`~.unknown.UnknownSettings`) adds the unknown cells near the
+    arm to both the field's grid and the collision constraints' boxes: the velocity dampers then
+    keep the links out of unseen space as out of an obstacle."""
 
     field_mode: str = "lazy"
     """``"lazy"``: window sums at the control points every step; ``"full"``: the whole field every frame."""
+
+    def validate(self) -> None:
+        super().validate()
+        self.validate_unknown()
 
 
 class MatrixFieldQPController(IKLoopController):

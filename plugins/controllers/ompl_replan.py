@@ -13,6 +13,18 @@ the path at ``speed_scale`` of every joint's velocity limit. On every new frame 
 rad; when it collides, the controller commands a stop in that tick and replans in the next, so
 that the command the runner holds while the planning time is charged (as on a robot) is the stop,
 not the old path's velocity. A failed plan leaves the arm still until the next frame.
+
+**Safe mode** (``unknown = "occupied"``; default ``"free"``, :class:`~.unknown.UnknownSettings`):
+on every frame, the cells the observation did not see (``grid.known``) within ``unknown_reach`` of
+the arm where it is count as obstacles, merged into boxes with the occupied cells, both for the
+check of the rest of the path and for a plan from there: a receding horizon of known-free space.
+The path is re-checked on every frame, and the arm moves less than ``unknown_reach`` between two
+frames (a frame's period, its latency and a held command at the scaled velocity limits), so the
+follower never leaves known-free space: it stops (instantly: the runner has no acceleration limit)
+where the rest of the path would enter unknown cells, and plans around them from there. Left out:
+the arm's own cells (its body, spheres along the links plus ``unknown_self_margin``, at its
+configuration and at the goal's, which the task asserts reachable; the sensor blinds itself
+there) and, as for observed cells, the unknown boxes the arm already touches where a plan starts.
 """
 
 from __future__ import annotations
@@ -27,19 +39,23 @@ import numpy as np
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
-from planbench_plugins.controllers.cells import cell_scene
+from planbench_plugins.controllers.cells import cell_boxes, cell_scene
+from planbench_plugins.controllers.unknown import UnknownSettings, arm_spheres, near_unknown
+from planbench_plugins.ik_loop import place_control_points
 
 __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 
 
 @dataclass(frozen=True)
-class OMPLReplanConfig:
-    """Settings of ``ompl-replan``."""
+class OMPLReplanConfig(UnknownSettings):
+    """Settings of ``ompl-replan``. ``unknown = "occupied"`` is its safe mode (module docstring):
+    the unknown cells near the arm are obstacles for the path's checks and plans."""
 
     planner: str = "ompl-rrtconnect"
     """The registered static planner that (re)plans."""
@@ -63,6 +79,7 @@ class OMPLReplanConfig:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
+        self.validate_unknown()
 
 
 class OMPLReplanController(Controller):
@@ -75,6 +92,10 @@ class OMPLReplanController(Controller):
         self.task = task
         self.planner = REGISTRY.make(self.config.planner)
         self.vmax = self.config.speed_scale * np.asarray(task.robot.velocity_limit, dtype=float)
+        self.safe = self.config.unknown == "occupied"
+        self.points = place_control_points(task.robot) if self.safe else None  # the arm's body, as spheres
+        goal_q = task.goal.q
+        self.goal_arm = arm_spheres(task.robot, self.points, goal_q) if self.safe and goal_q is not None else None
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         self.rng = rng
@@ -83,13 +104,17 @@ class OMPLReplanController(Controller):
         self.checker: CollisionChecker | None = None
         self.frame_checker: CollisionChecker | None = None
         self.scene: Scene | None = None
+        self.grid: OccupancyGrid | None = None  # the last frame's, for its unknown cells (safe mode)
+        self.counted: np.ndarray | None = None  # the unknown cells counted on the last frame
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
+        self.stats["unknown_boxes"] = 0  # on the last frame (safe mode)
 
     def update(self, observation: Observation) -> None:
         self.scene = observation.scene if observation.scene is not None else self._cells(observation)
+        self.grid = observation.grid
         self.checker = None  # built when first needed (in the step: it is part of checking)
         self.frame_checker = None  # the whole observed scene's
         self.fresh = True
@@ -99,6 +124,8 @@ class OMPLReplanController(Controller):
             return np.zeros_like(q)
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
             self.fresh, self.may_plan = False, True
+            if self.safe:
+                self.scene = self._with_unknown(q)
             if self.path is not None and not self._rest_free(q):
                 self.stats["invalidated"] += 1
                 self.path = None
@@ -128,6 +155,22 @@ class OMPLReplanController(Controller):
             for o in scene.obstacles
         )
         return Scene(shrunk, scene.name)
+
+    def _with_unknown(self, q: np.ndarray) -> Scene:
+        """The frame's scene plus its unknown cells near the arm at ``q`` as boxes (safe mode)."""
+        assert self.scene is not None and self.grid is not None and self.points is not None
+        arms = [arm_spheres(self.task.robot, self.points, q)]
+        if self.goal_arm is not None:
+            arms.append(self.goal_arm)
+        c = self.config
+        cells = near_unknown(self.grid, arms, c.unknown_reach, c.unknown_self_margin, self.counted)
+        self.counted = cells
+        if cells is None or not cells.any():
+            self.stats["unknown_boxes"] = 0
+            return self.scene
+        obstacles = cell_boxes(cells, self.grid.origin, self.grid.resolution, "unknown")
+        self.stats["unknown_boxes"] = len(obstacles)
+        return Scene((*self.scene.obstacles, *obstacles), self.scene.name)
 
     def _plan(self, q: np.ndarray) -> None:
         task = self.task
