@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 import planbench
+from planbench.checking.collision import CollisionChecker
 from planbench.errors import UnknownNameError
 from planbench.problems import generators
 from planbench.problems.datasets import problem_sets
 from planbench.robot import Robot, RobotSettings, example_robot_data_dir
+from planbench.scene import Scene
 from planbench.validate import verdict_checker
 
 GEN_DIR = resources.files("planbench") / "data" / "gen"
@@ -86,7 +88,9 @@ def test_regenerating_the_whole_set_gives_the_shipped_problems(tmp_path):
 def test_manifest_matches_the_files():
     manifest = json.loads((GEN_DIR / "manifest.json").read_text())
     assert manifest["generator"] == generators.GENERATOR
-    assert sorted(manifest["sets"]) == [f"{r}_{f}" for r in ("panda", "ur5") for f in sorted(generators.FAMILIES)]
+    robots = ("panda", "ur5", "xarm7")
+    assert generators.SHIPPED_ROBOTS == robots
+    assert sorted(manifest["sets"]) == [f"{r}_{f}" for r in robots for f in sorted(generators.FAMILIES)]
     for name, entry in manifest["sets"].items():
         text = (GEN_DIR / entry["file"]).read_text()
         assert hashlib.sha256(text.encode()).hexdigest() == entry["sha256"], name
@@ -100,8 +104,8 @@ def test_shipped_problems_are_valid():
     """Every shipped start and goal within limits and collision-free, the goal's end effector on its
     target; on a sample, the straight line collides (no trivial problem)."""
     problems = planbench.load_problems("gen")
-    assert len(problems) == 200
-    assert len({p.id for p in problems}) == 200
+    assert len(problems) == 300
+    assert len({p.id for p in problems}) == 300
     for p in problems:
         assert p.check().ok, (p.id, p.check().messages())
         assert np.linalg.norm(p.goal.pose.position - np.array(p.metadata["target"])) < 1e-3, p.id
@@ -123,9 +127,24 @@ def test_selectors():
     ur5 = planbench.load_problems("gen:ur5_*")
     assert len(ur5) == 100 and {p.robot.name for p in ur5} == {"ur5"}
     windows = planbench.load_problems("gen:*_window/0007")
-    assert [p.id for p in windows] == ["gen:panda_window/0007", "gen:ur5_window/0007"]
+    assert [p.id for p in windows] == ["gen:panda_window/0007", "gen:ur5_window/0007", "gen:xarm7_window/0007"]
     assert planbench.problems.datasets.load_problem("gen:panda_table_clutter/0025").robot.name == "panda"
     assert "gen" in problem_sets() and "ur5_pillars" in problem_sets()["gen"]
+    full, bare = (planbench.load_problems(f"gen:ur5_table_clutter/0002{s}")[0] for s in ("", ":bare"))
+    assert bare.id == "gen:ur5_table_clutter/0002:bare" and bare.scene.name == full.scene.name + "-bare"
+    assert {o.name for o in bare.scene.obstacles} == {o.name for o in full.scene.obstacles if o.name[:6] != "object"}
+    assert "table_top" in {o.name for o in bare.scene.obstacles} and len(bare.scene.obstacles) < len(full.scene.obstacles)
+    assert len(planbench.load_problems("gen:xarm7_*/0001:bare")) == 4
+
+
+def test_the_xarm7_loads_with_its_limits_and_a_free_home():
+    robot = planbench.load_robot("xarm7")
+    assert robot.nq == 7 and robot.settings.ee_frame == "link_eef"
+    assert np.allclose(robot.model.velocityLimit, 3.14)  # the URDF's, every joint
+    home = np.array(robot.settings.home)
+    assert not robot.limit_violations(home)
+    assert not CollisionChecker(robot, Scene()).in_collision(home)  # no self-contact
+    assert all(p.robot.name == "xarm7" for p in planbench.load_problems("gen:xarm7_table_clutter/0001-0003"))
 
 
 def test_unknown_family_is_named():

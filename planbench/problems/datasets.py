@@ -9,7 +9,11 @@ Selectors:
   :mod:`planbench.problems.generators`); ``gen:<robot>_<family>/0001-0003``, ``gen:ur5_*``, ``gen:*_shelf``;
 - ``examples`` or ``examples:<name>``: the shipped example problems (``planbench/data/examples``),
   e.g. ``examples:depth_camera_table``, a depth-camera point cloud (:mod:`planbench.reactive.depth_example`);
-- a path to a problem JSON file, or to a folder of them.
+- a path to a problem JSON file, or to a folder of them;
+- any ``mbm:`` or ``gen:`` selector with ``:bare`` after it (``gen:ur5_table_clutter/0002:bare``):
+  the same problems with their clutter removed, every obstacle named ``object*`` (a table's
+  objects; the table, its legs, shelves and the floor stay). Their ids and scene names end in
+  ``:bare`` / ``-bare``. The ``dynamic`` scenario set uses them, so that its moving obstacles are the challenge.
 
 The MotionBenchMaker data ships inside planbench (``planbench/data/mbm``, with its README as
 attribution and licence notice: Apache-2.0 via VAMP, generated with BSD-3-Clause MotionBenchMaker).
@@ -18,6 +22,7 @@ attribution and licence notice: Apache-2.0 via VAMP, generated with BSD-3-Clause
 from __future__ import annotations
 
 import collections
+import dataclasses
 import fnmatch
 import functools
 import json
@@ -93,6 +98,8 @@ def _mbm_problem(d: dict[str, Any], family: dict[str, Any]) -> Problem:
 def load_problems(selector: str | Path) -> list[Problem]:
     """Problems named by ``selector`` (see the module docstring), in a stable order."""
     text = str(selector)
+    if text.endswith(BARE) and text.partition(":")[0] in ("mbm", "gen"):
+        return [_bare(p) for p in load_problems(text.removesuffix(BARE))]
     if text == "mbm" or text.startswith("mbm:"):
         return _load_mbm(text.partition(":")[2] or "*")
     if text == "gen" or text.startswith("gen:"):
@@ -110,6 +117,16 @@ def load_problems(selector: str | Path) -> list[Problem]:
     names = ["mbm", "mbm:*", *(f"mbm:{f}" for f in mbm_families()), "gen:*", *(f"gen:{s}" for s in shipped_sets())]
     names += ["examples", *(f"examples:{n}" for n in example_names())]
     raise UnknownNameError("problem set or file", text, names)
+
+
+BARE = ":bare"
+"""The selector suffix that removes a problem's clutter (module docstring)."""
+
+
+def _bare(problem: Problem) -> Problem:
+    kept = tuple(o for o in problem.scene.obstacles if not o.name.startswith("object"))
+    scene = Scene(kept, problem.scene.name + "-bare")
+    return dataclasses.replace(problem, scene=scene, id=problem.id + BARE)
 
 
 _ONE: collections.OrderedDict[str, Problem] = collections.OrderedDict()
