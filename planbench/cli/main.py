@@ -64,7 +64,9 @@ def cmd_list(args: argparse.Namespace) -> int:
     sets.add_column("content")
     for name, what in problem_sets().items():
         sets.add_row(name, what)
-    sets.add_row("dynamic", "108 closed-loop scenarios (Panda, UR5; moving obstacles; truth and depth sensing)")
+    sets.add_row("dynamic", "432 closed-loop scenarios (Panda, UR5, xArm7; moving obstacles; truth and depth sensing)")
+    sets.add_row("dynamic-tune", "144 of them (3 base problems, one per robot): tune controllers' defaults here")
+    sets.add_row("dynamic-test", "the other 288 (6 base problems): measure here")
     sets.add_row("dynamic-smoke", "4 of them, for the dynamic-smoke suite")
     console.print(sets)
     return 0

@@ -2,7 +2,9 @@
 
 Selectors:
 
-- ``"dynamic"``: the 108 shipped scenarios (:mod:`planbench.reactive.generator`);
+- ``"dynamic"``: the 432 shipped scenarios (:mod:`planbench.reactive.generator`), the union of
+  ``"dynamic-tune"`` (the scenarios of a third of the base problems, one per robot: tune a
+  controller's defaults on these) and ``"dynamic-test"`` (the rest: measure on these);
   ``"dynamic-smoke"``: the 4 of the smoke suite.
 - ``"dynamic:panda_crossing_fast_truth"`` (a family: robot, behaviour, speed, sensing), with
   ``/0001`` or ``/0001-0003`` for problems of the base set, and ``*`` in any part
@@ -24,7 +26,10 @@ from planbench.errors import PlanbenchError, ScenarioFileError, UnknownNameError
 from planbench.problems.datasets import load_one
 from planbench.reactive.scenario import Scenario
 
-__all__ = ["load_scenario", "load_scenarios", "scenario_names"]
+__all__ = ["SPLITS", "load_scenario", "load_scenarios", "scenario_names"]
+
+SPLITS = ("dynamic-tune", "dynamic-test")
+"""The shipped set's halves by base problem (:data:`planbench.reactive.generator.TUNE_PROBLEMS`)."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -47,6 +52,9 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
     if text == "dynamic-smoke":
         chosen = set(data["smoke"])
         return [_build(d) for d in data["scenarios"] if d["name"] in chosen]
+    if text in SPLITS:
+        split = text.removeprefix("dynamic-")
+        return [_build(d) for d in data["scenarios"] if d["metadata"].get("split") == split]
     if text.startswith("dynamic:"):
         family, _, rng = text.partition(":")[2].partition("/")
         lo, hi = _range(rng, text)
@@ -58,7 +66,7 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
         if not found:
             families = sorted({d["name"].partition(":")[2].split("/")[0] for d in data["scenarios"]})
             raise UnknownNameError(
-                "scenario set", text, ["dynamic", "dynamic-smoke", *(f"dynamic:{f}" for f in families)]
+                "scenario set", text, ["dynamic", *SPLITS, "dynamic-smoke", *(f"dynamic:{f}" for f in families)]
             )
         return found
     path = Path(text)
@@ -69,7 +77,9 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
         return [Scenario.load(f) for f in files]
     if path.is_file() or (path.exists() and text.endswith(".json")):  # a FIFO or a device: named by Scenario.load
         return [Scenario.load(path)]
-    raise UnknownNameError("scenario set or file", text, ["dynamic", "dynamic-smoke", "dynamic:<family>[/<range>]"])
+    raise UnknownNameError(
+        "scenario set or file", text, ["dynamic", *SPLITS, "dynamic-smoke", "dynamic:<family>[/<range>]"]
+    )
 
 
 _ONE: collections.OrderedDict[str, Scenario] = collections.OrderedDict()
