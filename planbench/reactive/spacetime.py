@@ -177,20 +177,24 @@ def _avoiding(scenario: Scenario, window: tuple[float, float], interval: float) 
 
 
 # --- timing ---------------------------------------------------------------------------------
-def _resample(path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, upper: Any) -> np.ndarray:
+def _resample(
+    path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, upper: Any
+) -> tuple[np.ndarray, np.ndarray]:
     """Points along ``path`` at most ``spacing`` [s] apart at speed ``vmax`` (every joint within
-    its share), rounded as a certificate is written; the first point (the start) whole."""
+    its share), its vertices among them, rounded as a certificate is written (the first point, the
+    start, whole); and the indices of the vertices (a move spanning one would cut its corner)."""
     keep = np.concatenate([[True], np.abs(np.diff(path, axis=0)).max(axis=1) > 0])
     path = path[keep]
-    if len(path) < 2:
-        return path
-    tau = np.concatenate([[0.0], np.cumsum(np.max(np.abs(np.diff(path, axis=0)) / vmax, axis=1))])
-    n = max(1, math.ceil(tau[-1] / spacing))
-    s = np.linspace(0.0, tau[-1], n + 1)
-    points = np.stack([np.interp(s, tau, path[:, j]) for j in range(path.shape[1])], axis=1)
+    pieces = [path[:1]]
+    vertices = [0]
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        n = max(1, math.ceil(float(np.max(np.abs(b - a) / vmax)) / spacing))
+        pieces.append(a + np.outer(np.arange(1, n + 1) / n, b - a))
+        vertices.append(vertices[-1] + n)
+    points = np.concatenate(pieces)
     rounded = np.clip(np.round(points, ANGLE_DECIMALS), lower, upper)
     rounded[0] = path[0]
-    return rounded
+    return rounded, np.asarray(vertices)
 
 
 def _timed(
@@ -203,11 +207,11 @@ def _timed(
     dt = m * T
     R = int(s.increments)
     vmax = np.asarray(robot.velocity_limit, dtype=float) * s.speed_scale
-    points = _resample(path, vmax, dt / R, robot.lower, robot.upper)
+    points, vertices = _resample(path, vmax, dt / R, robot.lower, robot.upper)
     steps = math.floor(scenario.horizon / dt + 1e-9)
     cache: dict[tuple[int, int, int], bool] = {}
     for _ in range(s.repairs + 1):
-        moves = _astar(checker, points, steps, dt, R, cache, deadline)
+        moves = _astar(checker, points, vertices, steps, dt, R, cache, deadline)
         if moves is None:
             return "no timing along a path reaches the goal within the horizon"
         if isinstance(moves, str):
@@ -228,6 +232,7 @@ def _timed(
 def _astar(
     checker: TickChecker,
     points: np.ndarray,
+    vertices: np.ndarray,
     steps: int,
     dt: float,
     R: int,
@@ -235,7 +240,7 @@ def _astar(
     deadline: float,
 ) -> list[int] | str | None:
     """The path point at each step, from the start to the last point, arriving first; None when
-    no timing reaches it within ``steps`` steps."""
+    no timing reaches it within ``steps`` steps. A move spans no vertex of the path."""
     N = len(points) - 1
     if N == 0:
         return [0]
@@ -267,7 +272,10 @@ def _astar(
             return moves[::-1]
         if k >= steps:
             continue
-        for n2 in range(max(0, n - R), min(N, n + R) + 1):
+        v = int(np.searchsorted(vertices, n))  # vertices[v - 1] < n <= vertices[v]
+        lo = vertices[v - 1] if v > 0 else 0
+        hi = vertices[v + 1] if vertices[v] == n and v + 1 < len(vertices) else vertices[min(v, len(vertices) - 1)]
+        for n2 in range(max(lo, n - R), min(hi, n + R) + 1):
             if (k + 1, n2) not in parent and cache.get((k, n, n2)) is not False:
                 heapq.heappush(heap, (k + 1 + _h(n2, N, R), -n2, k + 1, n2, n))
     return None
