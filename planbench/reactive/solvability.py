@@ -70,7 +70,7 @@ def verify_certificate(scenario: Scenario, certificate: Certificate | None = Non
         raise ValueError(f"the certificate's configurations have {cert.nq} joint values, the robot has {robot.nq}")
     record = certificate_record(scenario, cert)
     metrics = evaluate_run(scenario, record)
-    failure = metrics.failure or _rules(scenario, cert, record)
+    failure = _rules(scenario, cert, record) or metrics.failure
     if not failure and abs(metrics.time_to_goal - cert.time_to_goal) > 1e-6:
         claim, real = cert.time_to_goal, metrics.time_to_goal
         failure = f"the certificate says it reaches the goal at {claim:g} s; it does at {real:g} s"
