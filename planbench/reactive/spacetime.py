@@ -181,8 +181,9 @@ def _resample(
     path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, upper: Any
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points along ``path`` at most ``spacing`` [s] apart at speed ``vmax`` (every joint within
-    its share), its vertices among them, rounded as a certificate is written (the first point, the
-    start, whole); and the indices of the vertices (a move spanning one would cut its corner)."""
+    its share), rounded as a certificate is written (the first point, the start, whole); and the
+    indices of its vertices, which are among them: a move may cut a corner when that is certified
+    free, and can always stop at the vertex (in a bookshelf every cut was refused)."""
     keep = np.concatenate([[True], np.abs(np.diff(path, axis=0)).max(axis=1) > 0])
     path = path[keep]
     pieces = [path[:1]]
@@ -207,11 +208,11 @@ def _timed(
     dt = m * T
     R = int(s.increments)
     vmax = np.asarray(robot.velocity_limit, dtype=float) * s.speed_scale
-    points, vertices = _resample(path, vmax, dt / R, robot.lower, robot.upper)
+    points, _ = _resample(path, vmax, dt / R, robot.lower, robot.upper)
     steps = math.floor(scenario.horizon / dt + 1e-9)
     cache: dict[tuple[int, int, int], bool] = {}
     for _ in range(s.repairs + 1):
-        moves = _astar(checker, points, vertices, steps, dt, R, cache, deadline)
+        moves = _astar(checker, points, steps, dt, R, cache, deadline)
         if moves is None:
             return "no timing along a path reaches the goal within the horizon"
         if isinstance(moves, str):
@@ -232,7 +233,6 @@ def _timed(
 def _astar(
     checker: TickChecker,
     points: np.ndarray,
-    vertices: np.ndarray,
     steps: int,
     dt: float,
     R: int,
@@ -240,7 +240,7 @@ def _astar(
     deadline: float,
 ) -> list[int] | str | None:
     """The path point at each step, from the start to the last point, arriving first; None when
-    no timing reaches it within ``steps`` steps. A move spans no vertex of the path."""
+    no timing reaches it within ``steps`` steps."""
     N = len(points) - 1
     if N == 0:
         return [0]
@@ -272,10 +272,7 @@ def _astar(
             return moves[::-1]
         if k >= steps:
             continue
-        v = int(np.searchsorted(vertices, n))  # vertices[v - 1] < n <= vertices[v]
-        lo = vertices[v - 1] if v > 0 else 0
-        hi = vertices[v + 1] if vertices[v] == n and v + 1 < len(vertices) else vertices[min(v, len(vertices) - 1)]
-        for n2 in range(max(lo, n - R), min(hi, n + R) + 1):
+        for n2 in range(max(0, n - R), min(N, n + R) + 1):
             if (k + 1, n2) not in parent and cache.get((k, n, n2)) is not False:
                 heapq.heappush(heap, (k + 1 + _h(n2, N, R), -n2, k + 1, n2, n))
     return None
