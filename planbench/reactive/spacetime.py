@@ -177,25 +177,20 @@ def _avoiding(scenario: Scenario, window: tuple[float, float], interval: float) 
 
 
 # --- timing ---------------------------------------------------------------------------------
-def _resample(
-    path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, upper: Any
-) -> tuple[np.ndarray, np.ndarray]:
+def _resample(path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, upper: Any) -> np.ndarray:
     """Points along ``path`` at most ``spacing`` [s] apart at speed ``vmax`` (every joint within
-    its share), rounded as a certificate is written (the first point, the start, whole); and the
-    indices of its vertices, which are among them: a move may cut a corner when that is certified
-    free, and can always stop at the vertex (in a bookshelf every cut was refused)."""
+    its share), rounded as a certificate is written (the first point, the start, whole). The
+    path's vertices are among them: a move may cut a corner where that is certified free, and can
+    always stop at the vertex (in a bookshelf every cut was refused)."""
     keep = np.concatenate([[True], np.abs(np.diff(path, axis=0)).max(axis=1) > 0])
     path = path[keep]
     pieces = [path[:1]]
-    vertices = [0]
     for a, b in zip(path[:-1], path[1:], strict=True):
         n = max(1, math.ceil(float(np.max(np.abs(b - a) / vmax)) / spacing))
         pieces.append(a + np.outer(np.arange(1, n + 1) / n, b - a))
-        vertices.append(vertices[-1] + n)
-    points = np.concatenate(pieces)
-    rounded = np.clip(np.round(points, ANGLE_DECIMALS), lower, upper)
+    rounded = np.clip(np.round(np.concatenate(pieces), ANGLE_DECIMALS), lower, upper)
     rounded[0] = path[0]
-    return rounded, np.asarray(vertices)
+    return rounded
 
 
 def _timed(
@@ -208,7 +203,7 @@ def _timed(
     dt = m * T
     R = int(s.increments)
     vmax = np.asarray(robot.velocity_limit, dtype=float) * s.speed_scale
-    points, _ = _resample(path, vmax, dt / R, robot.lower, robot.upper)
+    points = _resample(path, vmax, dt / R, robot.lower, robot.upper)
     steps = math.floor(scenario.horizon / dt + 1e-9)
     cache: dict[tuple[int, int, int], bool] = {}
     for _ in range(s.repairs + 1):
