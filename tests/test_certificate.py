@@ -201,3 +201,20 @@ def test_check_scenario_bad_input_is_a_named_error_with_exit_2(solved, tmp_path,
     assert main(["check-scenario", *args]) == 2
     err = capsys.readouterr().err
     assert says in err and "Traceback" not in err
+
+
+def test_the_report_tables_put_the_certificate_beside_the_controllers(solved, tmp_path):
+    from planbench.bench.report import CERTIFICATE, certificate_rows, summarize
+
+    path = tmp_path / "waiting.json"
+    path.write_text(json.dumps(solved.to_dict()))
+    run = {"suite": "s", "problem": str(path), "family": "f", "planner": "ctl", "seed": 0, "success": True}
+    run.update(status="success", deadline_misses=0, time_to_goal=2.5)
+    rows = [run, dict(run, seed=1, time_to_goal=3.5)]
+    extra = certificate_rows(rows)
+    assert [r["planner"] for r in extra] == [CERTIFICATE]  # one per scenario, not per run
+    lines = {s["planner"]: s for s in summarize([*rows, *extra], ("planner", "family"))}
+    assert lines[CERTIFICATE]["time_to_goal_median"] == pytest.approx(solved.certificate.time_to_goal)
+    assert lines["ctl"]["time_to_goal_median"] == pytest.approx(3.0)
+    bare = _file(tmp_path, solved, "bare.json")  # no scenario with a certificate: no line
+    assert certificate_rows([dict(run, problem=str(bare)), dict(run, problem="dynamic:none/0001")]) == []
