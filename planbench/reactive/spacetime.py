@@ -69,20 +69,26 @@ class SpaceTimeSettings:
     """Time limit of one geometric plan [s]."""
     sweep_interval: float = 0.2
     """Time between the copies of a moving obstacle in a path that avoids its swept volume [s]."""
+    improve: int = 3
+    """Further paths timed when the first certificate waits (holds the arm still longer than
+    ``patience``), each bounded to arrive sooner; the one that arrives first is kept: a path
+    around the obstacles may beat waiting for them to go."""
+    patience: float = 0.5
+    """Total time [s] a certificate may hold the arm still before other paths are tried."""
     repairs: int = 5
     """Times the timing of one path is searched again after its control ticks failed a step."""
     seed: int = 0
     """Seed of the first geometric plan; each further path takes the next."""
 
     def __post_init__(self) -> None:
-        for name in ("budget", "step", "plan_time", "sweep_interval"):
+        for name in ("budget", "step", "plan_time", "sweep_interval", "patience"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidConfigError(f"{name} must be a finite number > 0 [s], got {v!r}")
         if not 0 < self.speed_scale <= 1:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
-        if int(self.increments) < 1 or int(self.repairs) < 0:
-            raise InvalidConfigError("increments must be >= 1 and repairs >= 0")
+        if int(self.increments) < 1 or int(self.repairs) < 0 or int(self.improve) < 0:
+            raise InvalidConfigError("increments must be >= 1, repairs and improve >= 0")
 
 
 @dataclass(frozen=True)
@@ -116,10 +122,13 @@ def find_certificate(scenario: Scenario, settings: SpaceTimeSettings | None = No
     planner = REGISTRY.make(s.planner)
     windows = _windows(scenario)
     reason, paths = "no geometric path found", 0
+    best: tuple[Certificate, RunMetrics] | None = None
+    tries = 0  # attempts since the first certificate
     for attempt in range(1_000_000):
         left = deadline - time.perf_counter()
-        if left <= 0:
+        if left <= 0 or (best is not None and tries >= 2 * s.improve):
             break
+        tries += best is not None
         window = windows[(attempt // 2) % len(windows)] if attempt % 2 and windows else None
         plan_problem = problem if window is None else _avoiding(scenario, window, s.sweep_interval)
         planner.setup(plan_problem)
@@ -130,12 +139,23 @@ def find_certificate(scenario: Scenario, settings: SpaceTimeSettings | None = No
                 return done(None, None, f"{s.planner}: {result.message or result.status.value} (static scene)", paths)
             continue
         paths += 1
-        found = _timed(scenario, checker, np.asarray(result.path, dtype=float), s, deadline, t0)
+        sooner = scenario.horizon if best is None else best[0].time_to_goal
+        found = _timed(scenario, checker, np.asarray(result.path, dtype=float), s, deadline, t0, sooner)
         if isinstance(found, str):
             reason = found
             continue
-        return done(*found, "", paths)
+        best = found
+        if s.improve == 0 or _still(found[0]) <= s.patience:
+            break
+    if best is not None:
+        return done(*best, "", paths)
     return done(None, None, f"none found within the budget of {s.budget:g} s ({reason}; {paths} paths timed)", paths)
+
+
+def _still(cert: Certificate) -> float:
+    """How long [s] the certificate holds the arm still (between equal knots)."""
+    same = np.all(cert.path[1:] == cert.path[:-1], axis=1)
+    return float(np.sum(np.diff(cert.times)[same]))
 
 
 # --- paths ----------------------------------------------------------------------------------
@@ -194,9 +214,16 @@ def _resample(path: np.ndarray, vmax: np.ndarray, spacing: float, lower: Any, up
 
 
 def _timed(
-    scenario: Scenario, checker: TickChecker, path: np.ndarray, s: SpaceTimeSettings, deadline: float, t0: float
+    scenario: Scenario,
+    checker: TickChecker,
+    path: np.ndarray,
+    s: SpaceTimeSettings,
+    deadline: float,
+    t0: float,
+    sooner: float,
 ) -> tuple[Certificate, RunMetrics] | str:
-    """A verified certificate along ``path``, or why there is none."""
+    """A verified certificate along ``path`` arriving in fewer steps than ``sooner`` [s] takes
+    (the horizon: any), or why there is none."""
     robot = scenario.problem.robot
     T = scenario.period
     m = max(1, round(s.step / T))
@@ -205,6 +232,8 @@ def _timed(
     vmax = np.asarray(robot.velocity_limit, dtype=float) * s.speed_scale
     points = _resample(path, vmax, dt / R, robot.lower, robot.upper)
     steps = math.floor(scenario.horizon / dt + 1e-9)
+    if sooner < scenario.horizon:
+        steps = min(steps, math.ceil(sooner / dt - 1e-9) - 1)
     cache: dict[tuple[int, int, int], bool] = {}
     for _ in range(s.repairs + 1):
         moves = _astar(checker, points, steps, dt, R, cache, deadline)
