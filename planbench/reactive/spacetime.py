@@ -75,13 +75,15 @@ class SpaceTimeSettings:
     around the obstacles may beat waiting for them to go."""
     patience: float = 0.5
     """Total time [s] a certificate may hold the arm still before other paths are tried."""
+    improve_time: float = 10.0
+    """Wall-clock time [s] after the first certificate that further paths may take, at most."""
     repairs: int = 5
     """Times the timing of one path is searched again after its control ticks failed a step."""
     seed: int = 0
     """Seed of the first geometric plan; each further path takes the next."""
 
     def __post_init__(self) -> None:
-        for name in ("budget", "step", "plan_time", "sweep_interval", "patience"):
+        for name in ("budget", "step", "plan_time", "sweep_interval", "patience", "improve_time"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidConfigError(f"{name} must be a finite number > 0 [s], got {v!r}")
@@ -123,8 +125,10 @@ def find_certificate(scenario: Scenario, settings: SpaceTimeSettings | None = No
     windows = _windows(scenario)
     reason, paths = "no geometric path found", 0
     best: tuple[Certificate, RunMetrics] | None = None
-    tries = 0  # attempts since the first certificate
+    tries, first = 0, 0.0  # attempts since the first certificate, and when it came
     for attempt in range(1_000_000):
+        if best is not None:  # improving: within improve_time of the first certificate
+            deadline = min(deadline, first + s.improve_time)
         left = deadline - time.perf_counter()
         if left <= 0 or (best is not None and tries >= 2 * s.improve):
             break
@@ -144,6 +148,8 @@ def find_certificate(scenario: Scenario, settings: SpaceTimeSettings | None = No
         if isinstance(found, str):
             reason = found
             continue
+        if best is None:
+            first = time.perf_counter()
         best = found
         if s.improve == 0 or _still(found[0]) <= s.patience:
             break
