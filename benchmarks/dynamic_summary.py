@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import functools
 import json
 import math
 from collections.abc import Sequence
@@ -22,7 +23,9 @@ import numpy as np
 
 from planbench.bench.closed_loop_plots import scenario_keys
 from planbench.bench.db import ResultsDB
+from planbench.errors import PlanbenchError
 from planbench.metrics import wilson_interval
+from planbench.reactive.sets import load_scenario
 
 ORDER = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
 
@@ -56,10 +59,10 @@ def reasons(rows: Sequence[dict[str, Any]]) -> str:
                 if f.startswith("collision with "):
                     what = f.removeprefix("collision with ").split(" at t")[0]
                     obstacle, _, link = what.partition(" (")
-                    moving = any(
-                        obstacle.endswith(m) for m in ("crossing_ball", "crossing_box", "forearm", "sliding_box")
-                    )
+                    moving = obstacle.removeprefix("obstacle:") in moving_names(r["problem"])
                     f = "collision with the moving obstacle" if moving else "collision with the static scene"
+                    if r.get("collision_observed") is not None and not r["collision_observed"]:
+                        f += ", never observed"
                 elif f.startswith("goal not reached"):
                     f = "goal not reached in the horizon"
                 elif f.startswith("error"):
@@ -69,14 +72,23 @@ def reasons(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+@functools.cache
+def moving_names(scenario: str) -> frozenset[str]:
+    """The moving obstacles of a shipped scenario (by its name), or of a scenario file."""
+    try:
+        return frozenset(m.name for m in load_scenario(scenario).moving)
+    except PlanbenchError:
+        return frozenset()
+
+
 def compute(rows: Sequence[dict[str, Any]]) -> str:
     lines = [
         "| controller | tick median [ms] | tick p99 [ms] | field update per frame [ms] | deadline misses per run | "
-        "time to goal [s] | min clearance [mm] |",
-        "|---|---|---|---|---|---|---|",
+        "unobserved motion [s] | time to goal [s] | min clearance [mm] |",
+        "|---|---|---|---|---|---|---|---|",
     ]
 
-    def med(values: list[float], scale: float = 1.0) -> str:
+    def med(values: list[float | None], scale: float = 1.0) -> str:
         a = np.array([v for v in values if v is not None and math.isfinite(v)], dtype=float)
         return f"{np.median(a) * scale:.3g}" if a.size else "-"
 
@@ -87,7 +99,8 @@ def compute(rows: Sequence[dict[str, Any]]) -> str:
         lines.append(
             f"| `{c}` | {ticks} "
             f"| {med([r['field_update_time'] for r in mine], 1e3)} | {med([r['deadline_misses'] for r in mine])} "
-            f"| {med([r['time_to_goal'] for r in ok])} | {med([r['min_clearance'] for r in ok], 1e3)} |"
+            f"| {med([r.get('unobserved_motion') for r in mine])} | {med([r['time_to_goal'] for r in ok])} "
+            f"| {med([r['min_clearance'] for r in ok], 1e3)} |"
         )
     return "\n".join(lines)
 

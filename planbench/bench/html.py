@@ -22,6 +22,7 @@ from planbench.bench.report import (
     FAILURE_STATUSES,
     METRICS,
     Metric,
+    certificate_rows,
     metrics_for,
     summarize,
     summary_cells,
@@ -126,10 +127,11 @@ def render_html(
         "validated successes; success rates with 95% Wilson intervals.</p>"
     )
     metrics = metrics_for(rows)
-    parts.append("<h2>Per planner</h2>" + _table(summarize(rows, ("planner",)), ("planner",), metrics))
+    tabled = [*rows, *certificate_rows(rows)]  # the scenarios' certificates: a line of the tables
+    parts.append("<h2>Per planner</h2>" + _table(summarize(tabled, ("planner",)), ("planner",), metrics))
     parts.append(
         "<h2>Per planner and family</h2>"
-        + _table(summarize(rows, ("planner", "family")), ("planner", "family"), metrics)
+        + _table(summarize(tabled, ("planner", "family")), ("planner", "family"), metrics)
     )
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(plots_dir) if plots_dir else Path(tmp)

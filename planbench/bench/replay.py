@@ -10,7 +10,7 @@ from planbench.bench.db import ResultsDB
 from planbench.errors import PlanbenchError
 from planbench.visual.replay import write_replay
 
-__all__ = ["replay_row", "replay_run"]
+__all__ = ["replay_row", "replay_run", "replay_scenario"]
 
 
 def replay_run(db_path: str | Path, run_id: int, out: str | Path) -> Path:
@@ -30,15 +30,19 @@ def replay_row(row: dict[str, Any], out: str | Path) -> Path:
     verdict = "success" if row["success"] else str(row["failure"])
     title = f"{row['planner']} on {row['problem']}, seed {row['seed']}: {verdict}"
     if row.get("deadline_misses") is not None:  # a closed-loop run: its scenario, moving obstacles and all
-        from planbench.reactive.checker import TickChecker  # on use: the closed-loop side
-        from planbench.reactive.sets import load_scenario
+        from planbench.reactive.sets import load_scenario  # on use: the closed-loop side
 
-        scenario = load_scenario(row["problem"])
-        moving = TickChecker(scenario)
-        geometry = moving.checker.geometry_model
-        return write_replay(
-            out, scenario.problem, row["path"], row["times"], geometry=geometry, place=moving.place, title=title
-        )
+        return replay_scenario(out, load_scenario(row["problem"]), row["path"], row["times"], title)
     from planbench.problems.datasets import load_problem
 
     return write_replay(out, load_problem(row["problem"]), row["path"], row["times"], title=title)
+
+
+def replay_scenario(out: str | Path, scenario: Any, path: Any, times: Any, title: str) -> Path:
+    """The replay of a timed trajectory in a scenario: the arm among the obstacles, the moving
+    ones where they are at each time (a closed-loop run, a solvability certificate)."""
+    from planbench.reactive.checker import TickChecker  # on use: the closed-loop side
+
+    moving = TickChecker(scenario)
+    geometry = moving.checker.geometry_model
+    return write_replay(out, scenario.problem, path, times, geometry=geometry, place=moving.place, title=title)

@@ -29,6 +29,8 @@ from planbench.files.outputs import csv_cell
 from planbench.metrics import wilson_interval
 
 __all__ = [
+    "CERTIFICATE",
+    "certificate_rows",
     "summary_cells",
     "summary_headers",
     "DYNAMIC_METRICS",
@@ -78,6 +80,50 @@ DYNAMIC_METRICS: tuple[Metric, ...] = (
 )
 """The columns of closed-loop runs (planbench.reactive): compute times over every run, the rest
 over validated successes."""
+
+
+CERTIFICATE = "certificate"
+"""The label of the rows that stand for the scenarios' solvability certificates in a table."""
+
+
+def certificate_rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row labelled :data:`CERTIFICATE` per scenario of closed-loop ``rows`` (per suite): a
+    success with the certificate's time to goal where the scenario holds one, else a failure (no
+    certificate). None at all when no scenario holds one, or the rows are not closed-loop runs.
+    Summarised with the runs, it puts the time an omniscient planner needs beside each
+    controller's (the certificate as the scenario file holds it: ``planbench check-scenario``
+    verifies it)."""
+    if metrics_for(rows) is not DYNAMIC_METRICS:
+        return []
+    from planbench.errors import PlanbenchError
+    from planbench.reactive.sets import load_scenario  # on use: the closed-loop side
+
+    out: list[dict[str, Any]] = []
+    seen: set[tuple[Any, Any]] = set()
+    for r in rows:
+        key = (r.get("suite"), r["problem"])
+        if key in seen:
+            continue
+        seen.add(key)
+        try:
+            cert = load_scenario(str(r["problem"])).certificate
+        except PlanbenchError:  # a scenario no longer found: no line for it
+            continue
+        found = cert is not None
+        out.append(
+            {
+                "suite": r.get("suite"),
+                "problem": r["problem"],
+                "family": r.get("family"),
+                "planner": CERTIFICATE,
+                "seed": 0,
+                "success": found,
+                "status": "success" if found else "no_certificate",
+                "deadline_misses": 0,
+                "time_to_goal": cert.time_to_goal if cert is not None else math.nan,
+            }
+        )
+    return out if any(r["success"] for r in out) else []
 
 
 def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple[Metric, ...]:

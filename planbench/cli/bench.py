@@ -24,7 +24,16 @@ from planbench.bench.db import ResultsDB
 from planbench.bench.executors import EXECUTORS, Executor, make_executor
 from planbench.bench.html import write_html
 from planbench.bench.plots import write_plots
-from planbench.bench.report import DYNAMIC_METRICS, failures, metrics_for, summarize, to_csv, to_markdown, to_rich
+from planbench.bench.report import (
+    DYNAMIC_METRICS,
+    certificate_rows,
+    failures,
+    metrics_for,
+    summarize,
+    to_csv,
+    to_markdown,
+    to_rich,
+)
 from planbench.bench.results import write_parquet
 from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
@@ -333,11 +342,12 @@ def cmd_report(args: argparse.Namespace) -> int:
         )
         return 1
     by = _by(args.by)
-    summary = summarize(rows, by)
+    tabled = [*rows, *certificate_rows(rows)]  # the certificates' line in the tables, not in the plots
+    summary = summarize(tabled, by)
     terminal = metrics_for(rows, terminal=True)
     console.print(
         to_rich(
-            summarize(rows, by, terminal),
+            summarize(tabled, by, terminal),
             by,
             title=f"{args.db}: {len(rows)} runs",
             metrics=terminal,

@@ -164,7 +164,26 @@ class OccupancyGrid:
             raise ValueError(f"grid bounds must have upper > lower, got {lower} and {upper}")
         if not 0.0 <= outside <= 1.0:  # before allocating
             raise ValueError(f"outside occupancy must be in [0, 1], got {outside}")
-        return cls(np.zeros(grid_shape(lower, upper, resolution), dtype=dtype), lower, resolution, outside)
+        return cls.unchecked(np.zeros(grid_shape(lower, upper, resolution), dtype=dtype), lower, resolution, outside)
+
+    @classmethod
+    def unchecked(
+        cls,
+        data: np.ndarray,
+        origin: np.ndarray,
+        resolution: float,
+        outside: float = 0.0,
+        known: np.ndarray | None = None,
+    ) -> OccupancyGrid:
+        """A grid whose maker guarantees its cells: ``data`` a 3D floating array with values in
+        [0, 1]. Its origin, resolution, ``outside`` and ``known`` are checked as the constructor
+        checks them; the pass over every cell is skipped (5 ms on a 142^3 grid, every sensor frame)."""
+        if data.ndim != 3 or not np.issubdtype(data.dtype, np.floating):
+            raise ValueError(f"occupancy data must be a 3D floating array, got {data.dtype} {data.shape}")
+        grid = cls(np.zeros((1, 1, 1), dtype=data.dtype), origin, resolution, outside)
+        object.__setattr__(grid, "data", data)
+        object.__setattr__(grid, "known", None if known is None else _checked_known(known, data.shape))
+        return grid
 
     @classmethod
     def from_scene(

@@ -142,7 +142,7 @@ class OccupancyMap:
             _compiled.above(self.log_odds.reshape(-1), self._threshold, data.reshape(-1))
         else:
             np.greater(self.log_odds, self._threshold, out=data, casting="unsafe")
-        return OccupancyGrid(data, self.origin.copy(), self.resolution, 0.0, self.known.copy())
+        return OccupancyGrid.unchecked(data, self.origin.copy(), self.resolution, 0.0, self.known.copy())
 
     def clear(self) -> None:
         """Forget everything."""

@@ -13,11 +13,13 @@ JSON format (``planbench-scenario/1``)::
      ],
      "sensing": {"model": "depth", "rate": 30, "resolution": 0.02,
                  "cameras": [{"position": [1.6, 0, 0.8], "look_at": [0.4, 0, 0.3], ...}]},
-     "control_rate": 100, "horizon": 10.0, "metadata": {}}
+     "control_rate": 100, "horizon": 10.0, "metadata": {},
+     "certificate": {...}}                # optional: a trajectory that solves it (below)
 
 ``control_rate`` [Hz] is the rate at which the controller is asked for joint velocities (default
 100); ``horizon`` [s] the time by which the goal must be reached. Sensing settings are documented
-on :class:`SensingSettings` and :class:`CameraSettings`. Every wrong field raises
+on :class:`SensingSettings` and :class:`CameraSettings`; ``certificate`` (optional) on
+:mod:`planbench.reactive.certificate`: it is read, not judged, when the scenario loads. Every wrong field raises
 :class:`~planbench.errors.ScenarioFileError` naming the file and the field.
 """
 
@@ -36,6 +38,7 @@ from planbench.files.inputs import InputFileError, read_json
 from planbench.geometry.occupancy_map import MapSettings
 from planbench.problem import Problem
 from planbench.problems.datasets import load_problem
+from planbench.reactive.certificate import Certificate
 from planbench.reactive.motion import Motion
 from planbench.scene import Obstacle, Scene
 
@@ -272,6 +275,10 @@ class Scenario:
     problem_ref: str | None = None
     """Where ``problem`` came from (``"gen:ur5_pillars/0002"``), written instead of the problem
     itself when the scenario is saved; None: the problem is written out whole."""
+    certificate: Certificate | None = None
+    """A trajectory claimed to solve the scenario (None: none). Only its form is checked here:
+    :func:`planbench.reactive.solvability.verify_certificate` judges it (a scenario changed with
+    ``dataclasses.replace`` keeps it, judged against the new geometry)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.control_rate) and self.control_rate > 0):
@@ -291,6 +298,11 @@ class Scenario:
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
             raise ValueError(f"scenario {self.name!r}: obstacle names must be unique, repeated: {dupes}")
+        if self.certificate is not None and self.certificate.nq != self.problem.robot.nq:
+            raise ValueError(
+                f"certificate: 'path' configurations have {self.certificate.nq} joint values, the robot "
+                f"{self.problem.robot.name!r} has {self.problem.robot.nq}"
+            )
 
     @property
     def period(self) -> float:
@@ -312,7 +324,7 @@ class Scenario:
 
     # --- JSON -------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        return {
+        d = {
             "format": SCENARIO_FORMAT,
             "name": self.name,
             "problem": self.problem_ref if self.problem_ref is not None else self.problem.to_dict(),
@@ -322,6 +334,9 @@ class Scenario:
             "horizon": self.horizon,
             "metadata": dict(self.metadata),
         }
+        if self.certificate is not None:
+            d["certificate"] = self.certificate.to_dict()
+        return d
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "<dict>", base_dir: Path | None = None) -> Scenario:
@@ -331,7 +346,8 @@ class Scenario:
         fmt = d.get("format", SCENARIO_FORMAT)
         if fmt != SCENARIO_FORMAT:
             raise ScenarioFileError(source, f"unsupported scenario format {fmt!r}; expected {SCENARIO_FORMAT!r}")
-        known = {"format", "name", "problem", "moving_obstacles", "sensing", "control_rate", "horizon", "metadata"}
+        known = {"format", "name", "problem", "moving_obstacles", "sensing", "control_rate", "horizon"}
+        known |= {"metadata", "certificate"}
         try:
             _no_unknown(d, known, "scenario")
         except ValueError as exc:
@@ -364,6 +380,12 @@ class Scenario:
         metadata = d.get("metadata", {})
         if not isinstance(metadata, dict):
             raise ScenarioFileError(source, "'metadata' must be a JSON object")
+        certificate = None
+        if d.get("certificate") is not None:
+            try:
+                certificate = Certificate.from_dict(d["certificate"])
+            except ValueError as exc:
+                raise ScenarioFileError(source, f"certificate: {exc}") from None
         try:
             return cls(
                 problem,
@@ -374,6 +396,7 @@ class Scenario:
                 str(d.get("name", Path(source).stem)),
                 dict(metadata),
                 ref,
+                certificate,
             )
         except (ValueError, TypeError) as exc:
             raise ScenarioFileError(source, str(exc)) from None

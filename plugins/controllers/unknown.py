@@ -13,10 +13,10 @@ chosen as a perception engineer would, so that the choice stays cheap and does n
   and a planner re-reads them from where the arm is on every frame (a receding horizon). Merged
   into boxes, the unknown cells of that grid are 35,753 boxes; within 0.3 m of the arm, 1,661;
 - **never the arm's own body**: cells within a link's radius plus ``unknown_self_margin`` [m] of a
-  control point are left free. The sensor blinds itself there (its robot filter drops points near
-  the arm, docs/sensing.md), so the arm sits in unknown cells: nearly all of them (4,904 of 5,344
-  cells within 0.1 m of the control points, same frame). No obstacle can be inside the arm, and a
-  map that marks the arm's cells known (a fused map) makes the rule a no-op.
+  control point are left free. The sensor marks the cells the arm's body fills known, but its
+  robot filter blinds it within ``robot_margin`` of the arm (docs/sensing.md), so a shell around
+  the arm is unknown in a single frame. Counting that shell would wall the arm in; an obstacle
+  that close is one the robot filter hides in any case.
 
 What is left is not solved by any rule on one frame: the arm's shadow (the unknown behind the arm
 as the camera sees it) starts at the arm's surface, so ``"occupied"`` pushes a field controller
@@ -117,8 +117,8 @@ def unknown_as_occupied(grid: OccupancyGrid, cells: np.ndarray | None) -> Occupa
     ``cells`` is None or empty."""
     if cells is None or not cells.any():
         return grid
-    data = np.maximum(grid.data, cells)
-    return OccupancyGrid(data, grid.origin, grid.resolution, grid.outside)
+    data = np.maximum(grid.data, cells, dtype=grid.data.dtype)  # values of a checked grid, and 0 or 1
+    return OccupancyGrid.unchecked(data, grid.origin, grid.resolution, grid.outside)
 
 
 def arm_spheres(robot: Any, points: Any, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
