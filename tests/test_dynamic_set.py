@@ -5,15 +5,18 @@ from __future__ import annotations
 
 import json
 from importlib import resources
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from planbench.problem import Problem
-from planbench.reactive import Scenario
+from planbench.reactive import Scenario, certify_set, generator
 from planbench.reactive.behaviours import BEHAVIOURS, draw
+from planbench.reactive.certificate import Certificate
 from planbench.reactive.checker import TickChecker
-from planbench.reactive.generator import BASE_PROBLEMS, SPEEDS, TUNE_PROBLEMS, _rng, hides, path_frame
+from planbench.reactive.generator import BASE_PROBLEMS, SPEEDS, TUNE_PROBLEMS, _rng, base_problem, hides, path_frame
 from planbench.reactive.scenario import MovingObstacle
 from planbench.reactive.sets import load_scenarios
 from planbench.scene import Scene
@@ -145,3 +148,51 @@ def test_occluded_box_is_hidden_from_the_camera_by_the_moving_board(by_behaviour
         target = np.asarray(box.obstacle.position)
         seen = [hides(board.at(t), camera, target) for t in np.arange(0.0, s.horizon, 0.1)]
         assert seen[0] and not all(seen)  # hidden at the start, seen at other times
+
+
+def _small_set(tmp_path, base: str, behaviour: str) -> tuple[Path, int]:
+    """A set file holding the six shipped scenarios of one (problem, behaviour), uncertified."""
+    data = _shipped()
+    items = [d for d in data["scenarios"] if (d["metadata"]["base"], d["metadata"]["behaviour"]) == (base, behaviour)]
+    for d in items:
+        d.pop("certificate", None)
+    data.update(scenarios=items, refused_draws=[], certified=False)
+    path = tmp_path / "set.json"
+    path.write_text(json.dumps(data))
+    return path, items[0]["metadata"]["draw"]
+
+
+def _fake_search(refused_draw: int | None):
+    """A space-time search that finds no certificate for ``refused_draw`` (None: for no draw)."""
+
+    def find(scenario, settings=None):
+        if refused_draw is None or scenario.metadata["draw"] == refused_draw:
+            return SimpleNamespace(certificate=None, reason="no path (test)")
+        q = np.asarray(scenario.problem.start)
+        return SimpleNamespace(certificate=Certificate(np.array([0.0, 1.0]), np.stack([q, q]), 1.0), reason="")
+
+    return find
+
+
+def test_certification_redraws_a_refused_draw_and_stores_certificates(tmp_path, monkeypatch):
+    path, k = _small_set(tmp_path, "mbm:box/0001", "crossing")
+    monkeypatch.setattr(certify_set, "find_certificate", _fake_search(k))
+    monkeypatch.setattr(certify_set, "verify_certificate", lambda s, c: SimpleNamespace(success=True))
+    counts = certify_set.certify_set(path, budget=1.0, redraws=1, log=lambda _: None)
+    data = json.loads(path.read_text())
+    assert counts["redrawn"] == 6 and counts["dropped"] == 0 and data["certified"] is True
+    assert data["refused_draws"] == [{"base": "mbm:box/0001", "behaviour": "crossing", "draw": k}]
+    assert len(data["scenarios"]) == 6 and all(d["metadata"]["draw"] > k for d in data["scenarios"])
+    assert all(d["certificate"]["budget"] == 1.0 for d in data["scenarios"])
+    # the generator honours the refused draw: regenerating gives what the certification drew
+    redrawn = generator.scenario(base_problem("mbm:box/0001"), "mbm:box/0001", "crossing", "fast", "depth", refused=[k])
+    assert redrawn.metadata["draw"] == data["scenarios"][0]["metadata"]["draw"]
+
+
+def test_certification_drops_what_gets_no_certificate(tmp_path, monkeypatch):
+    path, _ = _small_set(tmp_path, "mbm:box/0001", "sliding")
+    monkeypatch.setattr(certify_set, "find_certificate", _fake_search(None))
+    counts = certify_set.certify_set(path, budget=1.0, redraws=0, log=lambda _: None)
+    data = json.loads(path.read_text())
+    assert counts["dropped"] == 6 and not data["scenarios"] and len(data["dropped"]) == 6
+    assert all("no path (test)" in why for why in data["dropped"].values())
