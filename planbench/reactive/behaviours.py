@@ -181,7 +181,8 @@ def _pair(speed: float, f: PathFrame, rng: np.random.Generator) -> tuple[MovingO
     first = _crossing(speed, f, rng)
     if rng.random() < 0.5:
         return first, _sliding(speed, f, rng)
-    side = -float(np.sign(first.motion.velocity @ f.w)) or 1.0  # np.sign of a dot: from the other side
+    first_side = float(np.sign(np.dot(first.motion.velocity, f.w))) or 1.0  # the way the first flies
+    side = -first_side  # the second comes from the other side
     t_pass = rng.uniform(1.5, 3.5)  # the second passes its centre 0-2.5 s after the first at the earliest
     second = _crossing(speed, f, rng, side=side, t_pass=t_pass)
     renamed = dataclasses.replace(second.obstacle, name=second.obstacle.name + "_2")
