@@ -150,6 +150,21 @@ def test_occluded_box_is_hidden_from_the_camera_by_the_moving_board(by_behaviour
         assert seen[0] and not all(seen)  # hidden at the start, seen at other times
 
 
+def test_every_shipped_scenario_is_certified():
+    """The set file's certificates are there (``planbench check-scenario`` verifies them: slow)."""
+    data = _shipped()
+    assert data["certified"] is True and not data["dropped"]
+    assert all(d.get("certificate") for d in data["scenarios"]) and len(data["scenarios"]) == 432
+    # a refused draw is drawn again by the generator: its scenarios name the next valid draw
+    for r in data["refused_draws"]:
+        found = [
+            d
+            for d in data["scenarios"]
+            if (d["metadata"]["base"], d["metadata"]["behaviour"]) == (r["base"], r["behaviour"])
+        ]
+        assert len(found) == 6 and all(d["metadata"]["draw"] != r["draw"] for d in found)
+
+
 def _small_set(tmp_path, base: str, behaviour: str) -> tuple[Path, int]:
     """A set file holding the six shipped scenarios of one (problem, behaviour), uncertified."""
     data = _shipped()
@@ -178,7 +193,9 @@ def test_certification_redraws_a_refused_draw_and_stores_certificates(tmp_path, 
     path, k = _small_set(tmp_path, "mbm:box/0001", "crossing")
     monkeypatch.setattr(certify_set, "find_certificate", _fake_search(k))
     monkeypatch.setattr(certify_set, "verify_certificate", lambda s, c: SimpleNamespace(success=True))
+    path.chmod(0o644)
     counts = certify_set.certify_set(path, budget=1.0, redraws=1, log=lambda _: None)
+    assert path.stat().st_mode & 0o777 == 0o644
     data = json.loads(path.read_text())
     assert counts["redrawn"] == 6 and counts["dropped"] == 0 and data["certified"] is True
     assert data["refused_draws"] == [{"base": "mbm:box/0001", "behaviour": "crossing", "draw": k}]

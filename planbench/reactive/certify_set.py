@@ -119,6 +119,7 @@ def _write(path: Path, data: Any) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     with os.fdopen(fd, "w") as f:
         f.write(json.dumps(data, indent=1) + "\n")
+    os.chmod(tmp, os.stat(path).st_mode & 0o7777)  # mkstemp's file is private: keep the set's mode
     os.replace(tmp, path)
 
 
