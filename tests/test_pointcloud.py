@@ -229,7 +229,7 @@ def test_example_is_shipped_and_small():
 
 
 @pytest.mark.parametrize(
-    "planner, limit", [("straight-line", 1.0), ("ompl-rrtconnect", 2.0), ("matrix-field", 1.0), ("edt-field", 1.0)]
+    "planner, limit", [("straight-line", 1.0), ("ompl-rrtconnect", 60.0), ("matrix-field", 1.0), ("edt-field", 1.0)]
 )
 def test_every_planner_kind_plans_on_the_example(planner, limit):
     problem = Problem.load(EXAMPLE)
@@ -237,7 +237,7 @@ def test_every_planner_kind_plans_on_the_example(planner, limit):
     ev = planbench.evaluate(problem, result)
     if planner == "straight-line":  # the straight motion crosses the cloud: the octree says so
         assert not ev.success and ev.status == "collision"
-    if planner == "ompl-rrtconnect":
+    if planner == "ompl-rrtconnect":  # it answers when it finds a path: the limit only spares a loaded machine
         assert ev.success
 
 
