@@ -175,29 +175,62 @@ def test_ompl_replan_safe_mode_leaves_a_start_walled_in_by_unknown_space_off_its
     assert c.info()["forced"] == 0
 
 
-def test_ompl_replan_safe_mode_stops_before_an_unknown_block_on_its_path(free_task, open_space):
-    """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is seen. The
-    default follows its path through it; the safe mode stops short of it and goes around, the
-    arm's body never in one of its cells."""
-    grid, path = open_space
+def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBody) -> np.ndarray:
+    """The ``known`` mask of ``grid`` with a 10 cm cube unknown on the hand's way along ``path``,
+    off the arm at the start and at the goal."""
     robot = free_task.robot
-    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
     ends = np.zeros(grid.shape, dtype=bool)  # near the arm at the start and at the goal
     body.mark(ends, path[0])
     body.mark(ends, path[-1])
     ends = ndimage.binary_dilation(ends, iterations=4)
     for q in path[len(path) // 4 :]:  # the first place on the hand's way off both
         hand = robot.frame_pose(q, free_task.goal.pose.frame).translation
-        blind = unknown_block(grid, hand, half=2)
-        known = blind.grid.known
+        known = unknown_block(grid, hand, half=2).grid.known
         assert known is not None
         if not (ends & ~known).any():
-            break
-    assert not (ends & ~known).any()
-    through, _ = _run(free_task, blind, 400)
+            return known
+    raise AssertionError("no place for the block")
+
+
+def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space):
+    """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
+    seen. The default follows its path through it; the safe mode plans in known space first, around
+    it, and the arm's body is never in one of its cells."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    known = _block_on_path(free_task, grid, path, body)
+    through, _ = _run(free_task, _seeing(grid, known), 400)
     assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
-    qs, c = _run(free_task, blind, 600, unknown="occupied")
+    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")
     info = c.info()
     assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
-    assert info["blocked"] >= 1 and info["forced"] == 0
+    assert info["known_plans"] >= 1 and info["forced"] == 0
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info  # around it to the goal
+
+
+def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(free_task, open_space):
+    """Only the cells the path sweeps are known, and a 10 cm cube of them is not: no path in known
+    space. The safe mode follows the default's path, stops short of the cube, and goes into it only
+    after ``look_frames`` new frames have shown nothing there; with a wait longer than the run it
+    never does."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    known = ndimage.binary_dilation(swept) & _block_on_path(free_task, grid, path, body)
+    qs, c = _run(free_task, _seeing(grid, known), 400, unknown="occupied", look_frames=10**6)
+    info = c.info()
+    inside = [body.in_unknown(q, known) for q in qs]
+    assert not any(inside[60:]), info  # (the first ticks leave the start, in its own unknown shell)
+    assert info["looks"] > 0 and info["forced"] == 0 and info["known_plans"] == 0
+    assert np.allclose(qs[-1], qs[-2]) and not np.allclose(qs[-1], free_task.goal.q)  # stopped short
+    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")  # look_frames = 3
+    inside = [body.in_unknown(q, known) for q in qs]
+    first = next(k for k in range(60, len(qs)) if inside[k])
+    still = np.linalg.norm(np.diff(qs[first - 20 : first], axis=0), axis=1) < 1e-12
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], still.astype(int), [0]]))))[::2]
+    assert runs.max() >= 8  # still for 3 frames (9 ticks) just before it went in (the lookahead after)
+    assert c.info()["forced"] >= 1
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)

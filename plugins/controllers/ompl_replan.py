@@ -18,22 +18,27 @@ charged (as on a robot) is the stop, not the old path's velocity. A failed plan 
 still until the next frame.
 
 **Safe mode** (``unknown = "occupied"``; default ``"free"``, :class:`~.unknown.UnknownSettings`):
-plan optimistically, execute only into known space (as FASTER does for quadrotors: the plan may
-cross unknown space, the committed motion may not). The plan is the default's, unknown cells free;
-on every frame the rest of the path is also scanned with the arm's body
-(:class:`~planbench.reactive.body.ArmBody`, the cells the ``unobserved_motion`` metric counts) for
-the first configuration that fills a cell the frame does not know (``grid.known``), and the
-follower stops ``lookahead`` seconds of path motion short of it (the runner stops a command at once:
-the margin covers the check's spacing and a command held while a frame is checked). Allowed
-unknown cells, where there is no alternative: those within ``unknown_self_margin`` of the arm's
-body where the run starts (the sensor's robot filter blinds it there and the start is where the
-arm is) and at the goal (which the task asserts free). When the follower is held at such a point
-on a new frame, or a path is blocked within ``lookahead`` of the arm, the unknown cells the body
-would fill over the next ``avoid_horizon`` seconds of the path join a set of cells to avoid
-(each leaves it once a frame knows it), and the arm replans around them with the occupied cells.
-If no plan avoids them, or after ``max_detours`` such replans without progress, it plans as the
-default does and follows that path without the scan (``forced`` in ``info``): the only way on goes
-through space no frame has seen.
+plan optimistically, enter unknown space only where there is no other way, and look first (as
+FASTER does for quadrotors: the plan may cross unknown space, the committed motion may not):
+
+- **hidden surfaces**: the unknown cells within ``surface_margin`` of an occupied cell are the
+  unseen rest of a seen surface (the far side of a plate seen from above, an edge seen edge-on):
+  obstacles for every plan and check, never entered;
+- **known space first**: a plan is made as the default does; if its path fills a cell the arm may
+  not enter (below), the arm plans again with every such cell an obstacle (one octree of the
+  grid's unknown and occupied cells, about 0.5 s to build) and follows that path if there is one;
+- **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
+  scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
+  ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
+  ``lookahead`` seconds of motion short of the first configuration that fills a cell the frame
+  does not know (the runner stops a command at once: the margin covers the scan's spacing and a
+  command held while a frame is checked). Held there for ``look_frames`` new frames (the map may
+  fill the cells in meanwhile, and a path through what it shows is replanned), the arm goes into
+  the unknown cells its body fills over the next ``scan_horizon`` (``forced`` in ``info``).
+
+The arm may always enter the unknown cells within ``start_margin`` of its body where the run
+started (the sensor's robot filter blinds it there, so they are never seen until the arm has
+moved) and at the goal (which the task asserts free).
 """
 
 from __future__ import annotations
@@ -83,25 +88,26 @@ class OMPLReplanConfig(UnknownSettings):
     lookahead: float = 0.05
     """Safe mode: [s] of motion along the path (at ``speed_scale``) the follower keeps between the
     arm and the first configuration that fills an unknown cell (more than ``check_resolution``)."""
-    avoid_horizon: float = 0.5
-    """Safe mode: [s] of the path past a block whose unknown cells a replan avoids."""
-    max_detours: int = 3
-    """Safe mode: replans around unknown cells in a row (without 0.5 s of progress along a path
-    between them) before the arm plans as the default does and goes through."""
+    scan_horizon: float = 0.5
+    """Safe mode: [s] of the path ahead of the arm scanned for unknown cells on each frame; the
+    stretch entered at once after a look."""
+    look_frames: int = 3
+    """Safe mode: new frames the arm waits, stopped short of unknown cells, before it goes on into
+    them (the map may fill them in meanwhile; a path through what it shows is replanned)."""
     surface_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of an occupied cell (centre to centre) are the
     unseen rest of a seen surface (the far side of a plate seen from above, the edge seen
     edge-on): obstacles for a plan, and never entered, even where no plan avoids other unknown cells."""
     gate: bool = True
-    """Safe mode: follow the path only into cells the observation knows (else only the hidden
-    cells next to occupied ones are kept out of, ``surface_margin``)."""
+    """Safe mode: plan in known space first and stop short of unknown cells on a path that enters
+    them (else only the hidden cells next to occupied ones, ``surface_margin``, are kept out of)."""
     start_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
     (0.03 m) of the arm, so these are never seen until the arm has moved; the same at the goal."""
 
     def __post_init__(self) -> None:
-        for name in ("plan_time", "check_resolution", "lookahead", "avoid_horizon", "start_margin", "surface_margin"):
+        for name in ("plan_time", "check_resolution", "lookahead", "scan_horizon", "start_margin", "surface_margin"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -109,32 +115,31 @@ class OMPLReplanConfig(UnknownSettings):
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
-        if isinstance(self.max_detours, bool) or not isinstance(self.max_detours, int) or self.max_detours < 0:
-            raise InvalidConfigError(f"max_detours must be an integer >= 0, got {self.max_detours!r}")
+        if isinstance(self.look_frames, bool) or not isinstance(self.look_frames, int) or self.look_frames < 0:
+            raise InvalidConfigError(f"look_frames must be an integer >= 0, got {self.look_frames!r}")
         self.validate_unknown()
-
-
-_PROGRESS = 0.5  # [s] along a path that resets the count of detours (max_detours)
 
 
 def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np.ndarray) -> np.ndarray:
     """Flat indices of the unknown cells (``known`` False) whose centres lie within ``radius``
-    cells of one of ``cells`` (flat indices into a grid of ``shape``)."""
+    cells of one of ``cells`` (flat indices into a grid of ``shape``); a few milliseconds for
+    thousands of cells (flat offsets; the cells within ``radius`` of the grid's faces apart)."""
     r = int(math.floor(radius))
     if not len(cells) or r < 1:
         return np.zeros(0, dtype=np.intp)
     span = np.arange(-r, r + 1)
     offsets = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)
     offsets = offsets[(np.sum(offsets**2, axis=1) <= radius * radius) & np.any(offsets != 0, axis=1)]
-    idx = np.column_stack(np.unravel_index(cells, shape))
-    out = []
     dims = np.asarray(shape)
-    for off in offsets:  # one offset at a time: small arrays
-        nb = idx + off
-        ok = np.all((nb >= 0) & (nb < dims), axis=1)
-        flat = np.ravel_multi_index(tuple(nb[ok].T), shape)
-        out.append(flat[~known.flat[flat]])
-    return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.intp)
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    idx = np.column_stack(np.unravel_index(cells, shape))
+    inner = np.all((idx >= r) & (idx < dims - r), axis=1)
+    near = (cells[inner][:, None] + (offsets @ strides)[None, :]).ravel()  # no wrap: r from every face
+    edge = (idx[~inner][:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+    edge = edge[np.all((edge >= 0) & (edge < dims), axis=1)] @ strides
+    near = np.concatenate([near, edge])
+    flat_known = known.reshape(-1)
+    return np.unique(near[~flat_known[near]])
 
 
 class OMPLReplanController(Controller):
@@ -157,8 +162,9 @@ class OMPLReplanController(Controller):
         self.times: np.ndarray | None = None  # [s] at each of its waypoints, at the scaled velocity limits
         self.tau = 0.0  # [s] position along it
         self.tau_limit = math.inf  # [s] where the follower stops (safe mode: short of unknown cells)
-        self.through = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells no plan avoided, entered
-        self.detours = 0
+        self.through = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells entered after a look
+        self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
+        self.known_path = False  # safe mode: the path was planned in known space
         self.observation: Observation | None = None
         self.checker: CollisionChecker | None = None  # the frame's obstacles, less what the arm touches
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
@@ -168,13 +174,12 @@ class OMPLReplanController(Controller):
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
-        self.avoid = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells that blocked a path
         self.hidden = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells next to occupied ones
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats.update(blocked=0, forced=0, avoided_cells=0)
+        self.stats.update(known_plans=0, looks=0, forced=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -224,15 +229,14 @@ class OMPLReplanController(Controller):
         # the unseen rest of a seen surface: an obstacle, never entered
         self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, grid.known)
         self.checker = self._cells_checker(np.union1d(self.occupied, self.hidden), q)
-        if len(self.avoid):
-            self.avoid = self.avoid[~grid.known.flat[self.avoid]]  # a known cell is no longer avoided
         if self.config.gate:
             allowed = grid.known.copy()
             assert self.own is not None and self.near_goal is not None
-            allowed.flat[self.own] = True
-            allowed.flat[self.through] = True
-            allowed.flat[self.hidden] = False
-            allowed.flat[self.near_goal] = True
+            flat = allowed.reshape(-1)  # a view
+            flat[self.own] = True
+            flat[self.through] = True
+            flat[self.hidden] = False
+            flat[self.near_goal] = True
             self.allowed = allowed
 
     def _geometry(self, grid: OccupancyGrid) -> None:
@@ -245,7 +249,6 @@ class OMPLReplanController(Controller):
         self.body = ArmBody(self.task.robot, grid.origin, grid.shape, grid.resolution)
         goal_q = self.task.goal.q
         self.near_goal = self._near(np.asarray(goal_q), 1) if goal_q is not None else np.zeros(0, dtype=np.intp)
-        self.avoid = np.zeros(0, dtype=np.intp)
         self.through = np.zeros(0, dtype=np.intp)
         if self.safe:
             cells = max(1, math.ceil(self.config.start_margin / grid.resolution))
@@ -323,7 +326,7 @@ class OMPLReplanController(Controller):
         i = min(int(np.searchsorted(times, tau, side="right")), len(path) - 1)
         ends = np.vstack([q, path[i:]])
         stamps = np.concatenate([[tau], times[i:]])
-        out = []
+        out: list[tuple[float, np.ndarray]] = []
         for a, b, ta, tb in zip(ends[:-1], ends[1:], stamps[:-1], stamps[1:], strict=True):
             n = max(1, int(math.ceil(np.max(np.abs(b - a)) / self.config.check_resolution)))
             for u in np.arange(1, n + 1) / n:
@@ -334,65 +337,71 @@ class OMPLReplanController(Controller):
 
     def _check_rest(self, q: np.ndarray) -> None:
         """On a new frame: drop the path if its rest collides with the frame's obstacles; in safe
-        mode, set where the follower stops short of unknown cells, and when that is where the arm
-        is, avoid those cells and replan."""
-        assert self.checker is not None
-        gate = self.allowed is not None
-        block = math.inf
-        for when, x in self._rest(q, self.tau):
+        mode, set where the follower stops short of unknown cells and, when the arm has waited
+        there ``look_frames`` frames, let it into the next ``scan_horizon`` of them."""
+        assert self.checker is not None and self.times is not None
+        for _, x in self._rest(q, self.tau):
             if self.checker.in_collision(x):
                 self.stats["invalidated"] += 1
                 self.path = None
                 return
-            if gate and block == math.inf and self.body is not None and self.body.in_unknown(x, self.allowed):
-                block = when
-        self.tau_limit = block - self.config.lookahead
-        if block < math.inf and self.tau >= self.tau_limit - 1e-9:  # held short of unknown cells
-            self._avoid(q, block)
+        if self.allowed is None:
+            return
+        block = self._limit(self.tau)
+        if block is None or self.tau < self.tau_limit - 1e-9:
+            self.looks = 0
+            return
+        self.looks += 1  # held short of unknown cells: look, then go on
+        self.stats["looks"] += 1
+        if self.looks > self.config.look_frames:
+            self._go_through(block)
 
-    def _avoid(self, q: np.ndarray, block: float) -> None:
-        """The path is blocked by unknown cells at ``block`` [s] along it: avoid the unknown cells
-        the body fills from there over ``avoid_horizon`` and replan (or go through: module docstring)."""
+    def _go_through(self, block: float) -> None:
+        """Let the arm into the unknown cells its body fills over ``scan_horizon`` from ``block``
+        [s] along the path (``forced``: the only way on goes through space no frame has seen)."""
         assert self.body is not None and self.allowed is not None
-        self.stats["blocked"] += 1
-        if self.tau >= _PROGRESS:
-            self.detours = 0
-        self.detours += 1
         mark = np.zeros(self.body.shape, dtype=bool)
-        at = self._at(block)
-        self.body.mark(mark, at)
-        for _, x in self._rest(at, block, block + self.config.avoid_horizon):
+        for _, x in self._samples(block, block + self.config.scan_horizon):
             self.body.mark(mark, x)
-        mark &= ~self.allowed
-        self.avoid = np.union1d(self.avoid, np.flatnonzero(mark))
-        self.stats["avoided_cells"] = len(self.avoid)
-        self.path = None
+        flat = self.allowed.reshape(-1)
+        cells = np.flatnonzero(mark.reshape(-1) & ~flat)
+        cells = cells[~np.isin(cells, self.hidden)]  # never the unseen rest of a seen surface
+        self.through = np.union1d(self.through, cells)
+        flat[cells] = True
+        self.stats["forced"] += 1
+        self.looks = 0
+        self._limit(self.tau)
 
     # --- planning ---------------------------------------------------------------------------
     def _plan(self, q: np.ndarray) -> None:
-        """Plan from ``q``: in safe mode around the cells to avoid; when no plan does (or after
-        ``max_detours`` detours in a row), those cells may be entered (``forced``) and the arm plans
-        as the default does, its path still scanned for other unknown cells."""
-        avoiding = self.allowed is not None and len(self.avoid) > 0
-        if avoiding and self.detours <= self.config.max_detours and self._plan_once(q, True):
+        """Plan from ``q`` as the default does; in safe mode, when that path enters cells the arm
+        may not enter, plan again in known space (every unknown cell an obstacle but those it may
+        enter) and follow that path instead if there is one."""
+        self.known_path = False
+        if not self._plan_once(q, self.checker) or self.allowed is None or self.body is None:
             return
-        if avoiding:  # no way around them: through them
-            assert self.allowed is not None
-            self.stats["forced"] += 1
-            self.through = np.union1d(self.through, self.avoid)
-            self.allowed.flat[self.avoid] = True
-            self.avoid = np.zeros(0, dtype=np.intp)
-            self.detours = 0
-        self._plan_once(q, False)
+        if getattr(self.planner, "use_checker", None) is None:
+            return
+        assert self.path is not None and self.times is not None and self.occupied is not None
+        allowed, body = self.allowed, self.body
+        if not any(body.in_unknown(x, allowed) for _, x in self._samples(0.0, float(self.times[-1]))):
+            return
+        optimistic = (self.path, self.times, self.tau_limit)
+        blocked = ~allowed
+        blocked.reshape(-1)[self.occupied] = True
+        if self._plan_once(q, self._cells_checker(np.flatnonzero(blocked), q), 0.5):
+            self.known_path = True
+            self.stats["known_plans"] += 1
+            return
+        self.path, self.times, self.tau_limit = optimistic
+        self.tau, self.looks = 0.0, 0
 
-    def _plan_once(self, q: np.ndarray, avoiding: bool) -> bool:
+    def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, share: float = 1.0) -> bool:
+        """One plan from ``q`` against ``checker`` within ``share`` of ``plan_time``; True when it
+        found a path (then followed from its start)."""
         task = self.task
         t0 = time.perf_counter()
-        checker = self.checker
         assert checker is not None
-        if avoiding:  # safe mode: around the hidden cells and the avoided ones
-            assert self.occupied is not None
-            checker = self._cells_checker(np.union1d(np.union1d(self.occupied, self.hidden), self.avoid), q)
         use_checker = getattr(self.planner, "use_checker", None)
         truth = self.observation is not None and self.observation.scene is not None
         if truth:
@@ -402,8 +411,7 @@ class OMPLReplanController(Controller):
             scene = Scene(name="observed-cells")  # the checker holds the cells; certified for self-collision
         else:
             assert self.occupied is not None
-            cells = np.union1d(self.occupied, self.hidden) if self.safe else self.occupied
-            scene = self._boxes(np.union1d(cells, self.avoid) if avoiding else cells)
+            scene = self._boxes(np.union1d(self.occupied, self.hidden) if self.safe else self.occupied)
         problem = Problem.create(
             task.robot, scene, q, goal_q=task.goal.q, goal_pose=task.goal.pose, tolerances=task.tolerances
         )
@@ -411,7 +419,7 @@ class OMPLReplanController(Controller):
             use_checker(problem, checker)
         else:
             self.planner.setup(problem)
-        result = self.planner.plan(problem, time_limit=self.config.plan_time, rng=self.rng)
+        result = self.planner.plan(problem, time_limit=share * self.config.plan_time, rng=self.rng)
         self.stats["plans"] += 1
         self.stats["plan_times"].append(time.perf_counter() - t0)
         if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
@@ -420,18 +428,38 @@ class OMPLReplanController(Controller):
         path = np.array(result.path, dtype=float)
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
-        self.tau, self.tau_limit = 0.0, math.inf
-        self._limit(q)
+        self.tau, self.tau_limit, self.looks = 0.0, math.inf, 0
+        self._limit(0.0)
         return True
 
-    def _limit(self, q: np.ndarray) -> None:
-        """Safe mode: where the follower stops on a fresh path (short of its first unknown cell)."""
+    def _samples(self, t0: float, t1: float) -> list[tuple[float, np.ndarray]]:
+        """The path's configurations at the times [s] in ``[t0, t1]`` on a fixed grid along it
+        (no joint moves more than ``check_resolution`` between two), the path's end included."""
+        assert self.times is not None
+        dt = self.config.check_resolution / float(np.max(self.vmax))
+        end = float(self.times[-1])
+        stamps = np.arange(math.ceil(t0 / dt - 1e-9), math.floor(min(t1, end) / dt + 1e-9) + 1) * dt
+        if t1 >= end and (not len(stamps) or stamps[-1] < end):
+            stamps = np.append(stamps, end)
+        return [(float(t), self._at(float(t))) for t in stamps]
+
+    def _limit(self, tau: float) -> float | None:
+        """Safe mode: set where the follower stops, short of the first configuration within
+        ``scan_horizon`` of ``tau`` [s] along the path that fills a cell it may not enter; that
+        configuration's time [s] (None: none). The samples lie on a grid fixed along the path, so
+        the stop does not creep forward from frame to frame."""
+        self.tau_limit = math.inf
         if self.allowed is None or self.body is None:
-            return
-        for when, x in self._rest(q, 0.0):
+            return None
+        assert self.times is not None
+        horizon = tau + self.config.scan_horizon
+        for when, x in self._samples(tau, horizon):
             if self.body.in_unknown(x, self.allowed):
                 self.tau_limit = when - self.config.lookahead
-                return
+                return when
+        if horizon < self.times[-1]:
+            self.tau_limit = horizon - self.config.lookahead
+        return None
 
     # --- following --------------------------------------------------------------------------
     def _at(self, tau: float) -> np.ndarray:
