@@ -142,6 +142,11 @@ def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np
     return np.unique(near[~flat_known[near]])
 
 
+_GAIN = 0.3
+"""Of the way back to the path per period the follower steers (stable while a command is held for
+fewer than 1 / 0.3 periods: a frame's checks cost 10-25 ms at a 10 ms period)."""
+
+
 class OMPLReplanController(Controller):
     """``ompl-replan`` (module docstring)."""
 
@@ -161,6 +166,7 @@ class OMPLReplanController(Controller):
         self.path: np.ndarray | None = None  # the path being followed, its first row where the arm was
         self.times: np.ndarray | None = None  # [s] at each of its waypoints, at the scaled velocity limits
         self.tau = 0.0  # [s] position along it
+        self.t_follow: float | None = None  # [s] when the follower last commanded
         self.tau_limit = math.inf  # [s] where the follower stops (safe mode: short of unknown cells)
         self.through = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells entered after a look
         self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
@@ -204,7 +210,7 @@ class OMPLReplanController(Controller):
             if self.path is None:
                 return np.zeros_like(q)
         self.still = False
-        return self._follow(q)
+        return self._follow(q, t)
 
     def info(self) -> dict[str, Any]:
         return dict(self.stats)
@@ -394,7 +400,7 @@ class OMPLReplanController(Controller):
             self.stats["known_plans"] += 1
             return
         self.path, self.times, self.tau_limit = optimistic
-        self.tau, self.looks = 0.0, 0
+        self.tau, self.looks, self.t_follow = 0.0, 0, None
 
     def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, share: float = 1.0) -> bool:
         """One plan from ``q`` against ``checker`` within ``share`` of ``plan_time``; True when it
@@ -428,7 +434,7 @@ class OMPLReplanController(Controller):
         path = np.array(result.path, dtype=float)
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
-        self.tau, self.tau_limit, self.looks = 0.0, math.inf, 0
+        self.tau, self.tau_limit, self.looks, self.t_follow = 0.0, math.inf, 0, None
         self._limit(0.0)
         return True
 
@@ -474,13 +480,23 @@ class OMPLReplanController(Controller):
         f = (tau - times[i]) / (times[i + 1] - times[i]) if times[i + 1] > times[i] else 1.0
         return path[i] + f * (path[i + 1] - path[i])
 
-    def _follow(self, q: np.ndarray) -> np.ndarray:
+    def _follow(self, q: np.ndarray, t: float) -> np.ndarray:
         """Advance along the path by one control period at the scaled velocity limits (not past
-        ``tau_limit``) and steer toward that point (which also pulls the arm back onto the path
-        after a held command)."""
+        ``tau_limit``): the path's velocity there, plus a pull of ``_GAIN`` of the way back to the
+        path. When the last command was held for more than a period (the controller was late), the
+        arm moved on along the path meanwhile: the position on the path advances by that time too.
+        A command that steered all the way back in one period would overshoot by as many periods as
+        it is held, and a late controller would swing the arm ever wider (the self-collision
+        measured before, with 160 ms per frame)."""
         T = self.task.period
         assert self.times is not None
-        self.tau = max(self.tau, min(self.tau + T, self.tau_limit, float(self.times[-1])))
-        target = self._at(self.tau)
+        end = float(self.times[-1])
+        if self.t_follow is not None:
+            late = max(0.0, t - self.t_follow - T)
+            self.tau = max(self.tau, min(self.tau + late, self.tau_limit, end))
+        self.t_follow = t
+        here = self._at(self.tau)
+        self.tau = max(self.tau, min(self.tau + T, self.tau_limit, end))
+        command = (self._at(self.tau) - here) / T + _GAIN * (here - q) / T
         full = self.vmax / self.config.speed_scale
-        return np.clip((target - q) / T, -full, full)
+        return np.clip(command, -full, full)
