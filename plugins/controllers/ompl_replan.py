@@ -23,7 +23,8 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
 
 - **hidden surfaces**: the unknown cells within ``surface_margin`` of an occupied cell are the
   unseen rest of a seen surface (the far side of a plate seen from above, an edge seen edge-on):
-  obstacles for every plan and check, never entered;
+  obstacles for every plan, never entered after a look (below); found when a plan needs them, as
+  a frame's check of the rest of the path stops short of every unknown cell anyway;
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
   not enter (below), the arm plans again with every such cell an obstacle (one octree of the
   grid's unknown and occupied cells, about 0.5 s to build) and follows that path if there is one;
@@ -180,7 +181,7 @@ class OMPLReplanController(Controller):
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
-        self.hidden = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells next to occupied ones
+        self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
@@ -232,16 +233,14 @@ class OMPLReplanController(Controller):
         if not self.safe or grid.known is None:
             self.checker = self._cells_checker(self.occupied, q)
             return
-        # the unseen rest of a seen surface: an obstacle, never entered
-        self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, grid.known)
-        self.checker = self._cells_checker(np.union1d(self.occupied, self.hidden), q)
+        self.checker = self._cells_checker(self.occupied, q)
+        self.hidden = None  # the unseen rest of seen surfaces: found when a plan needs them
         if self.config.gate:
             allowed = grid.known.copy()
             assert self.own is not None and self.near_goal is not None
             flat = allowed.reshape(-1)  # a view
             flat[self.own] = True
             flat[self.through] = True
-            flat[self.hidden] = False
             flat[self.near_goal] = True
             self.allowed = allowed
 
@@ -371,12 +370,23 @@ class OMPLReplanController(Controller):
             self.body.mark(mark, x)
         flat = self.allowed.reshape(-1)
         cells = np.flatnonzero(mark.reshape(-1) & ~flat)
-        cells = cells[~np.isin(cells, self.hidden)]  # never the unseen rest of a seen surface
+        cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
         self.stats["forced"] += 1
         self.looks = 0
         self._limit(self.tau)
+
+    def _hidden(self) -> np.ndarray:
+        """Safe mode, depth: the frame's unknown cells within ``surface_margin`` of an occupied
+        one (the unseen rest of a seen surface; computed once per frame, when first needed)."""
+        obs = self.observation
+        if obs is None or obs.grid.known is None or self.occupied is None:
+            return np.zeros(0, dtype=np.intp)
+        if self.hidden is None:
+            grid = obs.grid
+            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, grid.known)
+        return self.hidden
 
     # --- planning ---------------------------------------------------------------------------
     def _plan(self, q: np.ndarray) -> None:
@@ -384,7 +394,12 @@ class OMPLReplanController(Controller):
         may not enter, plan again in known space (every unknown cell an obstacle but those it may
         enter) and follow that path instead if there is one."""
         self.known_path = False
-        if not self._plan_once(q, self.checker) or self.allowed is None or self.body is None:
+        checker = self.checker
+        safe = self.safe and self.observation is not None and self.observation.grid.known is not None
+        if safe and self.observation is not None and self.observation.scene is None:
+            assert self.occupied is not None
+            checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q)
+        if not self._plan_once(q, checker) or self.allowed is None or self.body is None:
             return
         if getattr(self.planner, "use_checker", None) is None:
             return
@@ -417,7 +432,7 @@ class OMPLReplanController(Controller):
             scene = Scene(name="observed-cells")  # the checker holds the cells; certified for self-collision
         else:
             assert self.occupied is not None
-            scene = self._boxes(np.union1d(self.occupied, self.hidden) if self.safe else self.occupied)
+            scene = self._boxes(np.union1d(self.occupied, self._hidden()) if self.safe else self.occupied)
         problem = Problem.create(
             task.robot, scene, q, goal_q=task.goal.q, goal_pose=task.goal.pose, tolerances=task.tolerances
         )
