@@ -381,11 +381,12 @@ class OMPLReplanController(Controller):
         """Safe mode, depth: the frame's unknown cells within ``surface_margin`` of an occupied
         one (the unseen rest of a seen surface; computed once per frame, when first needed)."""
         obs = self.observation
-        if obs is None or obs.grid.known is None or self.occupied is None:
+        known = obs.grid.known if obs is not None else None
+        if obs is None or known is None or self.occupied is None:
             return np.zeros(0, dtype=np.intp)
         if self.hidden is None:
             grid = obs.grid
-            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, grid.known)
+            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, known)
         return self.hidden
 
     # --- planning ---------------------------------------------------------------------------
