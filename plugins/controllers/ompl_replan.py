@@ -499,17 +499,23 @@ class OMPLReplanController(Controller):
     def _follow(self, q: np.ndarray, t: float) -> np.ndarray:
         """Advance along the path by one control period at the scaled velocity limits (not past
         ``tau_limit``): the path's velocity there, plus a pull of ``_GAIN`` of the way back to the
-        path. When the last command was held for more than a period (the controller was late), the
-        arm moved on along the path meanwhile: the position on the path advances by that time too.
+        path. When the last call was more than a period ago (the controller was late), the arm may
+        have moved on along the path meanwhile (the last command held) or not (a stop held while
+        that command was computed, a plan's): the position on the path moves to the point nearest
+        the arm within that much time ahead.
         A command that steered all the way back in one period would overshoot by as many periods as
         it is held, and a late controller would swing the arm ever wider (the self-collision
         measured before, with 160 ms per frame)."""
         T = self.task.period
         assert self.times is not None
         end = float(self.times[-1])
-        if self.t_follow is not None:
-            late = max(0.0, t - self.t_follow - T)
-            self.tau = max(self.tau, min(self.tau + late, self.tau_limit, end))
+        if self.t_follow is not None and t - self.t_follow > T + 1e-9:
+            # late: where along the path (up to that much farther) is the arm now? The command may
+            # have been held, moving it on, or have come late itself, a stop held before it
+            late = min(t - self.t_follow - T, self.tau_limit - self.tau, end - self.tau)
+            ahead = self.tau + np.linspace(0.0, max(late, 0.0), max(2, min(100, math.ceil(late / T) + 1)))
+            gaps = [float(np.max(np.abs(self._at(float(x)) - q))) for x in ahead]
+            self.tau = float(ahead[int(np.argmin(gaps))])
         self.t_follow = t
         here = self._at(self.tau)
         self.tau = max(self.tau, min(self.tau + T, self.tau_limit, end))
