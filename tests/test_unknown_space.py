@@ -9,15 +9,15 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 import planbench
-from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.geometry.occupancy import OccupancyGrid
+from planbench.reactive.body import ArmBody
 from planbench.reactive.conformance import conformance_task
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
-from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
 
@@ -121,43 +121,116 @@ def free_task() -> ControlTask:
     return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
 
 
-def _plan_of(task: ControlTask, observation: Observation, **settings) -> tuple[np.ndarray, dict]:
-    """The first path ``ompl-replan`` plans from the start on ``observation`` (start first), and its info."""
+def _run(task: ControlTask, observation: Observation, ticks: int, **settings):
+    """``ompl-replan`` driven as the runner drives it (no compute time charged), the same frame
+    delivered every 3 ticks: the configurations after each tick, and the controller."""
     c = make_controller("ompl-replan", **settings)
-    c.setup(task)
+    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
     q = np.array(task.start, dtype=float)
+    c.setup(task)
     c.reset(q.copy(), np.random.default_rng(0))
-    c.update(observation)
-    c.step(0.0, q.copy(), observation, task.goal)
-    assert c.path is not None, c.info()
-    return np.vstack([q, c.path]), c.info()
+    qs = [q.copy()]
+    for k in range(ticks):
+        if k % 3 == 0:
+            c.update(dataclasses.replace(observation, time=k * task.period, frame=k // 3))
+        qd = c.step(k * task.period, q.copy(), observation, task.goal)
+        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
+        qs.append(q.copy())
+    return np.array(qs), c
 
 
-def _touches(task: ControlTask, scene, path: np.ndarray) -> bool:
-    checker = CollisionChecker(task.robot, scene)
-    dense = [a + u * (b - a) for a, b in zip(path[:-1], path[1:], strict=True) for u in np.linspace(0, 1, 25)]
-    return any(checker.in_collision(x) for x in dense)
-
-
-def test_ompl_replan_safe_mode_does_not_plan_through_an_unknown_block_near_its_path(free_task):
-    robot = free_task.robot
+@pytest.fixture(scope="module")
+def open_space(free_task):
+    """An empty grid, every cell seen, and the path ``ompl-replan`` follows there (start first)."""
     grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
-    seen_all = Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=np.ones(grid.shape, bool)))
-    path, _ = _plan_of(free_task, seen_all)
-    dense = [a + u * (b - a) for a, b in zip(path[:-1], path[1:], strict=True) for u in np.linspace(0, 1, 25)]
-    # a 10 cm cube no camera saw, on the hand's way, within 0.3 m of it (near the arm) and off the arm
-    hands = [robot.frame_pose(x, free_task.goal.pose.frame).translation for x in dense]
-    start_checker = CollisionChecker(robot, Scene())
-    for hand in hands:
-        centre = grid.origin + (grid.index_of(hand[None])[0] + 0.5) * grid.resolution
-        block = Scene((Obstacle("unseen", "box", position=tuple(centre), size=(0.1, 0.1, 0.1)),))
-        start_checker = CollisionChecker(robot, block)
-        if np.linalg.norm(hand - hands[0]) < 0.28 and not start_checker.in_collision(path[0]):
-            break
-    assert np.linalg.norm(hand - hands[0]) < 0.28 and not start_checker.in_collision(path[0])
-    blind = unknown_block(grid, centre, half=2)
-    through, _ = _plan_of(free_task, blind)  # "free": the same plan, through the block
-    assert _touches(free_task, block, through)
-    around, info = _plan_of(free_task, blind, unknown="occupied")
-    assert info["unknown_boxes"] > 0 and info["failed_plans"] == 0
-    assert not _touches(free_task, block, around)
+    seen = Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=np.ones(grid.shape, bool)))
+    qs, c = _run(free_task, seen, 400)
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), c.info()
+    return grid, qs
+
+
+def _seeing(grid: OccupancyGrid, known: np.ndarray) -> Observation:
+    return Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=known))
+
+
+def test_ompl_replan_safe_mode_leaves_a_start_walled_in_by_unknown_space_off_its_path(free_task, open_space):
+    """Only the cells the arm sweeps on its way are known (one cell around them): the start stands
+    in unknown space on every side, as a camera's view of a still arm leaves it. The old safe mode
+    (unknown cells within 0.3 m are obstacles) never left such a start; this one follows its path,
+    and never moves the arm into an unknown cell."""
+    grid, path = open_space
+    robot = free_task.robot
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    known = ndimage.binary_dilation(swept)
+    assert (~known).sum() > 0.9 * known.size  # unknown nearly everywhere, around the start too
+    start_shell = ndimage.binary_dilation(swept, iterations=3) & ~known
+    assert start_shell.any()
+    qs, c = _run(free_task, _seeing(grid, known), 400, unknown="occupied")
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), c.info()  # it got there
+    assert not any(body.in_unknown(q, known) for q in qs)  # through known cells only
+    assert c.info()["forced"] == 0
+
+
+def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBody) -> np.ndarray:
+    """The ``known`` mask of ``grid`` with a 10 cm cube unknown on the hand's way along ``path``,
+    off the arm at the start and at the goal."""
+    robot = free_task.robot
+    ends = np.zeros(grid.shape, dtype=bool)  # near the arm at the start and at the goal
+    body.mark(ends, path[0])
+    body.mark(ends, path[-1])
+    ends = ndimage.binary_dilation(ends, iterations=4)
+    for q in path[len(path) // 4 :]:  # the first place on the hand's way off both
+        hand = robot.frame_pose(q, free_task.goal.pose.frame).translation
+        known = unknown_block(grid, hand, half=2).grid.known
+        assert known is not None
+        if not (ends & ~known).any():
+            return known
+    raise AssertionError("no place for the block")
+
+
+def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space):
+    """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
+    seen. The default follows its path through it; the safe mode plans in known space first, around
+    it, and the arm's body is never in one of its cells."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    known = _block_on_path(free_task, grid, path, body)
+    through, _ = _run(free_task, _seeing(grid, known), 400)
+    assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
+    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")
+    info = c.info()
+    assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
+    assert info["known_plans"] >= 1 and info["forced"] == 0
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info  # around it to the goal
+
+
+def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(free_task, open_space):
+    """Only the cells the path sweeps are known, and a 10 cm cube of them is not: no path in known
+    space. The safe mode follows the default's path, stops short of the cube, and goes into it only
+    after ``look_frames`` new frames have shown nothing there; with a wait longer than the run it
+    never does."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    known = ndimage.binary_dilation(swept) & _block_on_path(free_task, grid, path, body)
+    qs, c = _run(free_task, _seeing(grid, known), 400, unknown="occupied", look_frames=10**6)
+    info = c.info()
+    inside = [body.in_unknown(q, known) for q in qs]
+    assert not any(inside[60:]), info  # (the first ticks leave the start, in its own unknown shell)
+    assert info["looks"] > 0 and info["forced"] == 0 and info["known_plans"] == 0
+    assert np.allclose(qs[-1], qs[-2]) and not np.allclose(qs[-1], free_task.goal.q)  # stopped short
+    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")  # look_frames = 3
+    inside = [body.in_unknown(q, known) for q in qs]
+    first = next(k for k in range(60, len(qs)) if inside[k])
+    still = np.linalg.norm(np.diff(qs[first - 20 : first], axis=0), axis=1) < 1e-12
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], still.astype(int), [0]]))))[::2]
+    assert runs.max() >= 8  # still for 3 frames (9 ticks) just before it went in (the lookahead after)
+    assert c.info()["forced"] >= 1
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)

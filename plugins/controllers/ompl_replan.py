@@ -4,27 +4,42 @@ replan whenever the path it follows becomes invalid.
 This is how a sampling planner is deployed in a changing scene, and the comparator the reactive
 methods must beat: RRT-Connect (any registered static planner, ``planner``) plans from the arm's
 configuration to the goal in the observed scene: the exact geometry with ``truth`` sensing, the
-occupied cells as boxes with ``depth`` sensing (whole cells; ``cell_inset`` shrinks them). The
-obstacles the arm already touches where a plan starts are left out of that plan (observed cells
-lie up to a cell beyond the true surface, so an arm a centimetre from a table can be "in" its
-cells). The follower moves along
-the path at ``speed_scale`` of every joint's velocity limit. On every new frame the rest of the path
-(from the arm's configuration) is checked against the new observation every ``check_resolution``
-rad; when it collides, the controller commands a stop in that tick and replans in the next, so
-that the command the runner holds while the planning time is charged (as on a robot) is the stop,
-not the old path's velocity. A failed plan leaves the arm still until the next frame.
+occupied cells with ``depth`` sensing (whole cells, as one coal octree when the planner takes a
+checker, :meth:`~planbench_plugins.ompl_planners.base.OMPLPlanner.use_checker`, else as boxes;
+``cell_inset`` shrinks the boxes). The obstacles the arm already touches where a plan starts are
+left out of that plan and of the path's checks (truth: whole obstacles; depth: the occupied cells
+within a cell of the arm's body, and of its body at the goal, which the task asserts free: observed
+cells lie up to a cell beyond the true surface, so an arm a centimetre from a table can be "in" its
+cells). The follower moves along the path at ``speed_scale`` of every joint's velocity limit. On
+every new frame the rest of the path (from the arm's configuration) is checked against the new
+observation every ``check_resolution`` rad; when it collides, the controller commands a stop in
+that tick and replans in the next, so that the command the runner holds while the planning time is
+charged (as on a robot) is the stop, not the old path's velocity. A failed plan leaves the arm
+still until the next frame.
 
 **Safe mode** (``unknown = "occupied"``; default ``"free"``, :class:`~.unknown.UnknownSettings`):
-on every frame, the cells the observation did not see (``grid.known``) within ``unknown_reach`` of
-the arm where it is count as obstacles, merged into boxes with the occupied cells, both for the
-check of the rest of the path and for a plan from there: a receding horizon of known-free space.
-The path is re-checked on every frame, and the arm moves less than ``unknown_reach`` between two
-frames (a frame's period, its latency and a held command at the scaled velocity limits), so the
-follower never leaves known-free space: it stops (instantly: the runner has no acceleration limit)
-where the rest of the path would enter unknown cells, and plans around them from there. Left out:
-the arm's own cells (its body, spheres along the links plus ``unknown_self_margin``, at its
-configuration and at the goal's, which the task asserts reachable; the sensor blinds itself
-there) and, as for observed cells, the unknown boxes the arm already touches where a plan starts.
+plan optimistically, enter unknown space only where there is no other way, and look first (as
+FASTER does for quadrotors: the plan may cross unknown space, the committed motion may not):
+
+- **hidden surfaces**: the unknown cells within ``surface_margin`` of an occupied cell are the
+  unseen rest of a seen surface (the far side of a plate seen from above, an edge seen edge-on):
+  obstacles for every plan, never entered after a look (below); found when a plan needs them, as
+  a frame's check of the rest of the path stops short of every unknown cell anyway;
+- **known space first**: a plan is made as the default does; if its path fills a cell the arm may
+  not enter (below), the arm plans again with every such cell an obstacle (one octree of the
+  grid's unknown and occupied cells, about 0.5 s to build) and follows that path if there is one;
+- **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
+  scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
+  ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
+  ``lookahead`` seconds of motion short of the first configuration that fills a cell the frame
+  does not know (the runner stops a command at once: the margin covers the scan's spacing and a
+  command held while a frame is checked). Held there for ``look_frames`` new frames (the map may
+  fill the cells in meanwhile, and a path through what it shows is replanned), the arm goes into
+  the unknown cells its body fills over the next ``scan_horizon`` (``forced`` in ``info``).
+
+The arm may always enter the unknown cells within ``start_margin`` of its body where the run
+started (the sensor's robot filter blinds it there, so they are never seen until the arm has
+moved) and at the goal (which the task asserts free).
 """
 
 from __future__ import annotations
@@ -36,18 +51,20 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
+from planbench.reactive.body import ArmBody, body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
-from planbench_plugins.controllers.cells import cell_boxes, cell_scene
-from planbench_plugins.controllers.unknown import UnknownSettings, arm_spheres, near_unknown
-from planbench_plugins.ik_loop import place_control_points
+from planbench_plugins.controllers.cells import cell_boxes
+from planbench_plugins.controllers.unknown import UnknownSettings
+from planbench_plugins.ompl_planners.grid import cells_checker
 
 __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 
@@ -55,7 +72,7 @@ __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 @dataclass(frozen=True)
 class OMPLReplanConfig(UnknownSettings):
     """Settings of ``ompl-replan``. ``unknown = "occupied"`` is its safe mode (module docstring):
-    the unknown cells near the arm are obstacles for the path's checks and plans."""
+    plan optimistically, move only into cells an observation knows."""
 
     planner: str = "ompl-rrtconnect"
     """The registered static planner that (re)plans."""
@@ -69,9 +86,29 @@ class OMPLReplanConfig(UnknownSettings):
     """How far each box of observed cells is shrunk on each side, in cells [0, 0.5): 0 plans
     around whole cells (the grid's ``"any"`` rule: conservative); measured on the ``dynamic``
     suite, an inset of a quarter cell let the follower's fingers touch the tables it planned next to."""
+    lookahead: float = 0.05
+    """Safe mode: [s] of motion along the path (at ``speed_scale``) the follower keeps between the
+    arm and the first configuration that fills an unknown cell (more than ``check_resolution``)."""
+    scan_horizon: float = 0.5
+    """Safe mode: [s] of the path ahead of the arm scanned for unknown cells on each frame; the
+    stretch entered at once after a look."""
+    look_frames: int = 3
+    """Safe mode: new frames the arm waits, stopped short of unknown cells, before it goes on into
+    them (the map may fill them in meanwhile; a path through what it shows is replanned)."""
+    surface_margin: float = 0.04
+    """Safe mode: [m] unknown cells within this of an occupied cell (centre to centre) are the
+    unseen rest of a seen surface (the far side of a plate seen from above, the edge seen
+    edge-on): obstacles for a plan, and never entered, even where no plan avoids other unknown cells."""
+    gate: bool = True
+    """Safe mode: plan in known space first and stop short of unknown cells on a path that enters
+    them (else only the hidden cells next to occupied ones, ``surface_margin``, are kept out of)."""
+    start_margin: float = 0.04
+    """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
+    to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
+    (0.03 m) of the arm, so these are never seen until the arm has moved; the same at the goal."""
 
     def __post_init__(self) -> None:
-        for name in ("plan_time", "check_resolution"):
+        for name in ("plan_time", "check_resolution", "lookahead", "scan_horizon", "start_margin", "surface_margin"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -79,7 +116,36 @@ class OMPLReplanConfig(UnknownSettings):
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
+        if isinstance(self.look_frames, bool) or not isinstance(self.look_frames, int) or self.look_frames < 0:
+            raise InvalidConfigError(f"look_frames must be an integer >= 0, got {self.look_frames!r}")
         self.validate_unknown()
+
+
+def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np.ndarray) -> np.ndarray:
+    """Flat indices of the unknown cells (``known`` False) whose centres lie within ``radius``
+    cells of one of ``cells`` (flat indices into a grid of ``shape``); a few milliseconds for
+    thousands of cells (flat offsets; the cells within ``radius`` of the grid's faces apart)."""
+    r = int(math.floor(radius))
+    if not len(cells) or r < 1:
+        return np.zeros(0, dtype=np.intp)
+    span = np.arange(-r, r + 1)
+    offsets = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)
+    offsets = offsets[(np.sum(offsets**2, axis=1) <= radius * radius) & np.any(offsets != 0, axis=1)]
+    dims = np.asarray(shape)
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    idx = np.column_stack(np.unravel_index(cells, shape))
+    inner = np.all((idx >= r) & (idx < dims - r), axis=1)
+    near = (cells[inner][:, None] + (offsets @ strides)[None, :]).ravel()  # no wrap: r from every face
+    edge = (idx[~inner][:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+    edge = edge[np.all((edge >= 0) & (edge < dims), axis=1)] @ strides
+    near = np.concatenate([near, edge])
+    flat_known = known.reshape(-1)
+    return np.unique(near[~flat_known[near]])
+
+
+_GAIN = 0.3
+"""Of the way back to the path per period the follower steers (stable while a command is held for
+fewer than 1 / 0.3 periods: a frame's checks cost 10-25 ms at a 10 ms period)."""
 
 
 class OMPLReplanController(Controller):
@@ -93,42 +159,48 @@ class OMPLReplanController(Controller):
         self.planner = REGISTRY.make(self.config.planner)
         self.vmax = self.config.speed_scale * np.asarray(task.robot.velocity_limit, dtype=float)
         self.safe = self.config.unknown == "occupied"
-        self.points = place_control_points(task.robot) if self.safe else None  # the arm's body, as spheres
-        goal_q = task.goal.q
-        self.goal_arm = arm_spheres(task.robot, self.points, goal_q) if self.safe and goal_q is not None else None
+        body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         self.rng = rng
+        self.start = np.array(q, dtype=float)
         self.path: np.ndarray | None = None  # the path being followed, its first row where the arm was
-        self.s = 0.0  # position along it: segment index + fraction
-        self.checker: CollisionChecker | None = None
-        self.frame_checker: CollisionChecker | None = None
-        self.scene: Scene | None = None
-        self.grid: OccupancyGrid | None = None  # the last frame's, for its unknown cells (safe mode)
-        self.counted: np.ndarray | None = None  # the unknown cells counted on the last frame
+        self.times: np.ndarray | None = None  # [s] at each of its waypoints, at the scaled velocity limits
+        self.tau = 0.0  # [s] position along it
+        self.t_follow: float | None = None  # [s] when the follower last commanded
+        self.tau_limit = math.inf  # [s] where the follower stops (safe mode: short of unknown cells)
+        self.through = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells entered after a look
+        self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
+        self.known_path = False  # safe mode: the path was planned in known space
+        self.observation: Observation | None = None
+        self.checker: CollisionChecker | None = None  # the frame's obstacles, less what the arm touches
+        self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
+        self.occupied: np.ndarray | None = None  # depth: the frame's occupied cells (flat indices)
+        self.body: ArmBody | None = None
+        self.geometry: tuple[Any, ...] | None = None  # the grid the cell caches below belong to
+        self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
+        self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
+        self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
+        self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats["unknown_boxes"] = 0  # on the last frame (safe mode)
+        self.stats.update(known_plans=0, looks=0, forced=0)
 
     def update(self, observation: Observation) -> None:
-        self.scene = observation.scene if observation.scene is not None else self._cells(observation)
-        self.grid = observation.grid
-        self.checker = None  # built when first needed (in the step: it is part of checking)
-        self.frame_checker = None  # the whole observed scene's
+        self.observation = observation
+        self.checker = None  # built in the step (it needs the arm's configuration)
         self.fresh = True
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
-        if self.scene is None:
+        if self.observation is None:
             return np.zeros_like(q)
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
             self.fresh, self.may_plan = False, True
-            if self.safe:
-                self.scene = self._with_unknown(q)
-            if self.path is not None and not self._rest_free(q):
-                self.stats["invalidated"] += 1
-                self.path = None
+            self._frame(q)
+            if self.path is not None:
+                self._check_rest(q)
         if self.path is None:
             if not self.still:  # stop first: the runner holds this command while the plan is made
                 self.still = True
@@ -139,104 +211,314 @@ class OMPLReplanController(Controller):
             if self.path is None:
                 return np.zeros_like(q)
         self.still = False
-        return self._follow(q)
+        return self._follow(q, t)
 
     def info(self) -> dict[str, Any]:
         return dict(self.stats)
 
-    # --- planning ---------------------------------------------------------------------------
-    def _cells(self, observation: Observation) -> Scene:
-        scene = cell_scene(observation.grid)
-        inset = self.config.cell_inset * observation.grid.resolution
-        if inset <= 0:
-            return scene
-        shrunk = tuple(
-            dataclasses.replace(o, size=tuple(s - 2 * inset for s in o.size)) if o.size is not None else o  # boxes
-            for o in scene.obstacles
+    # --- the frame ----------------------------------------------------------------------------
+    def _frame(self, q: np.ndarray) -> None:
+        """The frame's checker (less the obstacles the arm at ``q`` touches) and, in safe mode, the
+        cells the arm may enter."""
+        obs = self.observation
+        assert obs is not None
+        if obs.scene is not None:  # truth: the exact geometry
+            self.scene, self.checker = self._around(obs.scene, q)
+            self.allowed = None
+            return
+        grid = obs.grid
+        self._geometry(grid)
+        self.occupied = np.flatnonzero(grid.data >= 0.5)
+        self.allowed = None
+        if not self.safe or grid.known is None:
+            self.checker = self._cells_checker(self.occupied, q)
+            return
+        self.checker = self._cells_checker(self.occupied, q)
+        self.hidden = None  # the unseen rest of seen surfaces: found when a plan needs them
+        if self.config.gate:
+            allowed = grid.known.copy()
+            assert self.own is not None and self.near_goal is not None
+            flat = allowed.reshape(-1)  # a view
+            flat[self.own] = True
+            flat[self.through] = True
+            flat[self.near_goal] = True
+            self.allowed = allowed
+
+    def _geometry(self, grid: OccupancyGrid) -> None:
+        """The caches that belong to the grid's cells: the arm's body, the cells near it at the goal
+        and, in safe mode, where it started."""
+        key = (grid.shape, tuple(grid.origin), grid.resolution)
+        if key == self.geometry:
+            return
+        self.geometry = key
+        self.body = ArmBody(self.task.robot, grid.origin, grid.shape, grid.resolution)
+        goal_q = self.task.goal.q
+        self.near_goal = self._near(np.asarray(goal_q), 1) if goal_q is not None else np.zeros(0, dtype=np.intp)
+        self.through = np.zeros(0, dtype=np.intp)
+        if self.safe:
+            cells = max(1, math.ceil(self.config.start_margin / grid.resolution))
+            own = [self._near(self.start, cells)]
+            if goal_q is not None:
+                own.append(self._near(np.asarray(goal_q), cells))
+            self.own = np.unique(np.concatenate(own))
+
+    def _near(self, q: np.ndarray, cells: int) -> np.ndarray:
+        """Flat indices of the cells within ``cells`` cells (a cube) of those the arm fills at ``q``."""
+        assert self.body is not None
+        mark = np.zeros(self.body.shape, dtype=bool)
+        self.body.mark(mark, q)
+        hit = np.argwhere(mark)
+        if not len(hit):
+            return np.zeros(0, dtype=np.intp)
+        lo = np.maximum(hit.min(axis=0) - cells, 0)
+        hi = np.minimum(hit.max(axis=0) + cells + 1, self.body.shape)
+        block = mark[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
+        grown = ndimage.binary_dilation(block, np.ones((3, 3, 3), dtype=bool), iterations=cells)
+        idx = np.argwhere(grown) + lo
+        return np.ravel_multi_index(tuple(idx.T), self.body.shape)
+
+    def _cells_checker(self, cells: np.ndarray, q: np.ndarray) -> CollisionChecker:
+        """A checker of the cells (flat indices) less those within a cell of the arm at ``q`` and at
+        the goal, when the arm touches them there (counted in ``dropped``)."""
+        checker = self._checker_of(cells)
+        goal_q = self.task.goal.q
+        touched = checker.in_collision(q) or (goal_q is not None and checker.in_collision(np.asarray(goal_q)))
+        if not touched:
+            return checker
+        assert self.near_goal is not None
+        near = np.concatenate([self._near(q, 1), self.near_goal])
+        kept = cells[~np.isin(cells, near)]
+        self.stats["dropped"] += len(cells) - len(kept)
+        return self._checker_of(kept)
+
+    def _checker_of(self, cells: np.ndarray) -> CollisionChecker:
+        obs = self.observation
+        assert obs is not None
+        grid = obs.grid
+        if self.config.cell_inset <= 0:
+            return cells_checker(self.task.robot, grid, cells)
+        return CollisionChecker(self.task.robot, self._boxes(cells))
+
+    def _boxes(self, cells: np.ndarray) -> Scene:
+        """The cells (flat indices) as boxes, shrunk by ``cell_inset``."""
+        grid = self.observation.grid  # type: ignore[union-attr]
+        mask = np.zeros(grid.shape, dtype=bool)
+        mask.flat[cells] = True
+        inset = self.config.cell_inset * grid.resolution
+        boxes = tuple(
+            dataclasses.replace(o, size=tuple(s - 2 * inset for s in o.size)) if o.size is not None else o
+            for o in cell_boxes(mask, grid.origin, grid.resolution)
         )
-        return Scene(shrunk, scene.name)
+        return Scene(boxes, "observed-cells")
 
-    def _with_unknown(self, q: np.ndarray) -> Scene:
-        """The frame's scene plus its unknown cells near the arm at ``q`` as boxes (safe mode)."""
-        assert self.scene is not None and self.grid is not None and self.points is not None
-        arms = [arm_spheres(self.task.robot, self.points, q)]
-        if self.goal_arm is not None:
-            arms.append(self.goal_arm)
-        c = self.config
-        cells = near_unknown(self.grid, arms, c.unknown_reach, c.unknown_self_margin, self.counted)
-        self.counted = cells
-        if cells is None or not cells.any():
-            self.stats["unknown_boxes"] = 0
-            return self.scene
-        obstacles = cell_boxes(cells, self.grid.origin, self.grid.resolution, "unknown")
-        self.stats["unknown_boxes"] = len(obstacles)
-        return Scene((*self.scene.obstacles, *obstacles), self.scene.name)
+    def _around(self, scene: Scene, q: np.ndarray) -> tuple[Scene, CollisionChecker]:
+        """Truth: the scene without the obstacles the arm at ``q`` touches (counted in ``dropped``),
+        and a checker of it."""
+        checker = CollisionChecker(self.task.robot, scene)
+        touched = {obstacle.removeprefix("obstacle:") for _, obstacle in checker.collisions(q)}
+        if not touched:
+            return scene, checker
+        self.stats["dropped"] += len(touched)
+        scene = Scene(tuple(o for o in scene.obstacles if o.name not in touched), scene.name)
+        return scene, CollisionChecker(self.task.robot, scene)
 
+    # --- the rest of the path ------------------------------------------------------------------
+    def _rest(self, q: np.ndarray, tau: float, until: float = math.inf) -> list[tuple[float, np.ndarray]]:
+        """The configurations at which the rest of the path from ``q`` (at ``tau`` [s] along it) is
+        checked, each with its time along the path [s], up to ``until`` [s]."""
+        path, times = self.path, self.times
+        assert path is not None and times is not None
+        i = min(int(np.searchsorted(times, tau, side="right")), len(path) - 1)
+        ends = np.vstack([q, path[i:]])
+        stamps = np.concatenate([[tau], times[i:]])
+        out: list[tuple[float, np.ndarray]] = []
+        for a, b, ta, tb in zip(ends[:-1], ends[1:], stamps[:-1], stamps[1:], strict=True):
+            n = max(1, int(math.ceil(np.max(np.abs(b - a)) / self.config.check_resolution)))
+            for u in np.arange(1, n + 1) / n:
+                if ta + u * (tb - ta) > until:
+                    return out
+                out.append((ta + u * (tb - ta), a + u * (b - a)))
+        return out
+
+    def _check_rest(self, q: np.ndarray) -> None:
+        """On a new frame: drop the path if its rest collides with the frame's obstacles; in safe
+        mode, set where the follower stops short of unknown cells and, when the arm has waited
+        there ``look_frames`` frames, let it into the next ``scan_horizon`` of them."""
+        assert self.checker is not None and self.times is not None
+        for _, x in self._rest(q, self.tau):
+            if self.checker.in_collision(x):
+                self.stats["invalidated"] += 1
+                self.path = None
+                return
+        if self.allowed is None:
+            return
+        block = self._limit(self.tau)
+        if block is None or self.tau < self.tau_limit - 1e-9:
+            self.looks = 0
+            return
+        self.looks += 1  # held short of unknown cells: look, then go on
+        self.stats["looks"] += 1
+        if self.looks > self.config.look_frames:
+            self._go_through(block)
+
+    def _go_through(self, block: float) -> None:
+        """Let the arm into the unknown cells its body fills over ``scan_horizon`` from ``block``
+        [s] along the path (``forced``: the only way on goes through space no frame has seen)."""
+        assert self.body is not None and self.allowed is not None
+        mark = np.zeros(self.body.shape, dtype=bool)
+        for _, x in self._samples(block, block + self.config.scan_horizon):
+            self.body.mark(mark, x)
+        flat = self.allowed.reshape(-1)
+        cells = np.flatnonzero(mark.reshape(-1) & ~flat)
+        cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
+        self.through = np.union1d(self.through, cells)
+        flat[cells] = True
+        self.stats["forced"] += 1
+        self.looks = 0
+        self._limit(self.tau)
+
+    def _hidden(self) -> np.ndarray:
+        """Safe mode, depth: the frame's unknown cells within ``surface_margin`` of an occupied
+        one (the unseen rest of a seen surface; computed once per frame, when first needed)."""
+        obs = self.observation
+        known = obs.grid.known if obs is not None else None
+        if obs is None or known is None or self.occupied is None:
+            return np.zeros(0, dtype=np.intp)
+        if self.hidden is None:
+            grid = obs.grid
+            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, known)
+        return self.hidden
+
+    # --- planning ---------------------------------------------------------------------------
     def _plan(self, q: np.ndarray) -> None:
+        """Plan from ``q`` as the default does; in safe mode, when that path enters cells the arm
+        may not enter, plan again in known space (every unknown cell an obstacle but those it may
+        enter) and follow that path instead if there is one."""
+        self.known_path = False
+        checker = self.checker
+        safe = self.safe and self.observation is not None and self.observation.grid.known is not None
+        if safe and self.observation is not None and self.observation.scene is None:
+            assert self.occupied is not None
+            checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q)
+        if not self._plan_once(q, checker) or self.allowed is None or self.body is None:
+            return
+        if getattr(self.planner, "use_checker", None) is None:
+            return
+        assert self.path is not None and self.times is not None and self.occupied is not None
+        allowed, body = self.allowed, self.body
+        if not any(body.in_unknown(x, allowed) for _, x in self._samples(0.0, float(self.times[-1]))):
+            return
+        optimistic = (self.path, self.times, self.tau_limit)
+        blocked = ~allowed
+        blocked.reshape(-1)[self.occupied] = True
+        if self._plan_once(q, self._cells_checker(np.flatnonzero(blocked), q), 0.5):
+            self.known_path = True
+            self.stats["known_plans"] += 1
+            return
+        self.path, self.times, self.tau_limit = optimistic
+        self.tau, self.looks, self.t_follow = 0.0, 0, None
+
+    def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, share: float = 1.0) -> bool:
+        """One plan from ``q`` against ``checker`` within ``share`` of ``plan_time``; True when it
+        found a path (then followed from its start)."""
         task = self.task
         t0 = time.perf_counter()
-        scene, _ = self._around(q)
+        assert checker is not None
+        use_checker = getattr(self.planner, "use_checker", None)
+        truth = self.observation is not None and self.observation.scene is not None
+        if truth:
+            assert self.scene is not None
+            scene = self.scene
+        elif use_checker is not None:
+            scene = Scene(name="observed-cells")  # the checker holds the cells; certified for self-collision
+        else:
+            assert self.occupied is not None
+            scene = self._boxes(np.union1d(self.occupied, self._hidden()) if self.safe else self.occupied)
         problem = Problem.create(
             task.robot, scene, q, goal_q=task.goal.q, goal_pose=task.goal.pose, tolerances=task.tolerances
         )
-        self.planner.setup(problem)
-        result = self.planner.plan(problem, time_limit=self.config.plan_time, rng=self.rng)
+        if use_checker is not None and not truth:
+            use_checker(problem, checker)
+        else:
+            self.planner.setup(problem)
+        result = self.planner.plan(problem, time_limit=share * self.config.plan_time, rng=self.rng)
         self.stats["plans"] += 1
         self.stats["plan_times"].append(time.perf_counter() - t0)
         if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
             self.stats["failed_plans"] += 1
-            return
-        self.path, self.s = np.array(result.path, dtype=float), 0.0
-
-    def _around(self, q: np.ndarray, count: bool = True) -> tuple[Scene, CollisionChecker]:
-        """The observed scene without the obstacles the arm at ``q`` already touches, and a
-        checker of it: observed cells are at most a cell off the true surface, so an arm a
-        centimetre from a table can be "in" the table's cells; a plan must start somewhere
-        (counted in ``dropped``). The frame's checker is built once and reused when nothing is
-        touched."""
-        assert self.scene is not None
-        if self.frame_checker is None:
-            self.frame_checker = CollisionChecker(self.task.robot, self.scene)
-        touched = {obstacle.removeprefix("obstacle:") for _, obstacle in self.frame_checker.collisions(q)}
-        if not touched:
-            return self.scene, self.frame_checker
-        if count:
-            self.stats["dropped"] += len(touched)
-        scene = Scene(tuple(o for o in self.scene.obstacles if o.name not in touched), self.scene.name)
-        return scene, CollisionChecker(self.task.robot, scene)
-
-    def _rest_free(self, q: np.ndarray) -> bool:
-        """Whether the arm's way from ``q`` along the rest of the path is free in the observation."""
-        assert self.path is not None and self.scene is not None
-        if self.checker is None:  # what a plan from here would avoid (see _around)
-            self.checker = self._around(q, count=False)[1]
-        i = min(int(self.s) + 1, len(self.path) - 1)
-        rest = np.vstack([q, self.path[i:]])
-        for a, b in zip(rest[:-1], rest[1:], strict=True):
-            n = max(1, int(math.ceil(np.max(np.abs(b - a)) / self.config.check_resolution)))
-            for u in np.linspace(0.0, 1.0, n + 1)[1:]:
-                if self.checker.in_collision(a + u * (b - a)):
-                    return False
+            return False
+        path = np.array(result.path, dtype=float)
+        steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
+        self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
+        self.tau, self.tau_limit, self.looks, self.t_follow = 0.0, math.inf, 0, None
+        self._limit(0.0)
         return True
 
+    def _samples(self, t0: float, t1: float) -> list[tuple[float, np.ndarray]]:
+        """The path's configurations at the times [s] in ``[t0, t1]`` on a fixed grid along it
+        (no joint moves more than ``check_resolution`` between two), the path's end included."""
+        assert self.times is not None
+        dt = self.config.check_resolution / float(np.max(self.vmax))
+        end = float(self.times[-1])
+        stamps = np.arange(math.ceil(t0 / dt - 1e-9), math.floor(min(t1, end) / dt + 1e-9) + 1) * dt
+        if t1 >= end and (not len(stamps) or stamps[-1] < end):
+            stamps = np.append(stamps, end)
+        return [(float(t), self._at(float(t))) for t in stamps]
+
+    def _limit(self, tau: float) -> float | None:
+        """Safe mode: set where the follower stops, short of the first configuration within
+        ``scan_horizon`` of ``tau`` [s] along the path that fills a cell it may not enter; that
+        configuration's time [s] (None: none). The samples lie on a grid fixed along the path, so
+        the stop does not creep forward from frame to frame."""
+        self.tau_limit = math.inf
+        if self.allowed is None or self.body is None:
+            return None
+        assert self.times is not None
+        horizon = tau + self.config.scan_horizon
+        for when, x in self._samples(tau, horizon):
+            if self.body.in_unknown(x, self.allowed):
+                self.tau_limit = when - self.config.lookahead
+                return when
+        if horizon < self.times[-1]:
+            self.tau_limit = horizon - self.config.lookahead
+        return None
+
     # --- following --------------------------------------------------------------------------
-    def _follow(self, q: np.ndarray) -> np.ndarray:
-        """Advance along the path by one control period at the scaled velocity limits and steer
-        toward that point (which also pulls the arm back onto the path after a held command)."""
-        path, T = self.path, self.task.period
-        assert path is not None
-        budget = T  # [s] of motion left in this tick
-        i, f = int(self.s), self.s - int(self.s)
-        while i < len(path) - 1 and budget > 0:
-            seg = path[i + 1] - path[i]
-            duration = float(np.max(np.abs(seg) / self.vmax))  # [s] for the whole segment
-            left = (1.0 - f) * duration
-            if left <= budget:
-                budget -= left
-                i, f = i + 1, 0.0
-            else:
-                f += budget / duration
-                budget = 0.0
-        self.s = i + f
-        target = path[i] if i >= len(path) - 1 else path[i] + f * (path[i + 1] - path[i])
-        return np.clip((target - q) / T, -self.vmax / self.config.speed_scale, self.vmax / self.config.speed_scale)
+    def _at(self, tau: float) -> np.ndarray:
+        """The path's configuration at ``tau`` [s] along it."""
+        path, times = self.path, self.times
+        assert path is not None and times is not None
+        if tau <= 0 or len(path) == 1:
+            return path[0].copy()
+        if tau >= times[-1]:
+            return path[-1].copy()
+        i = int(np.searchsorted(times, tau, side="right")) - 1
+        f = (tau - times[i]) / (times[i + 1] - times[i]) if times[i + 1] > times[i] else 1.0
+        return path[i] + f * (path[i + 1] - path[i])
+
+    def _follow(self, q: np.ndarray, t: float) -> np.ndarray:
+        """Advance along the path by one control period at the scaled velocity limits (not past
+        ``tau_limit``): the path's velocity there, plus a pull of ``_GAIN`` of the way back to the
+        path. When the last call was more than a period ago (the controller was late), the arm may
+        have moved on along the path meanwhile (the last command held) or not (a stop held while
+        that command was computed, a plan's): the position on the path moves to the point nearest
+        the arm within that much time ahead.
+        A command that steered all the way back in one period would overshoot by as many periods as
+        it is held, and a late controller would swing the arm ever wider (the self-collision
+        measured before, with 160 ms per frame)."""
+        T = self.task.period
+        assert self.times is not None
+        end = float(self.times[-1])
+        if self.t_follow is not None and t - self.t_follow > T + 1e-9:
+            # late: where along the path (up to that much farther) is the arm now? The command may
+            # have been held, moving it on, or have come late itself, a stop held before it
+            late = min(t - self.t_follow - T, self.tau_limit - self.tau, end - self.tau)
+            ahead = self.tau + np.linspace(0.0, max(late, 0.0), max(2, min(100, math.ceil(late / T) + 1)))
+            gaps = [float(np.max(np.abs(self._at(float(x)) - q))) for x in ahead]
+            self.tau = float(ahead[int(np.argmin(gaps))])
+        self.t_follow = t
+        here = self._at(self.tau)
+        self.tau = max(self.tau, min(self.tau + T, self.tau_limit, end))
+        command = (self._at(self.tau) - here) / T + _GAIN * (here - q) / T
+        full = self.vmax / self.config.speed_scale
+        return np.clip(command, -full, full)

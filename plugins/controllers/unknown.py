@@ -9,9 +9,9 @@ chosen as a perception engineer would, so that the choice stays cheap and does n
 - **only near the arm**: unknown cells within ``unknown_reach`` [m] of one of the arm's control
   points (the IK loop's, :func:`~planbench_plugins.ik_loop.place_control_points`: spheres along
   every moving link). A camera leaves most of the world unknown (73 % of the Panda's 142^3 grid on
-  ``dynamic:panda_crossing_fast_depth/0001``); beyond the fields' reach such cells push nothing,
-  and a planner re-reads them from where the arm is on every frame (a receding horizon). Merged
-  into boxes, the unknown cells of that grid are 35,753 boxes; within 0.3 m of the arm, 1,661;
+  ``dynamic:panda_crossing_fast_depth/0001``); beyond the fields' reach such cells push nothing.
+  Merged into boxes, the unknown cells of that grid are 35,753 boxes; within 0.3 m of the arm,
+  1,661 (``ompl-replan`` reads unknown cells its own way: its module docstring);
 - **never the arm's own body**: cells within a link's radius plus ``unknown_self_margin`` [m] of a
   control point are left free. The sensor marks the cells the arm's body fills known, but its
   robot filter blinds it within ``robot_margin`` of the arm (docs/sensing.md), so a shell around
@@ -20,7 +20,7 @@ chosen as a perception engineer would, so that the choice stays cheap and does n
 
 What is left is not solved by any rule on one frame: the arm's shadow (the unknown behind the arm
 as the camera sees it) starts at the arm's surface, so ``"occupied"`` pushes a field controller
-toward the camera and blocks a planner's moves away from it, until a map fused over frames fills
+toward the camera, until a map fused over frames fills
 the shadow in from where the arm was before (``sensing.memory = "map"``).
 """
 

@@ -259,6 +259,16 @@ class OMPLPlanner(Planner):
         self._checker_for(problem)
         verdict_checker(problem)  # built here, untimed; cached on the problem
 
+    def use_checker(self, problem: Problem, checker: CollisionChecker) -> None:
+        """Plan ``problem`` against ``checker`` instead of a checker built from its scene (the
+        caller's: an observed grid's cells as one octree, say, which costs milliseconds where the
+        same cells as hundreds of boxes cost a second); in place of :meth:`setup`. The returned path
+        is still certified (``verify``) against ``problem.scene``."""
+        self._checker = checker
+        self._checker_problem = problem
+        self._checker_key = (self.config.collision, self.config.grid_resolution, self.config.grid_geometry)
+        self._segments = {}
+
     def _checker_for(self, problem: Problem) -> CollisionChecker:
         c = self.config
         key = (c.collision, c.grid_resolution, c.grid_geometry)

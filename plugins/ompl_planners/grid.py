@@ -33,7 +33,7 @@ from planbench.geometry.occupancy import OccupancyGrid, merge_cells, scene_grid
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["GRID_GEOMETRIES", "grid_for_scene", "grid_checker"]
+__all__ = ["GRID_GEOMETRIES", "cells_checker", "grid_for_scene", "grid_checker"]
 
 GRID_GEOMETRIES = ("octree", "boxes")
 
@@ -102,3 +102,20 @@ def grid_checker(
             centre = tuple(float(x) for x in lo + 0.5 * size)
             obstacles.append(_GeometryObstacle(f"cells-{k}", coal.Box(*size), centre))  # type: ignore[arg-type]
     return CollisionChecker(robot, _GeometryScene(tuple(obstacles)))  # type: ignore[arg-type]
+
+
+def cells_checker(robot: Robot, grid: OccupancyGrid, cells: np.ndarray) -> CollisionChecker:
+    """A CollisionChecker of ``robot`` against the cells of ``grid`` with the flat indices ``cells``
+    (``np.ravel_multi_index`` order), as one ``coal.OcTree`` placed at the grid's corner: its cells
+    are the grid's whatever the origin (the octree's own cells lie on multiples of the resolution
+    from its frame's origin). Building it costs about 10 ms for 3,000 cells, where the same cells
+    merged into 700 boxes cost 0.2-1 s (a geometry object and collision pairs per box)."""
+    res = grid.resolution
+    cells = np.asarray(cells, dtype=np.intp)
+    obstacles: tuple[_GeometryObstacle, ...] = ()
+    if len(cells):
+        idx = np.column_stack(np.unravel_index(cells, grid.shape))
+        octree = coal.makeOctree((idx + 0.5) * res, res)
+        corner = tuple(float(x) for x in grid.origin)
+        obstacles = (_GeometryObstacle("occupancy-octree", octree, corner),)  # type: ignore[arg-type]
+    return CollisionChecker(robot, _GeometryScene(obstacles))  # type: ignore[arg-type]
