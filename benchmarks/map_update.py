@@ -25,48 +25,27 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from collections.abc import Callable
 
 import numpy as np
+from _frames import MovingScene, median_ms
 
-import planbench
 from planbench.geometry.occupancy import grid_shape
 from planbench.geometry.occupancy_map import OccupancyMap
 from planbench.geometry.views import mark_seen
 from planbench.reactive.scenario import CameraSettings, SensingSettings
 from planbench.reactive.sensing import Sensor, camera_frame, camera_rays
-from planbench.scene import Obstacle, Scene
 
 CAMERA = CameraSettings(position=(1.5, 0.3, 0.9), look_at=(0.4, 0.0, 0.3), noise_std=0.005, dropout=0.05)
 RES = 0.02
-
-
-def _median_ms(frames: int, body: Callable[[int], object]) -> float:
-    body(0)  # warm-up: compilation, caches, first allocation
-    times = []
-    for k in range(1, frames + 1):
-        t0 = time.perf_counter()
-        body(k)
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=30)
     args = parser.parse_args(argv)
-    problem = planbench.load_problems("mbm:box/0001")[0]
-    robot, start = problem.robot, np.asarray(problem.start)
-    goal = problem.goal.q if problem.goal.q is not None else start
     n = args.frames + 1
-
-    def scene(k: int) -> Scene:
-        ball = Obstacle("ball", "sphere", position=(0.6, -0.4 + 0.8 * k / n, 0.6), radius=0.05)
-        return problem.scene.with_obstacles([ball])
-
-    def q(k: int) -> np.ndarray:
-        return start + (goal - start) * k / n
+    moving = MovingScene(n)
+    robot, scene, q = moving.robot, moving.scene, moving.q
 
     settings = SensingSettings(model="depth", resolution=RES, cameras=(CAMERA,), memory="map")
     sensor = Sensor(settings, robot)
@@ -89,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         ours.integrate(seen, np.unique(np.ravel_multi_index(idx[inside].T, shape)))
         return ours.grid()
 
-    print(f"  planbench map: mark_seen + integrate + grid   {_median_ms(args.frames, update):7.1f}")
+    print(f"  planbench map: mark_seen + integrate + grid   {median_ms(args.frames, update):7.1f}")
     try:
         import pyoctomap
     except ImportError:
@@ -104,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
             points = np.ascontiguousarray(np.concatenate([cloud, far]))
             return tree.insertPointCloud(points, origin, max_range=CAMERA.max_range)
 
-        print(f"  OctoMap: insertPointCloud                      {_median_ms(args.frames, octomap):7.1f}")
+        print(f"  OctoMap: insertPointCloud                      {median_ms(args.frames, octomap):7.1f}")
 
         def dense(k: int) -> object:
             known, occupied = np.zeros(shape, dtype=bool), np.zeros(shape, dtype=bool)
@@ -117,14 +96,14 @@ def main(argv: list[str] | None = None) -> int:
                 occupied[block] = tree.isNodeOccupied(leaf)
             return known, occupied
 
-        print(f"  OctoMap: read back into dense grids             {_median_ms(3, dense):7.1f}")
+        print(f"  OctoMap: read back into dense grids             {median_ms(3, dense):7.1f}")
     for memory in ("map", "frame"):
         s = Sensor(SensingSettings(model="depth", resolution=RES, cameras=(CAMERA,), memory=memory), robot)
 
         def capture(k: int, s: Sensor = s) -> object:
             return s.capture(scene(k), q(k), k / 30.0, k, np.random.default_rng(k))
 
-        print(f"  Sensor.capture, memory={memory:<5}                 {_median_ms(args.frames, capture):7.1f}")
+        print(f"  Sensor.capture, memory={memory:<5}                 {median_ms(args.frames, capture):7.1f}")
     return 0
 
 

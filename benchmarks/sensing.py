@@ -18,46 +18,25 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from _frames import MovingScene, median_ms
 
-import planbench
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.scenario import CameraSettings, SensingSettings
 from planbench.reactive.sensing import Sensor, camera_rays
-from planbench.scene import Obstacle, Scene
 
 CAMERA = CameraSettings(position=(1.5, 0.3, 0.9), look_at=(0.4, 0.0, 0.3), noise_std=0.005, dropout=0.05)
-
-
-def _median_ms(frames: int, body: Callable[[int], object]) -> float:
-    body(0)  # warm-up: caches, first allocation
-    times = []
-    for k in range(1, frames + 1):
-        t0 = time.perf_counter()
-        body(k)
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=20)
     args = parser.parse_args(argv)
-    problem = planbench.load_problems("mbm:box/0001")[0]
-    robot, start = problem.robot, np.asarray(problem.start)
-    goal = problem.goal.q if problem.goal.q is not None else start
     n = args.frames + 1
-
-    def scene(k: int) -> Scene:
-        ball = Obstacle("ball", "sphere", position=(0.6, -0.4 + 0.8 * k / n, 0.6), radius=0.05)
-        return problem.scene.with_obstacles([ball])
-
-    def q(k: int) -> np.ndarray:
-        return start + (goal - start) * k / n
+    moving = MovingScene(n)
+    robot, start, scene, q = moving.robot, moving.start, moving.scene, moving.q
 
     origin, dirs = camera_rays(CAMERA)
     hand = robot.frame_pose(start).translation
@@ -70,9 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     truth = Sensor(SensingSettings(model="truth", resolution=res), robot)
     bounds = truth.bounds
     print(f"  grid {OccupancyGrid.empty(bounds[0], bounds[1], res).shape}")
-    fresh = _median_ms(args.frames, lambda k: OccupancyGrid.from_scene(scene(k), res, bounds=bounds))
+    fresh = median_ms(args.frames, lambda k: OccupancyGrid.from_scene(scene(k), res, bounds=bounds))
     print(f"  truth, fresh from_scene     {fresh:7.1f}")
-    cached = _median_ms(args.frames, lambda k: truth.capture(scene(k), q(k), 0.0, k, rng))
+    cached = median_ms(args.frames, lambda k: truth.capture(scene(k), q(k), 0.0, k, rng))
     print(f"  truth (cached)              {cached:7.1f}")
     for width, height in ((160, 120), (320, 240)):
         cam = replace(CAMERA, width=width, height=height)
@@ -84,8 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         def cloud_of(k: int, s: Sensor = sensor) -> object:
             return s.point_cloud(scene(k), q(k), rng)
 
-        total = _median_ms(args.frames, capture)
-        cloud = _median_ms(args.frames, cloud_of)
+        total = median_ms(args.frames, capture)
+        cloud = median_ms(args.frames, cloud_of)
         points = len(sensor.point_cloud(scene(0), q(0), rng))
         print(f"  depth {width}x{height:<4}  capture {total:7.1f}   point cloud {cloud:6.1f}   ({points} points)")
     return 0
