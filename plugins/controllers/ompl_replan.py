@@ -64,7 +64,7 @@ from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
 from planbench_plugins.controllers.unknown import UnknownSettings
-from planbench_plugins.ompl_planners.grid import cells_checker
+from planbench_plugins.ompl_planners import cells_checker
 
 __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 

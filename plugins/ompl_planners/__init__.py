@@ -11,6 +11,7 @@ except ImportError as exc:  # pragma: no cover
     raise ImportError("the OMPL planners need the 'ompl' package: pip install ompl") from exc
 
 from .base import OMPLAnyConfig, OMPLConfig, OMPLPlanner, geometric_planners, planner_parameters
+from .grid import cells_checker
 from .planners import BITstarPlanner, KPIECEPlanner, PRMstarPlanner, RRTConnectPlanner, RRTstarPlanner
 
 __all__ = [
@@ -24,4 +25,5 @@ __all__ = [
     "KPIECEPlanner",
     "geometric_planners",
     "planner_parameters",
+    "cells_checker",
 ]
