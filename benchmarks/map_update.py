@@ -63,9 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         seen = mark_seen(
             np.zeros(shape, dtype=bool), lower, RES, origin, axes, pixel, CAMERA.width, CAMERA.height, free
         )
-        idx = np.floor((cloud - lower) / RES).astype(np.int64)
-        inside = np.all((idx >= 0) & (idx < np.array(shape)), axis=1)
-        ours.integrate(seen, np.unique(np.ravel_multi_index(idx[inside].T, shape)))
+        ours.integrate(seen, ours.cells_of(cloud))
         return ours.grid()
 
     print(f"  planbench map: mark_seen + integrate + grid   {median_ms(args.frames, update):7.1f}")

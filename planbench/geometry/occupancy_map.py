@@ -129,6 +129,13 @@ class OccupancyMap:
         if known is not None:
             np.logical_or(self.known, known, out=self.known)
 
+    def cells_of(self, points: np.ndarray) -> np.ndarray:
+        """Flat indices (C order, unique) of the cells holding one of the (N, 3) ``points`` [m]
+        (those outside the map left out): a frame's hits, for :meth:`integrate`."""
+        idx = np.floor((np.asarray(points, dtype=float) - self.origin) / self.resolution).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < np.array(self.shape)), axis=1)
+        return np.unique(np.ravel_multi_index(idx[inside].T, self.shape))
+
     def occupied(self) -> np.ndarray:
         """Which cells are occupied (bool, the map's shape)."""
         return self.log_odds > self._threshold

@@ -167,18 +167,12 @@ class Sensor:
         assert self._body is not None  # made for depth sensing
         body = self._body.mark(np.zeros(self._shape, dtype=bool), q)  # no obstacle is where the arm is
         if self._map is not None:
-            self._map.integrate(seen, self._hit_cells(cloud), known=body)
+            self._map.integrate(seen, self._map.cells_of(cloud), known=body)
             grid = self._map.grid()
         else:
             seen |= body
             grid = OccupancyGrid.from_points(cloud, res, bounds=(self.bounds[0].copy(), self.bounds[1]), known=seen)
         return Observation(time=t, grid=grid, frame=frame, points=cloud, scene=None)
-
-    def _hit_cells(self, cloud: np.ndarray) -> np.ndarray:
-        """Flat indices (C order, unique) of the grid cells holding a point of ``cloud``."""
-        idx = np.floor((cloud - self.bounds[0]) / self.settings.resolution).astype(np.int64)
-        inside = np.all((idx >= 0) & (idx < np.array(self._shape)), axis=1)
-        return np.unique(np.ravel_multi_index(idx[inside].T, self._shape))
 
     # --- truth ----------------------------------------------------------------------------------
     def truth_grid(self, scene: Scene) -> OccupancyGrid:
