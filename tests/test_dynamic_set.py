@@ -11,6 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from planbench.errors import UnknownNameError
+from planbench.geometry.occupancy_map import MapSettings
 from planbench.problem import Problem
 from planbench.reactive import Scenario, certify_set, generator
 from planbench.reactive.behaviours import BEHAVIOURS, draw
@@ -60,6 +62,17 @@ def test_the_split_is_by_base_problem_and_covers_the_set():
     assert len(load_scenarios("dynamic-smoke")) == 4
 
 
+def test_a_family_selector_can_name_one_half_of_the_split():
+    depth = load_scenarios("dynamic-test:*_depth")
+    assert len(depth) == 144 and {s.metadata["split"] for s in depth} == {"test"}
+    assert all(s.sensing.model == "depth" for s in depth)
+    assert {s.name for s in load_scenarios("dynamic-tune:panda_*/0001")} == {
+        s.name for s in load_scenarios("dynamic:panda_*/0001")
+    }  # problem 0001 is the Panda's tuning problem
+    with pytest.raises(UnknownNameError):
+        load_scenarios("dynamic-test:panda_*/0001")  # ... so the test half has none of it
+
+
 def test_the_set_has_every_behaviour_speed_and_sensing_on_every_problem():
     everything = load_scenarios("dynamic")
     combos = {(s.metadata["base"], s.metadata["behaviour"], s.metadata["speed"], s.sensing.model) for s in everything}
@@ -75,6 +88,26 @@ def test_the_generator_gives_the_shipped_draws(behaviour, by_behaviour):
         rng = _rng(0, s.metadata["base"], behaviour, s.metadata["draw"])
         made = draw(behaviour, SPEEDS[s.metadata["speed"]], path_frame(s.problem), rng)
         assert [m.to_dict() for m in made] == [m.to_dict() for m in s.moving]
+
+
+def test_depth_scenarios_are_seen_by_the_generators_two_cameras_and_map(by_behaviour):
+    """Every shipped depth scenario has the generator's rig: the front camera (the ``occluded``
+    behaviour's) first, the one over the shoulder behind the base second, both aimed at the
+    path's midpoint; its map has the default sensor model. Truth scenarios have no camera."""
+    for scenarios in by_behaviour.values():
+        for s in scenarios:
+            frame = path_frame(s.problem)
+            if s.sensing.model == "truth":
+                assert s.sensing.to_dict().get("cameras") is None
+                continue
+            front, shoulder = s.sensing.cameras
+            assert np.allclose(front.position, frame.camera, atol=2e-4)
+            assert np.allclose(front.look_at, frame.m, atol=2e-4) and np.allclose(shoulder.look_at, frame.m, atol=2e-4)
+            behind = -np.asarray(shoulder.position[:2]) @ np.asarray(frame.m[:2]) / np.linalg.norm(frame.m[:2])
+            assert behind == pytest.approx(0.5, abs=2e-4) and shoulder.position[2] == pytest.approx(
+                frame.m[2] + 1.0, abs=2e-4
+            )
+            assert s.sensing.map == MapSettings() and s.metadata["generator"] == generator.GENERATOR_VERSION
 
 
 def test_common_promises(by_behaviour):

@@ -63,7 +63,7 @@ def test_a_cell_is_unknown_until_a_frame_says_something_of_it():
 def test_a_cell_hit_and_seen_free_in_one_frame_counts_as_a_hit():
     m = one_cell_map()
     m.integrate(np.ones(m.shape, dtype=bool), np.array([0]))
-    assert m.log_odds.reshape(-1)[0] == pytest.approx(np.log(0.7 / 0.3))
+    assert m.log_odds.reshape(-1)[0] == pytest.approx(np.log(MapSettings().hit / (1 - MapSettings().hit)))
     assert m.log_odds.reshape(-1)[1] == pytest.approx(np.log(0.4 / 0.6))
 
 

@@ -36,8 +36,11 @@ def _logit(p: float) -> float:
 class MapSettings:
     """The map's sensor model: probabilities in (0, 1)."""
 
-    hit: float = 0.7
-    """P(occupied) that one returned point gives its cell (> 0.5)."""
+    hit: float = 0.9
+    """P(occupied) that one returned point gives its cell (> 0.5). OctoMap's default is 0.7; with
+    ``clamp_min`` 0.12 that takes 3 frames to show an obstacle entering space seen free (10 cm at
+    1 m/s and 30 Hz). 0.9 shows it in the first frame that sees it; a lone false point is cleared
+    by the next frame's ray. Chosen on ``dynamic-tune`` (docs/sensing.md, "A map over time")."""
     miss: float = 0.4
     """P(occupied) that one ray passing a cell gives it (< 0.5)."""
     clamp_min: float = 0.12

@@ -34,9 +34,12 @@ placed relative to the end effector's straight path from start to goal (midpoint
 
 Every behaviour comes at three speeds, the peak speed of the obstacles' fastest point: ``slow``
 0.2 m/s, ``medium`` 0.5 m/s, ``fast`` 1.0 m/s, and with two sensing models: ``truth`` (exact
-geometry, 30 Hz, no latency) and ``depth`` (one 160 × 120 camera 1.3 m in front of ``m`` and 0.6 m
-above it, 30 Hz, 30 ms latency, 5 mm range noise, 5 % dropout; the ``occluded`` behaviour's camera
-too). The obstacles' shapes and places are drawn once per (problem, behaviour), so the speeds and
+geometry, 30 Hz, no latency) and ``depth`` (two 160 × 120 cameras, 30 Hz, 30 ms latency, 5 mm
+range noise, 5 % dropout, fused in the map with its defaults: one facing the arm from 1.3 m beyond
+``m``, away from the base, and 0.6 m above it, which sees what comes at the arm and is the
+``occluded`` behaviour's camera; one over the arm's shoulder, 0.5 m behind the base and 1 m above
+``m``, which sees the faces of the scene the arm works at, where the first sees their backs).
+The obstacles' shapes and places are drawn once per (problem, behaviour), so the speeds and
 sensing models of one problem and behaviour are paired: they differ in nothing else.
 
 A draw is kept only if, at every speed, no moving obstacle comes within 5 cm (checked every
@@ -95,7 +98,7 @@ __all__ = [
     "split_of",
 ]
 
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 SET_FORMAT = "planbench-scenario-set/1"
 SPEEDS = {"slow": 0.2, "medium": 0.5, "fast": 1.0}
 """Peak speed [m/s] of the moving obstacles' fastest point."""
@@ -234,17 +237,32 @@ def path_frame(problem: Problem) -> PathFrame:
     return PathFrame(ps, pg, u, w, approach, np.asarray(_camera(0.5 * (ps + pg)).position), HORIZON)
 
 
-def _camera(m: np.ndarray) -> CameraSettings:
-    """The depth camera: 1.3 m out from ``m`` (away from the base, horizontally), 0.6 m above it."""
+def _outward(m: np.ndarray) -> np.ndarray:
+    """The horizontal unit direction from the base toward ``m``."""
     out = np.array([m[0], m[1], 0.0])
-    out = out / np.linalg.norm(out) if np.linalg.norm(out) > 1e-6 else np.array([1.0, 0.0, 0.0])
-    return CameraSettings(position=p(m + 1.3 * out + [0.0, 0.0, 0.6]), look_at=p(m), noise_std=0.005, dropout=0.05)
+    return out / np.linalg.norm(out) if np.linalg.norm(out) > 1e-6 else np.array([1.0, 0.0, 0.0])
+
+
+def _camera(m: np.ndarray) -> CameraSettings:
+    """The front depth camera: 1.3 m out from ``m`` (away from the base, horizontally), 0.6 m above it."""
+    return CameraSettings(
+        position=p(m + 1.3 * _outward(m) + [0.0, 0.0, 0.6]), look_at=p(m), noise_std=0.005, dropout=0.05
+    )
+
+
+def _shoulder_camera(m: np.ndarray) -> CameraSettings:
+    """The camera over the arm's shoulder: 0.5 m behind the base (away from ``m``), 1 m above ``m``.
+    Chosen on ``dynamic-tune`` (docs/reactive.md, "Two cameras"): with the front camera alone, the
+    faces of shelves and boxes that the arm reaches into are never seen."""
+    return CameraSettings(
+        position=p(-0.5 * _outward(m) + [0.0, 0.0, m[2] + 1.0]), look_at=p(m), noise_std=0.005, dropout=0.05
+    )
 
 
 def _sensing(model: str, m: np.ndarray) -> SensingSettings:
     if model == "truth":
         return SensingSettings("truth", rate=30.0)
-    return SensingSettings("depth", rate=30.0, latency=0.03, cameras=(_camera(m),))
+    return SensingSettings("depth", rate=30.0, latency=0.03, cameras=(_camera(m), _shoulder_camera(m)))
 
 
 def _valid(s: Scenario, behaviour: str, frame: PathFrame) -> bool:

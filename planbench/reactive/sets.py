@@ -9,6 +9,7 @@ Selectors:
 - ``"dynamic:panda_crossing_fast_truth"`` (a family: robot, behaviour, speed, sensing), with
   ``/0001`` or ``/0001-0003`` for problems of the base set, and ``*`` in any part
   (``"dynamic:ur5_*_fast_*"``).
+- ``"dynamic-test:*_depth"``: a family selector within one half of the split.
 - A scenario file (``.json``) or a folder of them.
 """
 
@@ -55,13 +56,16 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
     if text in SPLITS:
         split = text.removeprefix("dynamic-")
         return [_build(d) for d in data["scenarios"] if d["metadata"].get("split") == split]
-    if text.startswith("dynamic:"):
-        family, _, rng = text.partition(":")[2].partition("/")
+    head, colon, rest = text.partition(":")
+    if colon and head in ("dynamic", *SPLITS):
+        family, _, rng = rest.partition("/")
         lo, hi = _range(rng, text)
+        split = None if head == "dynamic" else head.removeprefix("dynamic-")
         found = []
         for d in data["scenarios"]:
             fam, index = d["name"].partition(":")[2].split("/")
-            if fnmatch.fnmatchcase(fam, family) and lo <= int(index) <= hi:
+            in_split = split is None or d["metadata"].get("split") == split
+            if in_split and fnmatch.fnmatchcase(fam, family) and lo <= int(index) <= hi:
                 found.append(_build(d))
         if not found:
             families = sorted({d["name"].partition(":")[2].split("/")[0] for d in data["scenarios"]})
