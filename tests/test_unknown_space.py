@@ -108,8 +108,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
 
 
 @pytest.mark.parametrize("name", ALL_CONTROLLERS)
-def test_every_controller_defaults_to_unknown_as_free(name):
-    assert make_controller(name).config.unknown == "free"
+def test_defaults_chosen_on_dynamic_tune_field_controllers_free_ompl_replan_safe(name):
+    expected = "occupied" if name == "ompl-replan" else "free"
+    assert make_controller(name).config.unknown == expected
 
 
 # --- ompl-replan's safe mode -------------------------------------------------------------------------
@@ -199,7 +200,7 @@ def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
-    through, _ = _run(free_task, _seeing(grid, known), 400)
+    through, _ = _run(free_task, _seeing(grid, known), 400, unknown="free")
     assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
     qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")
     info = c.info()
