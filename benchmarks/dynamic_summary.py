@@ -5,6 +5,7 @@ behaviour (95 % Wilson intervals), failure reasons, compute times and the hand-o
     planbench bench --suite dynamic --out dynamic.db --jobs 2
     python benchmarks/dynamic_summary.py dynamic.db            # Markdown, as in docs/reactive.md
     python benchmarks/dynamic_summary.py dynamic.db --loaded loaded.db
+    python benchmarks/dynamic_summary.py dynamic-test.db --sensing depth --common
 
 Keys come from the shipped scenario names (``dynamic:<robot>_<behaviour>_<speed>_<sensing>/N``).
 """
@@ -146,8 +147,18 @@ def main() -> None:
     parser.add_argument(
         "--loaded", help="a results file of the same scenarios run beside other load: verdicts compared"
     )
+    parser.add_argument("--sensing", choices=("truth", "depth"), help="only the scenarios of this sensing model")
+    parser.add_argument(
+        "--common",
+        action="store_true",
+        help="only the scenarios every controller has a run of (a partial run compares like with like)",
+    )
     args = parser.parse_args()
     rows = _rows(args.db)
+    if args.sensing:
+        rows = [r for r in rows if scenario_keys(r["problem"]).get("sensing") == args.sensing]
+    if args.common:
+        rows = common(rows)
     if args.loaded:
         print(f"### Verdicts beside load against quiet\n\n{compare(rows, _rows([args.loaded]))}")
         return
@@ -157,6 +168,15 @@ def main() -> None:
     print(f"### Failure reasons\n\n{reasons(rows)}\n")
     print(f"### Compute and motion (medians; compute over every run, the rest over successes)\n\n{compute(rows)}\n")
     print(f"### Hand-off (medians over runs)\n\n{handoff(rows)}")
+
+
+def common(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows of the scenarios that every controller in ``rows`` has a run of."""
+    controllers = {r["planner"] for r in rows}
+    have: dict[str, set[str]] = collections.defaultdict(set)
+    for r in rows:
+        have[r["problem"]].add(r["planner"])
+    return [r for r in rows if have[r["problem"]] == controllers]
 
 
 def _rows(paths: Sequence[str]) -> list[dict[str, Any]]:
