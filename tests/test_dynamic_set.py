@@ -90,24 +90,31 @@ def test_the_generator_gives_the_shipped_draws(behaviour, by_behaviour):
         assert [m.to_dict() for m in made] == [m.to_dict() for m in s.moving]
 
 
-def test_depth_scenarios_are_seen_by_the_generators_two_cameras_and_map(by_behaviour):
-    """Every shipped depth scenario has the generator's rig: the front camera (the ``occluded``
-    behaviour's) first, the one over the shoulder behind the base second, both aimed at the
-    path's midpoint; its map has the default sensor model. Truth scenarios have no camera."""
-    for scenarios in by_behaviour.values():
+def test_depth_scenarios_are_seen_by_the_generators_cameras_and_map(by_behaviour):
+    """Every shipped depth scenario has the generator's rig: the front camera first, the one over
+    the shoulder behind the base second, both aimed at the path's midpoint; ``occluded`` the front
+    camera alone (the shoulder camera would see its box). The map has the default sensor model.
+    Truth scenarios have no camera. The sensing is what the generator writes, value for value."""
+    for behaviour, scenarios in by_behaviour.items():
         for s in scenarios:
             frame = path_frame(s.problem)
+            assert s.sensing.to_dict() == generator._sensing(s.sensing.model, frame.m, behaviour).to_dict()
             if s.sensing.model == "truth":
                 assert s.sensing.to_dict().get("cameras") is None
                 continue
-            front, shoulder = s.sensing.cameras
-            assert np.allclose(front.position, frame.camera, atol=2e-4)
-            assert np.allclose(front.look_at, frame.m, atol=2e-4) and np.allclose(shoulder.look_at, frame.m, atol=2e-4)
-            behind = -np.asarray(shoulder.position[:2]) @ np.asarray(frame.m[:2]) / np.linalg.norm(frame.m[:2])
-            assert behind == pytest.approx(0.5, abs=2e-4) and shoulder.position[2] == pytest.approx(
-                frame.m[2] + 1.0, abs=2e-4
+            front, *others = s.sensing.cameras
+            assert np.allclose(front.position, frame.camera, atol=2e-4) and np.allclose(
+                front.look_at, frame.m, atol=2e-4
             )
             assert s.sensing.map == MapSettings() and s.metadata["generator"] == generator.GENERATOR_VERSION
+            if behaviour == "occluded":
+                assert others == []
+                continue
+            (shoulder,) = others
+            behind = -np.asarray(shoulder.position[:2]) @ np.asarray(frame.m[:2]) / np.linalg.norm(frame.m[:2])
+            assert behind == pytest.approx(0.5, abs=2e-4)
+            assert shoulder.position[2] == pytest.approx(frame.m[2] + 1.0, abs=2e-4)
+            assert np.allclose(shoulder.look_at, frame.m, atol=2e-4)
 
 
 def test_common_promises(by_behaviour):

@@ -38,7 +38,8 @@ geometry, 30 Hz, no latency) and ``depth`` (two 160 × 120 cameras, 30 Hz, 30 ms
 range noise, 5 % dropout, fused in the map with its defaults: one facing the arm from 1.3 m beyond
 ``m``, away from the base, and 0.6 m above it, which sees what comes at the arm and is the
 ``occluded`` behaviour's camera; one over the arm's shoulder, 0.5 m behind the base and 1 m above
-``m``, which sees the faces of the scene the arm works at, where the first sees their backs).
+``m``, which sees the faces of the scene the arm works at, where the first sees their backs; the
+``occluded`` behaviour has the front camera alone, as the shoulder camera would see its box).
 The obstacles' shapes and places are drawn once per (problem, behaviour), so the speeds and
 sensing models of one problem and behaviour are paired: they differ in nothing else.
 
@@ -180,7 +181,7 @@ def scenario(
     robot = problem.robot.name
     name = f"dynamic:{robot}_{behaviour}_{speed}_{sensing}/{index:04d}"
     frame = path_frame(problem)
-    sense = _sensing(sensing, frame.m)
+    sense = _sensing(sensing, frame.m, behaviour)
     k = _paired_draw(problem, ref, behaviour, seed, tuple(sorted(refused)))
     moving = draw(behaviour, SPEEDS[speed], frame, _rng(seed, ref, behaviour, k))
     metadata = {
@@ -259,10 +260,15 @@ def _shoulder_camera(m: np.ndarray) -> CameraSettings:
     )
 
 
-def _sensing(model: str, m: np.ndarray) -> SensingSettings:
+def _sensing(model: str, m: np.ndarray, behaviour: str) -> SensingSettings:
+    """The scenario's sensing: the front camera and the shoulder one, but the front camera alone
+    for ``occluded``, whose board hides the box from that camera only (the shoulder camera sees
+    it in every drawn scenario): the behaviour is there to test what a controller remembers of
+    an obstacle a moving one hides."""
     if model == "truth":
         return SensingSettings("truth", rate=30.0)
-    return SensingSettings("depth", rate=30.0, latency=0.03, cameras=(_camera(m), _shoulder_camera(m)))
+    cameras = (_camera(m),) if behaviour == "occluded" else (_camera(m), _shoulder_camera(m))
+    return SensingSettings("depth", rate=30.0, latency=0.03, cameras=cameras)
 
 
 def _valid(s: Scenario, behaviour: str, frame: PathFrame) -> bool:
