@@ -61,7 +61,10 @@ def reasons(rows: Sequence[dict[str, Any]]) -> str:
                     what = f.removeprefix("collision with ").split(" at t")[0]
                     obstacle, _, link = what.partition(" (")
                     moving = obstacle.removeprefix("obstacle:") in moving_names(r["problem"])
-                    f = "collision with the moving obstacle" if moving else "collision with the static scene"
+                    if not obstacle.startswith("obstacle:"):  # a link of the robot: "<link> (<link>)"
+                        f = "collision of the arm with itself"
+                    else:
+                        f = "collision with the moving obstacle" if moving else "collision with the static scene"
                     if r.get("collision_observed") is not None and not r["collision_observed"]:
                         f += ", never observed"
                 elif f.startswith("goal not reached"):
