@@ -60,11 +60,11 @@ def load_scenarios(selector: str | Path) -> list[Scenario]:
     if colon and head in ("dynamic", *SPLITS):
         family, _, rng = rest.partition("/")
         lo, hi = _range(rng, text)
-        split = None if head == "dynamic" else head.removeprefix("dynamic-")
+        half = None if head == "dynamic" else head.removeprefix("dynamic-")
         found = []
         for d in data["scenarios"]:
             fam, index = d["name"].partition(":")[2].split("/")
-            in_split = split is None or d["metadata"].get("split") == split
+            in_split = half is None or d["metadata"].get("split") == half
             if in_split and fnmatch.fnmatchcase(fam, family) and lo <= int(index) <= hi:
                 found.append(_build(d))
         if not found:
