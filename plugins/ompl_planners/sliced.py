@@ -9,15 +9,22 @@ costing about the same.
 **How a slice ends.** Each call is one OMPL ``solve`` on the same problem definition with a
 ``PlannerTerminationCondition`` built from a Python function that compares the checks made (state
 validity calls plus the configurations the motion validator checked) with the slice's end.
-RRT-Connect keeps both trees across ``solve`` calls (its ``clear`` is never called; verified on
-OMPL 2.0.1's Python API: a query advanced in slices of 37 to 1,000 checks makes the same checks,
-trees and path as one ``solve`` without a limit). OMPL tests the condition once per iteration, and
-one iteration (an extension, then a connect of up to many extensions) can cost hundreds of checks;
-so once a slice's checks are spent, every further state and motion is refused until ``solve``
-returns: the connect in progress stops there, as it would at an obstacle (nothing invalid is ever
-added to a tree). A slice therefore ends within one motion of its bound: at most ``checks +
-ceil(range / resolution)`` checks. It is deterministic: which checks a slice makes depends on the
-seed and the check counts only, never on the clock.
+RRT-Connect keeps both trees across ``solve`` calls (its ``clear`` is never called). Verified on
+OMPL 2.0.1's Python API: with ``overrun_motions=None``, a query advanced in slices of 37 to 1,000
+checks makes the same checks, trees and path as one ``solve`` without a limit (tested).
+
+OMPL tests the condition once per iteration, though, and one iteration (an extension, then a
+connect of as many extensions as it takes to reach the other tree) can cost hundreds of checks.
+So once a slice has run ``overrun_motions`` motions (of ``ceil(extension / resolution)`` checks)
+past its end, every further state and motion is refused until ``solve`` returns: the connect under
+way stops there, as at an obstacle (nothing invalid enters a tree; the trees differ from an
+unsliced run's from then on). A slice ends within :attr:`~SlicedRRTConnect.max_overshoot` checks of
+its bound. Refusing at once (0) cuts most connects and costs RRT-Connect: on MotionBenchMaker
+``box``, ``bookshelf_tall``, ``bookshelf_small``, ``table_pick``, ``cage``, ``table_under_pick``
+``/0001``, 4 seeds, slices of 50 checks, at most 40,000 checks: refusing at once solved 20/24 with
+a median 2,022 checks; one motion of overrun (the default) 22/24, 950 checks, at most 130 in a
+slice; no bound 22/24, 744 checks, up to 318 in a slice. Either way it is deterministic: which
+checks a slice makes depends on the seed and the check counts only, never on the clock.
 
 **Shortening.** Once found, the path is shortened in slices too (:meth:`advance` goes on with it):
 greedily, from each kept waypoint the farthest later one that a free straight motion reaches
@@ -49,7 +56,8 @@ class SlicedRRTConnect:
     :meth:`advance` (module docstring). ``seed``: OMPL's seed for the query (every random OMPL
     object of the query is created after it is set); ``extension``: RRT-Connect's range, its longest
     extension [rad]; ``resolution``: the largest joint motion between checked configurations [rad];
-    ``shorten``: shorten the path found (module docstring)."""
+    ``shorten``: shorten the path found; ``overrun_motions``: how many motions past its bound a
+    slice may run to finish the iteration under way (None: no limit; module docstring)."""
 
     def __init__(
         self,
@@ -61,13 +69,17 @@ class SlicedRRTConnect:
         extension: float = 0.5,
         resolution: float = 0.01,
         shorten: bool = True,
+        overrun_motions: float | None = 1.0,
     ) -> None:
         self.start = np.array(start, dtype=float)
         self.goal = np.array(goal, dtype=float)
         self.shorten = shorten
         self.segments = SegmentChecker(checker, resolution)
-        self.max_overshoot = math.ceil(extension / resolution - 1e-12)
-        """The most checks a slice may make beyond its bound: one motion of the search."""
+        motion = math.ceil(extension / resolution - 1e-12)  # the most checks of one motion
+        self.overrun = None if overrun_motions is None else math.ceil(overrun_motions * motion)
+        """Checks past its bound after which a slice refuses states and motions (None: never)."""
+        self.max_overshoot = None if self.overrun is None else self.overrun + motion
+        """The most checks a slice may make beyond its bound (None: no limit)."""
         self.path: np.ndarray | None = None
         """The path once found (start first), shortened as :meth:`advance` goes on; None before."""
         self.done = False
@@ -91,9 +103,14 @@ class SlicedRRTConnect:
         """The current slice's checks are spent."""
         return self.checks >= self._end
 
+    @property
+    def refusing(self) -> bool:
+        """States and motions are refused now: the slice is ``overrun`` checks past its end."""
+        return self.overrun is not None and self.checks >= self._end + self.overrun
+
     def advance(self, checks: int) -> bool:
-        """Spend at most ``checks`` more checks (the search: up to :attr:`max_overshoot` beyond)
-        on the search, then on shortening its path; True once the path is final (:attr:`done`)."""
+        """Spend at most ``checks`` more checks (the search: up to :attr:`max_overshoot` beyond) on
+        the search, then on shortening its path; True once the path is final (:attr:`done`)."""
         if self.done:
             return True
         self.slices += 1
@@ -118,8 +135,8 @@ class SlicedRRTConnect:
         return self.done
 
     def count_state(self) -> bool:
-        """Count one state validity check; False when the slice is spent (the state is refused)."""
-        if self.spent:
+        """Count one state validity check; False when it is refused (:attr:`refusing`)."""
+        if self.refusing:
             return False
         self._states += 1
         return True
@@ -192,7 +209,7 @@ def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float,
 
     class Motions(ob.MotionValidator):
         def checkMotion(self, s1: Any, s2: Any, *rest: Any) -> bool:  # noqa: N802 (OMPL's name)
-            if owner.spent:
+            if owner.refusing:
                 return False  # refused, as at an obstacle: the connect in progress stops here
             return motion_free(np.array([s1[i] for i in index]), np.array([s2[i] for i in index]))
 
