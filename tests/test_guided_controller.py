@@ -277,6 +277,21 @@ def test_a_depth_goal_next_to_cells_seen_at_the_start_is_reached(task):
     assert d.c.info()["blocked"] == 0 and np.max(np.abs(d.q - goal_q)) < 1e-3
 
 
+def test_a_depth_goal_blocked_by_cells_that_appeared_is_left_out_after_goal_block_time(task):
+    """Cells near the goal that a frame saw free and that are occupied now block the goal, for
+    ``goal_block_time`` at most: then they are taken for what a map keeps where no ray passes."""
+    goal_q = np.asarray(task.goal.q)
+    hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    ball = Scene((Obstacle("ball", "sphere", tuple(hand), radius=0.06),))
+    d = Driver(task, goal_block_time=0.5)
+    d.c.update(depth(Scene()))  # every cell near the goal seen free
+    d.k = 3  # the next tick takes in the ball's frame first
+    d.run(depth(ball), 300, until=lambda d: d.c.reference is not None)
+    info = d.c.info()
+    assert info["blocked"] >= 5 and info["paths"] == 1
+    assert 0.5 <= d.k * task.period <= 1.5  # planned once the cells had blocked the goal for 0.5 s
+
+
 def test_unknown_cells_near_the_arm_are_obstacles_for_the_plan_with_unknown_occupied(task):
     """An unknown block where the free-space path's hand passes: ``"free"`` plans through it,
     ``"occupied"`` around it (every unknown cell in reach counts: ``unknown_reach`` 2 m)."""

@@ -8,7 +8,8 @@ touches (truth sensing), or the occupied cells as coal octrees, less the cells w
 arm's body when it touches them (depth sensing). At the goal, the cells near the arm's body there
 are left out only when they were occupied the first time a frame knew them (the static scene a
 grasp touches, as ``ompl-replan`` leaves them out); a cell seen free there and occupied later is
-an obstacle on the goal, kept, and the goal is blocked while it is there.
+an obstacle on the goal, kept, and the goal is blocked while it is there, for ``goal_block_time``
+at most (then it is taken for what a map keeps where no ray passes any more, and left out).
 
 **Time-sliced, not threaded.** The benchmark charges the controller's process all its CPU time,
 every thread, as if it had one core (docs/reactive.md, "Compute is charged from outside"): a
@@ -106,6 +107,12 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
     built (one octree of 15,000 cells costs 7-17 ms)."""
     check_resolution: float = 0.02
     """Spacing of the configurations at which the rest of the path is checked on a new frame [rad]."""
+    goal_block_time: float = 6.0
+    """[s] Depth: a cell near the arm's body at the goal that a frame saw free and that is occupied
+    blocks the goal for at most this long, then it is left out as those occupied from the start
+    are: a map keeps an obstacle that left where no ray passes any more (the arm's own shadow, say;
+    seen on ``dynamic:panda_reaching_fast_depth/0001``). The ``dynamic`` set parks obstacles on
+    the goal for 2-5 s."""
     replan_lag: float = 0.3
     """[rad] The arm farther than this from its reference (largest joint error) plans again from
     where it is."""
@@ -145,6 +152,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
             "plan_range",
             "motion_resolution",
             "check_resolution",
+            "goal_block_time",
             "replan_lag",
             "velocity_scale",
             "tracking_gain",
@@ -215,6 +223,8 @@ class MatrixFieldGuidedController(Controller):
         self.counted: np.ndarray | None = None  # unknown cells read as occupied last frame
         self.first_seen: np.ndarray | None = None  # depth: near-goal cells a frame knew (bool, per cell)
         self.static_goal: np.ndarray | None = None  # depth: those occupied when first known
+        self.blocked_since: np.ndarray | None = None  # depth: [s] since when the others are occupied (NaN: not)
+        self.goal_out: np.ndarray | None = None  # depth: near-goal cells left out (static, or blocking too long)
         self.hold = np.array(q, dtype=float)  # the reference held while there is no path
         self.reference: Reference | None = None
         self.t_ref = 0.0  # [s] along the reference
@@ -254,7 +264,7 @@ class MatrixFieldGuidedController(Controller):
         self.stats["frames"] += 1
         self.fresh = True
         if observation.scene is None:
-            self._classify_goal_cells(self.grid)
+            self._classify_goal_cells(observation, self.grid)
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
         """The tracking law from ``q`` [rad] (module docstring) after at most one slice of work."""
@@ -389,10 +399,10 @@ class MatrixFieldGuidedController(Controller):
         return np.concatenate(found)
 
     def _near_cells(self, cells: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Depth: ``cells`` (flat indices) less the static cells near the goal (module docstring),
+        """Depth: ``cells`` (flat indices) less the cells near the goal left out (module docstring),
         and those of them within a cell of the arm's body at ``q``."""
-        if self.static_goal is not None and self.static_goal.any():
-            cells = cells[~np.isin(cells, self.cells.near_goal[self.static_goal])]
+        if self.goal_out is not None and self.goal_out.any():
+            cells = cells[~np.isin(cells, self.cells.near_goal[self.goal_out])]
         return cells, cells[np.isin(cells, self.cells.near(q, 1))]
 
     def _without_touched(
@@ -409,22 +419,28 @@ class MatrixFieldGuidedController(Controller):
         self.stats["dropped"] += len(close)
         return cells[~np.isin(cells, close)]
 
-    def _classify_goal_cells(self, grid: OccupancyGrid) -> None:
-        """Depth: note, for each cell near the arm's body at the goal, whether it was occupied the
-        first time a frame knew it (module docstring)."""
+    def _classify_goal_cells(self, observation: Observation, grid: OccupancyGrid) -> None:
+        """Depth: which cells near the arm's body at the goal are left out of plans and checks
+        (:attr:`goal_out`): those occupied the first time a frame knew them, and those occupied
+        since a frame saw them free for longer than ``goal_block_time`` (module docstring)."""
         self.cells.fit(grid)
         near = self.cells.near_goal
         if self.first_seen is None or len(self.first_seen) != len(near):
             self.first_seen = np.zeros(len(near), dtype=bool)
             self.static_goal = np.zeros(len(near), dtype=bool)
-        if self.first_seen.all():
-            return
-        known = grid.known
-        now = np.ones(len(near), dtype=bool) if known is None else known.reshape(-1)[near]
-        new = now & ~self.first_seen
-        assert self.static_goal is not None
-        self.static_goal[new] = np.asarray(grid.data).reshape(-1)[near[new]] >= 0.5
-        self.first_seen |= new
+            self.blocked_since = np.full(len(near), np.nan)
+        assert self.static_goal is not None and self.blocked_since is not None
+        occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
+        if not self.first_seen.all():  # reading ``known`` costs a frame's unpacking: only while needed
+            known = grid.known
+            new = (np.ones(len(near), dtype=bool) if known is None else known.reshape(-1)[near]) & ~self.first_seen
+            self.static_goal[new] = occupied[new]
+            self.first_seen |= new
+        blocker = occupied & self.first_seen & ~self.static_goal
+        self.blocked_since[~blocker] = np.nan
+        self.blocked_since[blocker & np.isnan(self.blocked_since)] = observation.time
+        stale = observation.time - self.blocked_since > self.config.goal_block_time  # False where NaN
+        self.goal_out = self.static_goal | stale
 
     def _check(self, q: np.ndarray) -> Work:
         """The rest of the path against the latest frame, a slice per ``yield``; drops the path at
