@@ -37,6 +37,7 @@ zigzag: tracked as found, the arm would take the zigzag at the tracking speed.
 from __future__ import annotations
 
 import math
+import weakref
 from typing import Any
 
 import numpy as np
@@ -190,7 +191,10 @@ class SlicedRRTConnect:
 
 def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float, resolution: float, seed: int) -> Any:
     """The OMPL objects of ``owner``'s query: the setup, its termination condition, and what they
-    hold on to. States and motions are refused once the owner's slice is spent."""
+    hold on to. States and motions are refused once the owner's slice is spent. The callbacks hold
+    ``owner`` weakly: OMPL holds them, and a query dropped unfinished frees its OMPL objects with it
+    (a cycle through C++ would keep them to the end of the process)."""
+    owner = weakref.proxy(owner)
     nq = checker.robot.nq
     index = range(nq)
     ou.setLogLevel(ou.LOG_NONE)
