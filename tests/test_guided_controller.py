@@ -141,6 +141,18 @@ def test_a_sliced_query_shortens_its_path_in_slices_and_keeps_it_free(bookshelf)
     assert all(segments.motion_free(a, b) for a, b in zip(short.path[:-1], short.path[1:], strict=True))
 
 
+def test_a_query_from_or_to_a_configuration_in_collision_is_refused_at_once(bookshelf):
+    """OMPL would wait for another goal sample until the slice ends, and no check would end it."""
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    rng = np.random.default_rng(0)
+    samples = rng.uniform(bookshelf.robot.lower, bookshelf.robot.upper, (500, 7))
+    inside = next(q for q in samples if checker.in_collision(q))
+    with pytest.raises(ValueError, match="goal"):
+        SlicedRRTConnect(checker, bookshelf.start, inside, seed=0)
+    with pytest.raises(ValueError, match="start"):
+        SlicedRRTConnect(checker, inside, bookshelf.goal.q, seed=0)
+
+
 # --- settings ------------------------------------------------------------------------------------------
 
 

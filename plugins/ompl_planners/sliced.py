@@ -92,6 +92,11 @@ class SlicedRRTConnect:
         self._i = 0  # shortening: the waypoint from which the farthest reachable one is sought,
         self._j = 0  # the one tried now,
         self._motion: tuple[np.ndarray, int] | None = None  # and that motion's states left to check
+        for what, q in (("start", self.start), ("goal", self.goal)):
+            if checker.in_collision(q):
+                # OMPL would wait for another goal sample (sleeping 10 ms at a time) until the slice
+                # ends, and with no checks made it never would
+                raise ValueError(f"the {what} configuration is in collision: check it before planning")
         self._ompl: tuple[Any, ...] | None = _query(self, checker, extension, resolution, int(seed))
 
     @property
