@@ -131,3 +131,21 @@ def test_reports_count_unseen_collisions_apart():
     ]
     assert [failure_reason(r) for r in rows] == ["unseen-collision panda_hand"] + ["collision panda_hand"] * 2
     assert failure_text(rows) == "collision 2 (panda_hand 2), unseen-collision 1 (panda_hand 1)"
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_the_cells_of_the_arm_are_those_it_marks(free_problem, backend):
+    """``ArmBody.cells`` lists the cells ``mark`` sets, without a grid-sized array, in either backend."""
+    from planbench.runtime.backend import prefer
+
+    shape = tuple(int(n) for n in np.round((BOUNDS[1] - BOUNDS[0]) / RES))
+    prefer(backend)
+    try:
+        body = ArmBody(free_problem.robot, BOUNDS[0], shape, RES)
+    finally:
+        prefer(None)
+    rng = np.random.default_rng(0)
+    for q in rng.uniform(free_problem.robot.lower, free_problem.robot.upper, size=(10, free_problem.robot.nq)):
+        marked = np.zeros(shape, dtype=bool)
+        body.mark(marked, q)
+        assert np.array_equal(body.cells(q), np.flatnonzero(marked))

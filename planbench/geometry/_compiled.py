@@ -73,6 +73,29 @@ def part_cells(local, part, rotations, translations, lower, resolution, shape, m
 
 
 @njit(cache=True)
+def part_cell_indices(local, part, rotations, translations, lower, resolution, shape, out):  # type: ignore[no-untyped-def]
+    """Write the flat index of each point's cell into ``out`` (as :func:`part_cells` visits them,
+    points outside the grid left out); return how many were written."""
+    n0, n1, n2 = shape[0], shape[1], shape[2]
+    inv = 1.0 / resolution
+    m = 0
+    for n in range(local.shape[0]):
+        p = part[n]
+        x, y, z = local[n, 0], local[n, 1], local[n, 2]
+        wx = rotations[p, 0, 0] * x + rotations[p, 0, 1] * y + rotations[p, 0, 2] * z + translations[p, 0]
+        wy = rotations[p, 1, 0] * x + rotations[p, 1, 1] * y + rotations[p, 1, 2] * z + translations[p, 1]
+        wz = rotations[p, 2, 0] * x + rotations[p, 2, 1] * y + rotations[p, 2, 2] * z + translations[p, 2]
+        i = math.floor((wx - lower[0]) * inv)
+        j = math.floor((wy - lower[1]) * inv)
+        k = math.floor((wz - lower[2]) * inv)
+        if i < 0 or i >= n0 or j < 0 or j >= n1 or k < 0 or k >= n2:
+            continue
+        out[m] = (i * n1 + j) * n2 + k
+        m += 1
+    return m
+
+
+@njit(cache=True)
 def fuse_free(seen, hit, log_odds, known, miss, lowest):  # type: ignore[no-untyped-def]
     """The map's update of the cells a frame saw free (module docstring of ``occupancy_map``), all
     arrays flat: a seen cell becomes known, and unless it was hit, its log-odds drop by ``miss``

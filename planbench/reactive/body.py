@@ -75,6 +75,10 @@ class ArmBody:
         """Set the cells of ``out`` (bool, the grid's shape) that the arm fills at ``q`` [rad]."""
         return self._points.mark(out, self.lower, self.resolution, *self._placements(q))
 
+    def cells(self, q: np.ndarray) -> np.ndarray:
+        """Flat indices (sorted) of the cells the arm fills at ``q`` [rad]: those :meth:`mark` sets."""
+        return self._points.cells(self.shape, self.lower, self.resolution, *self._placements(q))
+
     def in_unknown(self, q: np.ndarray, known: np.ndarray | None) -> bool:
         """Whether any cell the arm fills at ``q`` is unknown in the mask ``known`` (None: all known)."""
         if known is None:

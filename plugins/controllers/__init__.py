@@ -3,9 +3,11 @@ steps run at the control rate on observed occupancy grids (docs/writing-a-contro
 
 Modules: ``adapter`` (:class:`IKLoopController`: an IK-loop planner's step as a controller),
 ``live`` (the repulsion whose source each frame replaces), ``crop`` (the block of a grid that holds
-its occupied cells), ``cells`` (occupied cells as box obstacles), and one module per controller:
-``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``, ``ompl_replan``; ``unknown``
-(which unknown cells a controller reads as occupied, the ``unknown`` setting of every one).
+its occupied cells), ``cells`` (occupied cells as box obstacles), ``observed`` (what a planning
+controller leaves out where the arm touches obstacles), and one module per controller:
+``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``, ``ompl_replan``,
+``matrix_field_guided`` (the last two import OMPL: their entry points name their modules);
+``unknown`` (which unknown cells a controller reads as occupied, the ``unknown`` setting of every one).
 """
 
 from planbench_plugins.controllers.adapter import PLANNING_ONLY, IKLoopController

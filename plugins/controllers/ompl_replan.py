@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
@@ -64,6 +63,7 @@ from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
+from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ompl_planners import cells_checker
 
@@ -182,7 +182,7 @@ class OMPLReplanController(Controller):
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
         self.occupied: np.ndarray | None = None  # depth: the frame's occupied cells (flat indices)
         self.body: ArmBody | None = None
-        self.geometry: tuple[Any, ...] | None = None  # the grid the cell caches below belong to
+        self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
@@ -252,35 +252,18 @@ class OMPLReplanController(Controller):
     def _geometry(self, grid: OccupancyGrid) -> None:
         """The caches that belong to the grid's cells: the arm's body, the cells near it at the goal
         and, in safe mode, where it started."""
-        key = (grid.shape, tuple(grid.origin), grid.resolution)
-        if key == self.geometry:
+        if not self.arm.fit(grid):
             return
-        self.geometry = key
-        self.body = ArmBody(self.task.robot, grid.origin, grid.shape, grid.resolution)
+        self.body = self.arm.body
+        self.near_goal = self.arm.near_goal
         goal_q = self.task.goal.q
-        self.near_goal = self._near(np.asarray(goal_q), 1) if goal_q is not None else np.zeros(0, dtype=np.intp)
         self.through = np.zeros(0, dtype=np.intp)
         if self.safe:
             cells = max(1, math.ceil(self.config.start_margin / grid.resolution))
-            own = [self._near(self.start, cells)]
+            own = [self.arm.near(self.start, cells)]
             if goal_q is not None:
-                own.append(self._near(np.asarray(goal_q), cells))
+                own.append(self.arm.near(np.asarray(goal_q), cells))
             self.own = np.unique(np.concatenate(own))
-
-    def _near(self, q: np.ndarray, cells: int) -> np.ndarray:
-        """Flat indices of the cells within ``cells`` cells (a cube) of those the arm fills at ``q``."""
-        assert self.body is not None
-        mark = np.zeros(self.body.shape, dtype=bool)
-        self.body.mark(mark, q)
-        hit = np.argwhere(mark)
-        if not len(hit):
-            return np.zeros(0, dtype=np.intp)
-        lo = np.maximum(hit.min(axis=0) - cells, 0)
-        hi = np.minimum(hit.max(axis=0) + cells + 1, self.body.shape)
-        block = mark[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
-        grown = ndimage.binary_dilation(block, np.ones((3, 3, 3), dtype=bool), iterations=cells)
-        idx = np.argwhere(grown) + lo
-        return np.ravel_multi_index(tuple(idx.T), self.body.shape)
 
     def _cells_checker(self, cells: np.ndarray, q: np.ndarray) -> CollisionChecker:
         """A checker of the cells (flat indices) less those within a cell of the arm at ``q`` and at
@@ -291,7 +274,7 @@ class OMPLReplanController(Controller):
         if not touched:
             return checker
         assert self.near_goal is not None
-        near = np.concatenate([self._near(q, 1), self.near_goal])
+        near = np.concatenate([self.arm.near(q, 1), self.near_goal])
         kept = cells[~np.isin(cells, near)]
         self.stats["dropped"] += len(cells) - len(kept)
         return self._checker_of(kept)
@@ -319,13 +302,9 @@ class OMPLReplanController(Controller):
     def _around(self, scene: Scene, q: np.ndarray) -> tuple[Scene, CollisionChecker]:
         """Truth: the scene without the obstacles the arm at ``q`` touches (counted in ``dropped``),
         and a checker of it."""
-        checker = CollisionChecker(self.task.robot, scene)
-        touched = {obstacle.removeprefix("obstacle:") for _, obstacle in checker.collisions(q)}
-        if not touched:
-            return scene, checker
-        self.stats["dropped"] += len(touched)
-        scene = Scene(tuple(o for o in scene.obstacles if o.name not in touched), scene.name)
-        return scene, CollisionChecker(self.task.robot, scene)
+        scene, checker, dropped = scene_without_touched(self.task.robot, scene, q)
+        self.stats["dropped"] += dropped
+        return scene, checker
 
     # --- the rest of the path ------------------------------------------------------------------
     def _rest(self, q: np.ndarray, tau: float, until: float = math.inf) -> list[tuple[float, np.ndarray]]:

@@ -45,6 +45,7 @@ from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, Repulsion, Ze
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_guided.config import MatrixFieldGuidedConfig
 from planbench_plugins.matrix_field_guided.reference import Reference, departure
+from planbench_plugins.matrix_field_guided.tracking import push_weight, tracking_velocity
 
 __all__ = ["MatrixFieldGuidedPlanner"]
 
@@ -166,21 +167,18 @@ class MatrixFieldGuidedPlanner(Planner):
             r_next, _, _ = reference.at(t_next)
             # feed-forward to where the reference will be, feedback on where it is: without a push
             # the arm lands on the reference (its error shrinks by 1 - K dt per step)
-            qd = (r_next - r) / dt + gain * (r - q)
             lag = float(np.max(np.abs(q - r)))
             lag_seen = max(lag_seen, lag)
-            w = T.smoothstep(1.0 - lag / lag_max)
+            w = push_weight(lag, lag_max, remaining, cfg.goal_fade)
             if any(a <= t <= b for a, b in quiet):
                 w = 0.0
-            if cfg.goal_fade > 0:
-                w *= T.smoothstep(remaining / cfg.goal_fade)
+            weighted = None
             if push and w > 0:
                 points, F, support, _ = arm.at(q)
                 qd_rep = T.repulsion_joint_velocity(arm.kin.S, points, F, support)
                 push_max = max(push_max, float(np.linalg.norm(qd_rep)))
-                qd = qd + w * qd_rep
-            qd, _ = T.scale_to_velocity_limits(qd, qd_max)
-            qd = T.clamp_to_position_limits(q, qd, lower, upper, dt)
+                weighted = w * qd_rep
+            qd = tracking_velocity(q, r, r_next, dt, gain, weighted, qd_max, lower, upper)
             k += 1
             q = path[k] = np.clip(q + qd * dt, lower, upper)
             t = stamps[k] = t_next

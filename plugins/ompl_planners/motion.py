@@ -81,7 +81,7 @@ class SegmentChecker:
             order = self._orders[n] = bisection_order(n)
         return order
 
-    def _first_hit(self, states: np.ndarray) -> int:
+    def first_hit(self, states: np.ndarray) -> int:
         """Index (in ``states``' order) of the first colliding configuration, or -1; checks in order."""
         hits = self._pin.computeCollisionsInParallel(1, self._pool, np.asfortranarray(states.T), True, True)
         k = int(np.argmax(hits)) if len(hits) else 0
@@ -100,7 +100,7 @@ class SegmentChecker:
         n = max(1, math.ceil(float(np.abs(d).max()) / self.resolution - 1e-12))
         s = (np.arange(1, n + 1) / n)[:, None]
         states = a + s * d
-        return self._first_hit(states[self._order(n)]) < 0
+        return self.first_hit(states[self._order(n)]) < 0
 
 
 class CertifiedSegments:

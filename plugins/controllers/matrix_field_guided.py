@@ -1,0 +1,552 @@
+"""``matrix-field-guided`` as a controller: a global RRT-Connect path on the latest observation,
+planned a slice per tick, tracked with the matrix field pushing the arm clear.
+
+**The plan.** RRT-Connect (OMPL, :class:`~planbench_plugins.ompl_planners.SlicedRRTConnect`) plans
+from the configuration the arm holds to the goal configuration against the observed geometry, as
+``ompl-replan`` builds it (:mod:`.observed`): the observation's scene less the obstacles the arm
+touches (truth sensing), or the occupied cells as coal octrees, less the cells within a cell of the
+arm's body when it touches them (depth sensing). At the goal, the cells near the arm's body there
+are left out only when they were occupied the first time a frame knew them (the static scene a
+grasp touches, as ``ompl-replan`` leaves them out); a cell seen free there and occupied later is
+an obstacle on the goal, kept, and the goal is blocked while it is there, for ``goal_block_time``
+at most (then it is taken for what a map keeps where no ray passes any more, and left out).
+
+**Time-sliced, not threaded.** The benchmark charges the controller's process all its CPU time,
+every thread, as if it had one core (docs/reactive.md, "Compute is charged from outside"): a
+planning thread's work is charged to the next call anyway. So the work is cut into slices, and
+each ``step`` does the control law plus at most one slice: a plan's preparation (truth: the
+scene's checker; depth: the occupied cells found in two slices, the cells the arm touches, then
+octrees of at most ``octree_cells`` cells, one per tick, then their checker), then RRT-Connect
+search and shortening slices of ``plan_checks_per_tick`` collision checks (the search may end up
+to two motions of ``plan_range / motion_resolution`` checks beyond:
+:mod:`planbench_plugins.ompl_planners.sliced`), or, while a path is tracked, the check of the
+latest frame (below). A slice's end is set by check counts and frames only, never by the clock.
+While it plans, the arm holds the reference it had (after a lag replan: where it is) with the field
+on; a plan starts there, and the tracker takes the path from where the arm is (its feedback closes
+the small gap). A query that finds nothing in ``plan_check_budget`` checks starts again from the
+held configuration on the latest frame.
+
+**Tracking** (the planner's law, :func:`~planbench_plugins.matrix_field_guided.tracking_velocity`,
+once per tick at the task's period): ``qd = (r_next - r) / T + K (r - q) + w sum J^T f``, the push
+``f`` the lazy matrix field of the latest grid at the control points (:class:`.matrix_field.GridField`:
+the same kernels and stand-off gain as ``matrix-field``), ``w`` faded by the lag ``max |q - r|`` over
+``max_lag`` and over the last ``goal_fade`` of the path (not while holding), then the velocity limits
+(one factor) and the joint limits.
+
+**Replanning**, counted in ``info()["replans"]`` by why: ``invalidated``, a new frame shows the rest
+of the path in collision (checked from the reference every ``check_resolution`` rad, in slices;
+truth: against the frame's scene less what the arm touches; depth: against the cells occupied now
+that the plan did not know, which is the same verdict since the plan's own cells were checked by
+the planner, and costs one pass over the grid instead of an octree of every cell); ``lag``, the arm
+is more than ``replan_lag`` from its reference (the field pushed it far off; it then holds where it
+is); ``blocked``, a plan refused because the goal configuration is in collision with what is
+observed: the arm holds, field on, and tries again on the next frame.
+
+**Unknown space** (``unknown``, :class:`.unknown.UnknownSettings`): ``"occupied"`` reads the unknown
+cells near the arm (where the last step left it) as occupied, for the field and for the plan and its
+checks, as ``matrix-field`` does for its field; ``"free"`` (default) reads them free. With truth
+sensing every cell is known.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Generator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from planbench.checking.collision import CollisionChecker
+from planbench.errors import InvalidConfigError
+from planbench.field.scene_field import FieldSettings
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.problem import Goal
+from planbench.reactive.body import body_points
+from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench_plugins.controllers.live import LiveRepulsion
+from planbench_plugins.controllers.matrix_field import GridField
+from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
+from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown, unknown_as_occupied
+from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, check_number, place_control_points
+from planbench_plugins.ik_loop import tasks as T
+from planbench_plugins.matrix_field_guided import Reference, push_weight, tracking_velocity
+from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_octree, pieces_checker
+
+__all__ = ["MatrixFieldGuidedController", "MatrixFieldGuidedControllerConfig"]
+
+Work = Generator[None, None, None]
+"""A job cut into slices: each ``next`` runs one slice."""
+
+SCAN_PARTS = 2
+"""Slices in which a depth grid's occupied cells are found (each a part of the grid's cells)."""
+
+
+@dataclass(frozen=True)
+class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
+    """Settings of the ``matrix-field-guided`` controller (module docstring). The field's are
+    ``matrix-field-guided``'s (:class:`~planbench.field.scene_field.FieldSettings`; ``grid_resolution``
+    is not used: the kernels are built at the observed grid's resolution)."""
+
+    # --- planning, a slice per tick --------------------------------------------------------------
+    plan_checks_per_tick: int = 50
+    """Collision checks of one planning or path-check slice; one slice per tick (about 2-3 ms with
+    depth sensing; docs/reactive.md has the measurement)."""
+    plan_check_budget: int = 20000
+    """Checks one RRT-Connect query may spend without a path before it starts again from the held
+    configuration on the latest frame."""
+    plan_range: float = 0.5
+    """RRT-Connect's longest extension [rad] (``ompl-rrtconnect``'s default)."""
+    motion_resolution: float = 0.01
+    """Largest joint motion between configurations the planner checks [rad] (``ompl-rrtconnect``'s)."""
+    shorten: bool = True
+    """Shorten the path found (greedy, in slices; :mod:`planbench_plugins.ompl_planners.sliced`)."""
+    octree_cells: int = 4000
+    """Depth sensing: most occupied cells put in one octree per tick while a plan's geometry is
+    built (one octree of 15,000 cells costs 7-17 ms)."""
+    check_resolution: float = 0.02
+    """Spacing of the configurations at which the rest of the path is checked on a new frame [rad]."""
+    goal_block_time: float = 6.0
+    """[s] Depth: a cell near the arm's body at the goal that a frame saw free and that is occupied
+    blocks the goal for at most this long, then it is left out as those occupied from the start
+    are: a map keeps an obstacle that left where no ray passes any more (the arm's own shadow, say;
+    seen on ``dynamic:panda_reaching_fast_depth/0001``). The ``dynamic`` set parks obstacles on
+    the goal for 2-5 s."""
+    replan_lag: float = 0.3
+    """[rad] The arm farther than this from its reference (largest joint error) plans again from
+    where it is."""
+
+    # --- tracking ---------------------------------------------------------------------------------
+    velocity_scale: float = 0.5
+    """The reference moves along the path at this fraction of the joint velocity limits (0, 1]."""
+    tracking_gain: float = 10.0
+    """``K`` [1/s] of the feedback ``K (r - q)``; ``K`` times the control period must be at most 1."""
+    max_lag: float = 0.1
+    """[rad] The push fades out (a smoothstep) as the arm's largest joint error from the reference
+    nears this."""
+    goal_fade: float = 0.3
+    """[rad] The push fades to 0 over this much joint path length before the goal."""
+
+    # --- the push (the matrix field, as matrix-field-guided's) -----------------------------------
+    field_mode: str = "lazy"
+    """``"lazy"``: window sums of the grid at the control points every tick (nothing per frame);
+    ``"full"``: the whole field every frame."""
+    speed_max: float = 0.25
+    """Speed [m/s] of the push on a point ``standoff`` from a flat wall (``repulsion_gain`` 1)."""
+    standoff: float = 0.10
+    """Distance [m] from a flat wall at which a point on the arm is pushed at ``speed_max``."""
+    repulsion_gain: float = 2.0
+    """Multiplier [-] of the gain derived from ``standoff``; 0 tracks the path alone."""
+    control_point_spacing: float = 0.12
+    """Largest distance between control points along a link [m] (automatic placement)."""
+    control_points: Any = None
+    """Per-link override of the automatic placement, as in ``matrix-field``."""
+
+    def __post_init__(self) -> None:
+        for name in ("plan_checks_per_tick", "plan_check_budget", "octree_cells"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InvalidConfigError(f"{name} must be an integer >= 1, got {v!r}")
+        for name in (
+            "plan_range",
+            "motion_resolution",
+            "check_resolution",
+            "goal_block_time",
+            "replan_lag",
+            "velocity_scale",
+            "tracking_gain",
+            "max_lag",
+            "speed_max",
+            "standoff",
+            "control_point_spacing",
+        ):
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
+        check_number(self, "velocity_scale", lambda v: v <= 1, "in (0, 1]")
+        check_number(self, "goal_fade", lambda v: v >= 0, "finite and >= 0")
+        check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0")
+        if not isinstance(self.shorten, bool):
+            raise InvalidConfigError(f"shorten must be true or false, got {self.shorten!r}")
+        self.validate_field()
+        self.validate_unknown()
+
+
+class MatrixFieldGuidedController(Controller):
+    """``matrix-field-guided`` (module docstring). Settings: :class:`MatrixFieldGuidedControllerConfig`."""
+
+    name = "matrix-field-guided"
+    Config = MatrixFieldGuidedControllerConfig
+    compiles = True  # the lazy field is numba code: warmed up before a benchmark's runs
+
+    def __init__(self, config: Any = None, **settings: Any) -> None:
+        super().__init__(config, **settings)
+        self.field = GridField(self.config)
+        self.repulsion = LiveRepulsion()
+
+    # --- the controller interface -------------------------------------------------------------------
+    def setup(self, task: ControlTask) -> None:
+        """Kinematics, control points and limits for ``task`` (untimed)."""
+        c = self.config
+        if c.tracking_gain * task.period > 1:
+            raise InvalidConfigError(
+                f"tracking_gain ({c.tracking_gain:g} 1/s) times the control period ({task.period:g} s) must be "
+                "at most 1: a larger gain overshoots the reference in one tick"
+            )
+        if task.goal.q is None:
+            raise InvalidConfigError(
+                f"{self.name} plans to a goal configuration, and task {task.id!r} gives a goal pose only"
+            )
+        robot = task.robot
+        self.task = task
+        overrides = dict(robot.settings.control_points)
+        overrides.update(dict(c.control_points or {}))
+        points = place_control_points(robot, c.control_point_spacing, list(overrides.items()))
+        kin = ArmKinematics(robot, robot.frame_id(task.goal.pose.frame), points)
+        self.arm = ArmRepulsion(robot, kin, self.repulsion)
+        self.radii = np.asarray(points.radius, dtype=float)
+        self.goal_q = np.array(task.goal.q, dtype=float)
+        self.lower = np.asarray(robot.lower, dtype=float)
+        self.upper = np.asarray(robot.upper, dtype=float)
+        self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
+        self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
+        body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
+
+    def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
+        """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""
+        self.rng = rng
+        self.repulsion.replace(None)
+        self.cells = ArmCells(self.task.robot, self.goal_q)
+        self.observation: Observation | None = None
+        self.grid: OccupancyGrid | None = None  # the latest grid as ``unknown`` reads it
+        self.frame = 0  # frames taken in
+        self.fresh = False  # a frame not yet checked against the path
+        self.counted: np.ndarray | None = None  # unknown cells read as occupied last frame
+        self.first_seen: np.ndarray | None = None  # depth: near-goal cells a frame knew (bool, per cell)
+        self.static_goal: np.ndarray | None = None  # depth: those occupied when first known
+        self.blocked_since: np.ndarray | None = None  # depth: [s] since when the others are occupied (NaN: not)
+        self.goal_out: np.ndarray | None = None  # depth: near-goal cells left out (static, or blocking too long)
+        self.hold = np.array(q, dtype=float)  # the reference held while there is no path
+        self.reference: Reference | None = None
+        self.t_ref = 0.0  # [s] along the reference
+        self.t_last: float | None = None  # the last step's time [s]
+        self.plan_cells: np.ndarray | None = None  # depth: cells the path was planned with (bool, grid)
+        self.job: Work | None = None
+        self.job_kind = ""
+        self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
+        self.stats: dict[str, Any] = {
+            "plans": 0,
+            "paths": 0,
+            "restarts": 0,
+            "blocked": 0,
+            "start_in_collision": 0,
+            "replans": {"invalidated": 0, "blocked": 0, "lag": 0},
+            "slices": 0,
+            "plan_slices": 0,
+            "check_slices": 0,
+            "max_checks_per_slice": 0,
+            "frames": 0,
+            "dropped": 0,
+            "plan_ticks": [],
+            "path_waypoints": [],
+            "unknown_cells": 0,
+        }
+        self._plan_started = 0
+        self._ticks = 0
+
+    def update(self, observation: Observation) -> None:
+        """Take in a frame: the field's grid (its unknown cells near the arm occupied first, with
+        ``unknown = "occupied"``); its checks run in the next steps' slices."""
+        self.observation = observation
+        self.grid = self._unknown_read(observation)
+        surfaces = observation.points is not None and self.grid is observation.grid
+        self.repulsion.replace(self.field.repulsion(self.grid, surfaces=surfaces))
+        self.frame += 1
+        self.stats["frames"] += 1
+        self.fresh = True
+        if observation.scene is None:
+            self._classify_goal_cells(observation, self.grid)
+
+    def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
+        """The tracking law from ``q`` [rad] (module docstring) after at most one slice of work."""
+        q = np.asarray(q, dtype=float)
+        self._ticks += 1
+        if self.grid is not None:
+            self._work(q)
+        return self._command(t, q)
+
+    def info(self) -> dict[str, Any]:
+        """Counts of the run: plans started (``plans``), paths found (``paths``), queries restarted,
+        plans refused with the goal (``blocked``) or the start in collision, replans by why, work
+        slices (planning, path checks) and the most checks one made, frames, cells or obstacles
+        left out where the arm touched them, ticks from each plan's start to its path, waypoints of
+        each path, unknown cells read as occupied in the last frame."""
+        out = dict(self.stats)
+        out["replans"] = dict(self.stats["replans"])
+        out["plan_ticks"] = list(self.stats["plan_ticks"])
+        out["path_waypoints"] = list(self.stats["path_waypoints"])
+        out["tracking"] = self.reference is not None
+        return out
+
+    # --- work: one slice per tick ---------------------------------------------------------------------
+    def _work(self, q: np.ndarray) -> None:
+        """Start the job due (a plan while holding, a check of the latest frame while tracking,
+        when the last check is done) and run one slice of the current job."""
+        if self.job is None:
+            if self.reference is None and self.frame > self.wait_frame:
+                self.job, self.job_kind = self._plan(), "plan"
+                self._plan_started = self._ticks
+                self.stats["plans"] += 1
+            elif self.reference is not None and self.fresh:
+                self.fresh = False
+                self.job, self.job_kind = self._check(q), "check"
+            else:
+                return
+        self.stats["slices"] += 1
+        self.stats[f"{self.job_kind}_slices"] += 1
+        try:
+            next(self.job)
+        except StopIteration:
+            self.job = None
+
+    def _count(self, checks: int) -> None:
+        self.stats["max_checks_per_slice"] = max(self.stats["max_checks_per_slice"], int(checks))
+
+    def _plan(self) -> Work:
+        """A plan from the held configuration (module docstring), a slice per ``yield``."""
+        start, frame, c = self.hold.copy(), self.frame, self.config
+        checker = yield from self._planning_checker(start)
+        if checker.in_collision(self.goal_q):
+            self.stats["blocked"] += 1
+            self.wait_frame = frame
+            return
+        if checker.in_collision(start):
+            self.stats["start_in_collision"] += 1
+            self.wait_frame = frame
+            return
+        seed = int(self.rng.integers(1, 2**31 - 1))
+        query = SlicedRRTConnect(
+            checker,
+            start,
+            self.goal_q,
+            seed=seed,
+            extension=c.plan_range,
+            resolution=c.motion_resolution,
+            shorten=c.shorten,
+        )
+        yield
+        while True:
+            before = query.checks
+            done = query.advance(c.plan_checks_per_tick)
+            self._count(query.checks - before)
+            if done:
+                break
+            if query.path is None and query.checks >= c.plan_check_budget:
+                query.close()
+                self.stats["restarts"] += 1
+                return  # the next job starts again, on the latest frame
+            yield
+        assert query.path is not None
+        self.reference = Reference(query.path, c.velocity_scale * self.qd_max)
+        self.t_ref = 0.0
+        self.stats["paths"] += 1
+        self.stats["plan_ticks"].append(self._ticks - self._plan_started + 1)
+        self.stats["path_waypoints"].append(len(query.path))
+        self.fresh = self.frame > frame  # frames came while it planned: check the path on the latest
+
+    def _planning_checker(self, start: np.ndarray) -> Generator[None, None, CollisionChecker]:
+        """The checker a plan from ``start`` uses, built over slices (module docstring). No frame's
+        arrays are held across a slice: a frame's stay as delivered for three more frames only."""
+        robot, c = self.task.robot, self.config
+        scene = self.observation.scene if self.observation is not None else None
+        if scene is not None:  # truth: the scene less what the arm at the start touches
+            _, checker, dropped = scene_without_touched(robot, scene, start)
+            del scene
+            self.stats["dropped"] += dropped
+            self.plan_cells = None
+            yield
+            return checker
+        occupied = yield from self._occupied()
+        self.plan_cells = np.zeros(self.cells.size, dtype=bool)
+        self.plan_cells[occupied] = True
+        yield
+        kept, close = self._near_cells(occupied, start)
+        yield
+        if len(close):
+            kept = self._without_touched(kept, close, start, None)
+            yield
+        pieces = []
+        for k in range(0, len(kept), c.octree_cells):
+            assert self.grid is not None  # the latest frame's: every frame has the same cells
+            pieces.append(cells_octree(self.grid, kept[k : k + c.octree_cells], f"cells-{k}"))
+            yield
+        checker = pieces_checker(robot, pieces)
+        yield
+        return checker
+
+    def _occupied(self) -> Generator[None, None, np.ndarray]:
+        """Depth: the flat indices of the occupied cells of the latest grid, found in
+        :data:`SCAN_PARTS` slices (a pass over a 142^3 grid costs 2-4 ms; a part is read from the
+        grid latest when its slice runs)."""
+        assert self.grid is not None
+        self.cells.fit(self.grid)
+        bounds = np.linspace(0, self.cells.size, SCAN_PARTS + 1).astype(np.intp)
+        found = []
+        for k, (a, b) in enumerate(itertools.pairwise(bounds)):
+            if k:
+                yield
+            assert self.grid is not None
+            found.append(a + np.flatnonzero(np.asarray(self.grid.data).reshape(-1)[a:b] >= 0.5))
+        return np.concatenate(found)
+
+    def _near_cells(self, cells: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Depth: ``cells`` (flat indices) less the cells near the goal left out (module docstring),
+        and those of them within a cell of the arm's body at ``q``."""
+        if self.goal_out is not None and self.goal_out.any():
+            cells = cells[~np.isin(cells, self.cells.near_goal[self.goal_out])]
+        return cells, cells[np.isin(cells, self.cells.near(q, 1))]
+
+    def _without_touched(
+        self, cells: np.ndarray, close: np.ndarray, q: np.ndarray, checker: CollisionChecker | None
+    ) -> np.ndarray:
+        """Depth: ``cells`` less ``close`` (those within a cell of the arm's body at ``q``) when
+        the arm there touches them (``checker``: of ``cells``, else one of ``close`` is built);
+        counted in ``dropped``."""
+        if checker is None:
+            assert self.grid is not None
+            checker = pieces_checker(self.task.robot, [cells_octree(self.grid, close)])
+        if not checker.in_collision(q):
+            return cells
+        self.stats["dropped"] += len(close)
+        return cells[~np.isin(cells, close)]
+
+    def _classify_goal_cells(self, observation: Observation, grid: OccupancyGrid) -> None:
+        """Depth: which cells near the arm's body at the goal are left out of plans and checks
+        (:attr:`goal_out`): those occupied the first time a frame knew them, and those occupied
+        since a frame saw them free for longer than ``goal_block_time`` (module docstring)."""
+        self.cells.fit(grid)
+        near = self.cells.near_goal
+        if self.first_seen is None or len(self.first_seen) != len(near):
+            self.first_seen = np.zeros(len(near), dtype=bool)
+            self.static_goal = np.zeros(len(near), dtype=bool)
+            self.blocked_since = np.full(len(near), np.nan)
+        assert self.static_goal is not None and self.blocked_since is not None
+        occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
+        if not self.first_seen.all():  # reading ``known`` costs a frame's unpacking: only while needed
+            known = grid.known
+            new = (np.ones(len(near), dtype=bool) if known is None else known.reshape(-1)[near]) & ~self.first_seen
+            self.static_goal[new] = occupied[new]
+            self.first_seen |= new
+        blocker = occupied & self.first_seen & ~self.static_goal
+        self.blocked_since[~blocker] = np.nan
+        self.blocked_since[blocker & np.isnan(self.blocked_since)] = observation.time
+        stale = observation.time - self.blocked_since > self.config.goal_block_time  # False where NaN
+        self.goal_out = self.static_goal | stale
+
+    def _check(self, q: np.ndarray) -> Work:
+        """The rest of the path against the latest frame, a slice per ``yield``; drops the path at
+        the first configuration in collision (``blocked`` when that is the goal, else
+        ``invalidated``)."""
+        robot, c = self.task.robot, self.config
+        scene = self.observation.scene if self.observation is not None else None
+        if scene is not None:
+            _, checker, dropped = scene_without_touched(robot, scene, q)
+            del scene
+            self.stats["dropped"] += dropped
+        else:
+            occupied = yield from self._occupied()
+            if self.plan_cells is not None:
+                occupied = occupied[~self.plan_cells[occupied]]  # the plan's own cells: its path is free of them
+            yield
+            new, close = self._near_cells(occupied, q)
+            if not len(new):
+                return
+            yield
+            assert self.grid is not None
+            checker = pieces_checker(robot, [cells_octree(self.grid, new)])
+            if len(close):
+                kept = self._without_touched(new, close, q, checker)
+                if len(kept) < len(new):
+                    if not len(kept):
+                        return
+                    yield
+                    assert self.grid is not None
+                    checker = pieces_checker(robot, [cells_octree(self.grid, kept)])
+        yield
+        rest = self._rest()
+        per = c.plan_checks_per_tick
+        for k in range(0, len(rest), per):
+            chunk = rest[k : k + per]
+            self._count(len(chunk))
+            hit = next((i for i, x in enumerate(chunk) if checker.in_collision(x)), None)
+            if hit is not None:
+                self._drop_path("blocked" if k + hit == len(rest) - 1 else "invalidated", stop_job=False)
+                return
+            if k + per < len(rest):
+                yield
+
+    def _rest(self) -> list[np.ndarray]:
+        """The configurations at which the rest of the path is checked: from the reference's
+        configuration now, every ``check_resolution`` rad (largest joint motion) along it."""
+        ref = self.reference
+        assert ref is not None
+        here = ref.at(self.t_ref)[0]
+        ends = np.vstack([here, ref.waypoints[1:][np.cumsum(ref.durations) > self.t_ref]])
+        out = [here]
+        for a, b in zip(ends[:-1], ends[1:], strict=True):
+            n = max(1, math.ceil(float(np.max(np.abs(b - a))) / self.config.check_resolution))
+            out.extend(a + u * (b - a) for u in np.arange(1, n + 1) / n)
+        return out
+
+    def _drop_path(self, why: str, hold: np.ndarray | None = None, stop_job: bool = True) -> None:
+        """Stop tracking: hold the reference's configuration now (or ``hold``) and plan again;
+        ``stop_job``: end the job under way (not when that job is the caller)."""
+        if self.reference is not None:
+            self.hold = self.reference.at(self.t_ref)[0].copy() if hold is None else np.array(hold, dtype=float)
+        self.reference = None
+        self.stats["replans"][why] += 1
+        if stop_job and self.job is not None:
+            self.job.close()
+            self.job = None
+
+    # --- control ------------------------------------------------------------------------------------------
+    def _command(self, t: float, q: np.ndarray) -> np.ndarray:
+        """The tracking law (module docstring) toward the reference, or the held configuration."""
+        c, period = self.config, self.task.period
+        late = 1 if self.t_last is None else max(1, round((t - self.t_last) / period))
+        self.t_last = t
+        ref = self.reference
+        if ref is not None:
+            for _ in range(late - 1):  # a late tick: the held command moved the arm on meanwhile
+                self.t_ref = ref.next_time(self.t_ref, period)
+            r, _, remaining = ref.at(self.t_ref)
+            lag = float(np.max(np.abs(q - r)))
+            if lag > c.replan_lag:
+                self._drop_path("lag", hold=q)
+                ref = None
+        if ref is not None:
+            t_next = ref.next_time(self.t_ref, period)
+            r_next = ref.at(t_next)[0]
+            w = push_weight(lag, c.max_lag, remaining, c.goal_fade)
+            self.t_ref = t_next
+        else:
+            r = r_next = self.hold
+            w = push_weight(float(np.max(np.abs(q - r))), c.max_lag, 1.0, 0.0)  # no goal fade while holding
+        push = None
+        if w > 0 and c.repulsion_gain > 0 and self.grid is not None:
+            points, F, support, _ = self.arm.at(q)
+            push = w * T.repulsion_joint_velocity(self.arm.kin.S, points, F, support)
+        else:
+            self.arm.kin.update(q)  # where the arm is: the unknown cells near it are read there
+        return tracking_velocity(q, r, r_next, period, c.tracking_gain, push, self.qd_max, self.lower, self.upper)
+
+    def _unknown_read(self, observation: Observation) -> OccupancyGrid:
+        """The frame's grid as ``unknown`` reads it: itself with ``"free"`` or when every cell is
+        known, else with the unknown cells near the arm (where the last step left it) occupied."""
+        c, grid = self.config, observation.grid
+        if c.unknown == "free" or grid.known is None:
+            return grid
+        arm = (self.arm.kin.points, self.radii)
+        cells = near_unknown(grid, [arm], c.unknown_reach, c.unknown_self_margin, self.counted)
+        self.counted = cells
+        self.stats["unknown_cells"] = 0 if cells is None else int(np.count_nonzero(cells))
+        return unknown_as_occupied(grid, cells)

@@ -1,0 +1,348 @@
+"""The ``matrix-field-guided`` controller: RRT-Connect planned a slice of collision checks per tick,
+tracked with the matrix field; and the sliced query it plans with.
+
+Nothing here depends on timing: slices end by check counts, runs use ``timing="ideal"`` or drive
+the controller tick by tick as the runner does, without charging compute.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+import planbench
+from planbench.checking.collision import CollisionChecker
+from planbench.errors import InvalidConfigError
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.metrics import densify
+from planbench.problem import Problem
+from planbench.reactive import Scenario, SensingSettings
+from planbench.reactive.body import ArmBody
+from planbench.reactive.conformance import check_controller
+from planbench.reactive.controller import ControlTask, Observation
+from planbench.reactive.runner import RunSettings, evaluate_run, run_scenario
+from planbench.scene import Obstacle, Scene
+from planbench_plugins.controllers.matrix_field_guided import (
+    MatrixFieldGuidedController,
+    MatrixFieldGuidedControllerConfig,
+)
+from planbench_plugins.ompl_planners import SlicedRRTConnect
+from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+BOUNDS = (np.full(3, -1.2), np.full(3, 1.2))
+
+
+@pytest.fixture(scope="module")
+def task() -> ControlTask:
+    p = planbench.load_problems("mbm:table_pick/0001")[0]
+    return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
+
+
+@pytest.fixture(scope="module")
+def bookshelf() -> Problem:
+    return planbench.load_problems("mbm:bookshelf_tall/0001")[0]
+
+
+def truth(scene: Scene, t: float = 0.0, frame: int = 0) -> Observation:
+    """A truth observation of ``scene`` (its grid at 4 cm; the controller plans on the scene)."""
+    grid = OccupancyGrid.from_scene(scene, 0.04, bounds=BOUNDS) if len(scene) else OccupancyGrid.empty(*BOUNDS, 0.04)
+    return Observation(t, grid, frame, None, scene)
+
+
+def depth(scene: Scene, t: float = 0.0, frame: int = 0, known: np.ndarray | None = None) -> Observation:
+    """A depth-like observation: ``scene``'s cells at 2 cm, no scene (the controller plans on cells)."""
+    grid = OccupancyGrid.from_scene(scene, 0.02, bounds=BOUNDS) if len(scene) else OccupancyGrid.empty(*BOUNDS, 0.02)
+    if known is not None:
+        grid = OccupancyGrid(grid.data, grid.origin, grid.resolution, known=known)
+    return Observation(t, grid, frame, np.zeros((0, 3)), None)
+
+
+class Driver:
+    """A controller driven as the runner drives it, no compute charged: a frame every third tick,
+    the command clipped to the velocity limits and integrated."""
+
+    def __init__(self, task: ControlTask, **settings) -> None:
+        self.task = task
+        self.c = MatrixFieldGuidedController(**settings)
+        self.c.setup(task)
+        self.q = np.array(task.start, dtype=float)
+        self.c.reset(self.q.copy(), np.random.default_rng(0))
+        self.k = 0
+        self.commands: list[np.ndarray] = []
+
+    def run(self, observation: Observation, ticks: int, until=None) -> None:
+        robot, T = self.task.robot, self.task.period
+        vmax = np.asarray(robot.velocity_limit)
+        for _ in range(ticks):
+            if self.k % 3 == 0:
+                self.c.update(dataclasses.replace(observation, time=self.k * T, frame=self.k // 3))
+            qd = self.c.step(self.k * T, self.q.copy(), None, self.task.goal)
+            self.commands.append(qd)
+            self.q = np.clip(self.q + T * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
+            self.k += 1
+            if until is not None and until(self):
+                return
+
+
+def free_along(checker: CollisionChecker, path: np.ndarray, resolution: float = 0.01) -> bool:
+    """Whether ``path`` is free at the planner's check points (every ``resolution`` rad)."""
+    return not any(checker.in_collision(x) for x in densify(np.asarray(path), resolution)[0])
+
+
+# --- the sliced query ----------------------------------------------------------------------------------
+
+
+def test_a_sliced_query_keeps_its_trees_across_slices(bookshelf):
+    """RRT-Connect keeps its trees across solve() calls: unbounded slices of 50 checks make the
+    checks and path one unlimited solve makes."""
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    whole = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False)
+    assert whole.advance(10**9) and whole.slices == 1
+    sliced = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False, overrun_motions=None)
+    while not sliced.advance(50):
+        pass
+    assert sliced.slices > 20 and sliced.checks == whole.checks
+    assert sliced.path is not None and whole.path is not None
+    assert np.array_equal(sliced.path, whole.path)
+
+
+def test_a_bounded_slice_ends_within_one_motion_of_its_checks_and_repeats_exactly(bookshelf):
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    runs = []
+    for _ in range(2):
+        query = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False)
+        per_slice = []
+        while True:
+            before = query.checks
+            done = query.advance(50)
+            per_slice.append(query.checks - before)
+            if done:
+                break
+        assert max(per_slice) <= 50 + query.max_overshoot and query.slices > 20
+        assert query.path is not None and free_along(checker, query.path)
+        runs.append((per_slice, query.path))
+    assert runs[0][0] == runs[1][0] and np.array_equal(runs[0][1], runs[1][1])
+
+
+def test_a_sliced_query_shortens_its_path_in_slices_and_keeps_it_free(bookshelf):
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    raw = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False)
+    raw.advance(10**9)
+    short = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3)
+    while not short.advance(50):
+        pass
+    assert raw.path is not None and short.path is not None
+    assert len(short.path) < len(raw.path)
+    assert np.array_equal(short.path[0], bookshelf.start) and np.array_equal(short.path[-1], bookshelf.goal.q)
+    segments = SegmentChecker(checker, 0.01)
+    assert all(segments.motion_free(a, b) for a, b in zip(short.path[:-1], short.path[1:], strict=True))
+
+
+def test_a_query_from_or_to_a_configuration_in_collision_is_refused_at_once(bookshelf):
+    """OMPL would wait for another goal sample until the slice ends, and no check would end it."""
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    rng = np.random.default_rng(0)
+    samples = rng.uniform(bookshelf.robot.lower, bookshelf.robot.upper, (500, 7))
+    inside = next(q for q in samples if checker.in_collision(q))
+    with pytest.raises(ValueError, match="goal"):
+        SlicedRRTConnect(checker, bookshelf.start, inside, seed=0)
+    with pytest.raises(ValueError, match="start"):
+        SlicedRRTConnect(checker, inside, bookshelf.goal.q, seed=0)
+
+
+# --- settings ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "setting",
+    [
+        {"plan_checks_per_tick": 0},
+        {"plan_check_budget": 2.5},
+        {"octree_cells": True},
+        {"plan_range": -0.5},
+        {"check_resolution": 0.0},
+        {"replan_lag": math.inf},
+        {"velocity_scale": 1.5},
+        {"goal_fade": -1.0},
+        {"shorten": "yes"},
+        {"unknown": "maybe"},
+        {"field_mode": "sometimes"},
+        {"standoff": 0.5},
+    ],
+)
+def test_bad_settings_are_errors_that_name_the_setting(setting):
+    key = next(iter(setting))
+    with pytest.raises(InvalidConfigError, match=key if key != "standoff" else "standoff"):
+        MatrixFieldGuidedControllerConfig(**setting)
+
+
+def test_a_gain_too_high_for_the_control_period_is_refused_at_setup(task):
+    c = MatrixFieldGuidedController(tracking_gain=200.0)
+    with pytest.raises(InvalidConfigError, match="tracking_gain"):
+        c.setup(task)
+
+
+def test_it_conforms():
+    assert check_controller(MatrixFieldGuidedController) == []
+
+
+# --- planning a slice per tick ------------------------------------------------------------------------
+
+
+def test_planning_is_spread_over_ticks_with_at_most_one_slice_each(task, monkeypatch):
+    """A board between start and goal: the plan takes several ticks; every tick runs at most one
+    slice, of at most ``plan_checks_per_tick`` checks plus two motions (and the few checks of a
+    slice that prepares the query); the arm holds still meanwhile."""
+    hand = task.robot.frame_pose(0.5 * (np.asarray(task.start) + np.asarray(task.goal.q)), task.goal.pose.frame)
+    board = Scene((Obstacle("board", "box", tuple(hand.translation), size=(0.3, 0.3, 0.02)),))
+    counted = {"n": 0}
+    in_collision, first_hit = CollisionChecker.in_collision, SegmentChecker.first_hit
+
+    def count_state(self, q):
+        counted["n"] += 1
+        return in_collision(self, q)
+
+    def count_motion(self, states):
+        before = self.n_checks
+        out = first_hit(self, states)
+        counted["n"] += self.n_checks - before
+        return out
+
+    monkeypatch.setattr(CollisionChecker, "in_collision", count_state)
+    monkeypatch.setattr(SegmentChecker, "first_hit", count_motion)
+    d = Driver(task)
+    per_tick, slices = [], []
+    while d.c.reference is None and d.k < 2000:
+        before, s0 = counted["n"], d.c.info()["slices"]
+        d.run(truth(board), 1)
+        per_tick.append(counted["n"] - before)
+        slices.append(d.c.info()["slices"] - s0)
+        if d.c.reference is None:
+            assert np.max(np.abs(d.commands[-1])) < 1e-9  # holding the start, nothing to push
+    info = d.c.info()
+    assert d.c.reference is not None and info["paths"] == 1 and info["plan_ticks"][0] > 5
+    assert max(slices) == 1
+    c = d.c.config
+    query_bound = c.plan_checks_per_tick + 2 * math.ceil(c.plan_range / c.motion_resolution)  # two motions past
+    assert max(per_tick) <= query_bound + 3  # a slice that prepares a query checks its start and goal
+    assert info["max_checks_per_slice"] <= query_bound
+    # the path found is free of the board, at the planner's check points and between them
+    assert free_along(CollisionChecker(task.robot, board), d.c.reference.waypoints)
+
+
+@pytest.mark.parametrize("observe", [truth, depth])
+def test_it_replans_when_an_obstacle_appears_on_its_path(task, observe):
+    d = Driver(task)
+    d.run(observe(Scene()), 400, until=lambda d: d.c.reference is not None and d.k >= 40)
+    assert d.c.reference is not None
+    first = d.c.reference.waypoints
+    assert d.c.info()["paths"] == 1
+    # a box on the rest of the path, where the hand will be half way along it, off the arm now and at the goal
+    ahead = d.c.reference.at(0.5 * (d.c.t_ref + d.c.reference.duration))[0]
+    hand = task.robot.frame_pose(ahead, task.goal.pose.frame).translation
+    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.12, 0.12, 0.12)),))
+    checker = CollisionChecker(task.robot, box)
+    assert not checker.in_collision(d.q) and not checker.in_collision(np.asarray(task.goal.q))
+    assert not free_along(checker, first)
+    d.run(observe(box), 20, until=lambda d: d.c.reference is None)
+    info = d.c.info()
+    assert d.c.reference is None and info["replans"]["invalidated"] == 1  # dropped: holding, planning
+    d.run(observe(box), 600, until=lambda d: d.c.reference is not None)
+    assert d.c.reference is not None and d.c.info()["paths"] == 2
+    assert free_along(checker, d.c.reference.waypoints)
+
+
+def test_it_holds_while_the_goal_is_blocked_and_goes_when_it_clears(task):
+    goal_hand = task.robot.frame_pose(np.asarray(task.goal.q), task.goal.pose.frame).translation
+    blocked = Scene((Obstacle("ball", "sphere", tuple(goal_hand), radius=0.06),))
+    assert CollisionChecker(task.robot, blocked).in_collision(np.asarray(task.goal.q))
+    d = Driver(task)
+    d.run(truth(blocked), 150)
+    info = d.c.info()
+    assert info["blocked"] >= 10 and info["paths"] == 0 and d.c.reference is None
+    assert np.max(np.abs(d.q - task.start)) < 0.05  # held near the start, the field on
+    assert max(np.max(np.abs(qd)) for qd in d.commands) < 0.5
+    d.run(truth(Scene()), 600, until=lambda d: np.max(np.abs(d.q - task.goal.q)) < 1e-3)
+    assert np.max(np.abs(d.q - task.goal.q)) < 1e-3 and d.c.info()["paths"] == 1
+
+
+def test_a_depth_goal_next_to_cells_seen_at_the_start_is_reached(task):
+    """A plate just under the hand at the goal, clear of it but in its cells: cells near the arm's
+    body at the goal that were occupied the first time a frame knew them are the static scene a
+    grasp touches, left out of the plan as ``ompl-replan`` leaves them out."""
+    goal_q = np.asarray(task.goal.q)
+    hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    for drop in np.arange(0.0, 0.3, 0.005):  # the highest plate the arm at the goal does not touch
+        plate = Scene((Obstacle("plate", "box", tuple(hand - [0, 0, drop + 0.05]), size=(0.3, 0.3, 0.1)),))
+        if not CollisionChecker(task.robot, plate).in_collision(goal_q):
+            break
+    cells = depth(plate).grid
+    occupied = np.flatnonzero(cells.data.reshape(-1) >= 0.5)
+    from planbench_plugins.ompl_planners import cells_checker
+
+    assert cells_checker(task.robot, cells, occupied).in_collision(goal_q)  # "in" the plate's cells
+    d = Driver(task)
+    d.run(depth(plate), 800, until=lambda d: np.max(np.abs(d.q - goal_q)) < 1e-3)
+    assert d.c.info()["blocked"] == 0 and np.max(np.abs(d.q - goal_q)) < 1e-3
+
+
+def test_a_depth_goal_blocked_by_cells_that_appeared_is_left_out_after_goal_block_time(task):
+    """Cells near the goal that a frame saw free and that are occupied now block the goal, for
+    ``goal_block_time`` at most: then they are taken for what a map keeps where no ray passes."""
+    goal_q = np.asarray(task.goal.q)
+    hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    ball = Scene((Obstacle("ball", "sphere", tuple(hand), radius=0.06),))
+    d = Driver(task, goal_block_time=0.5)
+    d.c.update(depth(Scene()))  # every cell near the goal seen free
+    d.k = 3  # the next tick takes in the ball's frame first
+    d.run(depth(ball), 300, until=lambda d: d.c.reference is not None)
+    info = d.c.info()
+    assert info["blocked"] >= 5 and info["paths"] == 1
+    assert 0.5 <= d.k * task.period <= 1.5  # planned once the cells had blocked the goal for 0.5 s
+
+
+def test_unknown_cells_near_the_arm_are_obstacles_for_the_plan_with_unknown_occupied(task):
+    """An unknown block where the free-space path's hand passes: ``"free"`` plans through it,
+    ``"occupied"`` around it (every unknown cell in reach counts: ``unknown_reach`` 2 m)."""
+    d = Driver(task)
+    d.run(depth(Scene()), 400, until=lambda d: d.c.reference is not None)
+    straight = d.c.reference.waypoints
+    grid = OccupancyGrid.empty(*BOUNDS, 0.02)
+    body = ArmBody(task.robot, grid.origin, grid.shape, grid.resolution)
+    ends = np.zeros(grid.shape, dtype=bool)
+    body.mark(ends, straight[0])
+    body.mark(ends, straight[-1])
+    dense = densify(straight, 0.02)[0]
+    known = None
+    for q in dense[len(dense) // 3 :]:  # the first place on the hand's way, off the arm at both ends
+        i, j, k = grid.index_of(task.robot.frame_pose(q, task.goal.pose.frame).translation[None])[0]
+        mask = np.ones(grid.shape, dtype=bool)
+        mask[i - 3 : i + 4, j - 3 : j + 4, k - 3 : k + 4] = False
+        if not (np.pad(ends, 4)[i : i + 15, j : j + 15, k : k + 15]).any():
+            known = mask
+            break
+    assert known is not None
+    assert any(body.in_unknown(q, known) for q in dense)
+    free = Driver(task)
+    free.run(depth(Scene(), known=known), 400, until=lambda d: d.c.reference is not None)
+    assert any(body.in_unknown(q, known) for q in densify(free.c.reference.waypoints, 0.02)[0])
+    safe = Driver(task, unknown="occupied", unknown_reach=2.0)
+    safe.run(depth(Scene(), known=known), 1500, until=lambda d: d.c.reference is not None)
+    assert safe.c.reference is not None and safe.c.info()["unknown_cells"] > 0
+    assert not any(body.in_unknown(q, known) for q in densify(safe.c.reference.waypoints, 0.01)[0])
+
+
+# --- closed loop ----------------------------------------------------------------------------------------
+
+
+def test_it_reaches_the_goal_of_a_static_scene_with_truth_sensing():
+    problem = planbench.load_problems("mbm:bookshelf_small/0001")[0]
+    scenario = Scenario(problem, (), SensingSettings("truth", rate=30.0), control_rate=100.0, horizon=20.0)
+    controller = MatrixFieldGuidedController()
+    record = run_scenario(scenario, controller, settings=RunSettings(timing="ideal"))
+    metrics = evaluate_run(scenario, record)
+    assert record.status == "success" and metrics.success, (metrics.failure, controller.info())
+    assert controller.info()["paths"] >= 1
