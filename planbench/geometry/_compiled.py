@@ -45,25 +45,33 @@ def mark_seen(lower, resolution, origin, axes, pixel, width, height, free, out):
                     out[i, j, k] = True
 
 
+@njit(cache=True, inline="always")
+def _point_cell(local, part, rotations, translations, lower, inv, shape, n):  # type: ignore[no-untyped-def]
+    """The flat index of the cell of point ``local[n]`` placed by its part's rotation and
+    translation, or -1 when it lies outside the grid of ``shape`` (cells of ``1 / inv`` m)."""
+    p = part[n]
+    x, y, z = local[n, 0], local[n, 1], local[n, 2]
+    wx = rotations[p, 0, 0] * x + rotations[p, 0, 1] * y + rotations[p, 0, 2] * z + translations[p, 0]
+    wy = rotations[p, 1, 0] * x + rotations[p, 1, 1] * y + rotations[p, 1, 2] * z + translations[p, 1]
+    wz = rotations[p, 2, 0] * x + rotations[p, 2, 1] * y + rotations[p, 2, 2] * z + translations[p, 2]
+    i = math.floor((wx - lower[0]) * inv)
+    j = math.floor((wy - lower[1]) * inv)
+    k = math.floor((wz - lower[2]) * inv)
+    if i < 0 or i >= shape[0] or j < 0 or j >= shape[1] or k < 0 or k >= shape[2]:
+        return -1
+    return (i * shape[1] + j) * shape[2] + k
+
+
 @njit(cache=True)
 def part_cells(local, part, rotations, translations, lower, resolution, shape, mask, stop_at_false, out):  # type: ignore[no-untyped-def]
     """Visit the cell of each point ``local[n]`` of part ``part[n]`` placed by its rotation and
     translation (module docstring of ``part_cells``): set it in ``out`` (flat), or with
     ``stop_at_false`` return True at the first whose cell is False in ``mask`` (flat)."""
-    n0, n1, n2 = shape[0], shape[1], shape[2]
     inv = 1.0 / resolution
     for n in range(local.shape[0]):
-        p = part[n]
-        x, y, z = local[n, 0], local[n, 1], local[n, 2]
-        wx = rotations[p, 0, 0] * x + rotations[p, 0, 1] * y + rotations[p, 0, 2] * z + translations[p, 0]
-        wy = rotations[p, 1, 0] * x + rotations[p, 1, 1] * y + rotations[p, 1, 2] * z + translations[p, 1]
-        wz = rotations[p, 2, 0] * x + rotations[p, 2, 1] * y + rotations[p, 2, 2] * z + translations[p, 2]
-        i = math.floor((wx - lower[0]) * inv)
-        j = math.floor((wy - lower[1]) * inv)
-        k = math.floor((wz - lower[2]) * inv)
-        if i < 0 or i >= n0 or j < 0 or j >= n1 or k < 0 or k >= n2:
+        flat = _point_cell(local, part, rotations, translations, lower, inv, shape, n)
+        if flat < 0:
             continue
-        flat = (i * n1 + j) * n2 + k
         if stop_at_false:
             if not mask[flat]:
                 return True
@@ -76,21 +84,13 @@ def part_cells(local, part, rotations, translations, lower, resolution, shape, m
 def part_cell_indices(local, part, rotations, translations, lower, resolution, shape, out):  # type: ignore[no-untyped-def]
     """Write the flat index of each point's cell into ``out`` (as :func:`part_cells` visits them,
     points outside the grid left out); return how many were written."""
-    n0, n1, n2 = shape[0], shape[1], shape[2]
     inv = 1.0 / resolution
     m = 0
     for n in range(local.shape[0]):
-        p = part[n]
-        x, y, z = local[n, 0], local[n, 1], local[n, 2]
-        wx = rotations[p, 0, 0] * x + rotations[p, 0, 1] * y + rotations[p, 0, 2] * z + translations[p, 0]
-        wy = rotations[p, 1, 0] * x + rotations[p, 1, 1] * y + rotations[p, 1, 2] * z + translations[p, 1]
-        wz = rotations[p, 2, 0] * x + rotations[p, 2, 1] * y + rotations[p, 2, 2] * z + translations[p, 2]
-        i = math.floor((wx - lower[0]) * inv)
-        j = math.floor((wy - lower[1]) * inv)
-        k = math.floor((wz - lower[2]) * inv)
-        if i < 0 or i >= n0 or j < 0 or j >= n1 or k < 0 or k >= n2:
+        flat = _point_cell(local, part, rotations, translations, lower, inv, shape, n)
+        if flat < 0:
             continue
-        out[m] = (i * n1 + j) * n2 + k
+        out[m] = flat
         m += 1
     return m
 
