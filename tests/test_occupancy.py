@@ -122,3 +122,31 @@ def test_mesh_obstacles_collide_and_voxelize_through_coal(panda):
     checker = CollisionChecker(panda, scene)
     assert not checker.in_collision(panda.home)
     assert 0.0 < checker.clearance(panda.home) < 1.0
+
+
+@pytest.mark.parametrize("cells", [0, 1, 2, 3])
+def test_grow_cells_is_a_cube_dilation_that_does_not_wrap(cells):
+    """The same cells as scipy's dilation by a cube of side 2 cells + 1; a cell on a face grows
+    inward only."""
+    from scipy import ndimage
+
+    from planbench.geometry.occupancy import grow_cells
+
+    rng = np.random.default_rng(cells)
+    mask = rng.random((9, 11, 7)) < 0.02
+    mask[0, 5, 3] = True  # on a face
+    cube = np.ones((2 * cells + 1,) * 3, dtype=bool)
+    expected = ndimage.binary_dilation(mask, structure=cube) if cells else mask
+    grown = grow_cells(mask, cells)
+    assert grown.dtype == bool and np.array_equal(grown, expected)
+    assert not np.shares_memory(grown, mask)
+    assert not grown[-1].any() or mask[-1 - cells :].any()  # nothing wrapped to the far face
+
+
+def test_grow_cells_refuses_what_it_cannot_grow():
+    from planbench.geometry.occupancy import grow_cells
+
+    with pytest.raises(ValueError, match="3-D bool"):
+        grow_cells(np.zeros((3, 3)), 1)
+    with pytest.raises(ValueError, match=">= 0"):
+        grow_cells(np.zeros((3, 3, 3), dtype=bool), -1)

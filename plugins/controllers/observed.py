@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from planbench.checking.collision import CollisionChecker
-from planbench.geometry.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid, grow_cells
 from planbench.reactive.body import ArmBody
 from planbench.robot import Robot
 from planbench.scene import Scene
@@ -64,13 +64,7 @@ class ArmCells:
         hi = np.minimum(hit.max(axis=0) + cells + 1, body.shape)
         block = np.zeros(tuple(hi - lo), dtype=bool)
         block[tuple((hit - lo).T)] = True
-        for axis in range(3):  # the cube of side 2 cells + 1, one axis at a time
-            for _ in range(cells):
-                grown = block.copy()
-                grown[(slice(None),) * axis + (slice(1, None),)] |= block[(slice(None),) * axis + (slice(None, -1),)]
-                grown[(slice(None),) * axis + (slice(None, -1),)] |= block[(slice(None),) * axis + (slice(1, None),)]
-                block = grown
-        idx = np.argwhere(block) + lo
+        idx = np.argwhere(grow_cells(block, cells)) + lo
         return np.ravel_multi_index(tuple(idx.T), body.shape)
 
 

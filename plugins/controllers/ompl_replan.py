@@ -27,8 +27,10 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
   obstacles for every plan, never entered after a look (below); found when a plan needs them, as
   a frame's check of the rest of the path stops short of every unknown cell anyway;
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
-  not enter (below), the arm plans again with every such cell an obstacle (one octree of the
-  grid's unknown and occupied cells, about 0.5 s to build) and follows that path if there is one;
+  not enter (below), the arm plans again with every such cell an obstacle (within
+  ``known_plan_time``; the occupied cells and the two-cell layer of unknown ones next to the
+  space the arm may enter stand for them all: any motion into the rest crosses that layer) and
+  follows that path if there is one;
 - **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
   scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
   ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
@@ -55,7 +57,7 @@ import numpy as np
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
-from planbench.geometry.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid, grow_cells
 from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
 from planbench.reactive.body import ArmBody, body_points
@@ -83,6 +85,9 @@ class OMPLReplanConfig(UnknownSettings):
     """The registered static planner that (re)plans."""
     plan_time: float = 1.0
     """Time limit of one (re)plan [s]."""
+    known_plan_time: float = 0.5
+    """Safe mode: time limit [s] of the plan in known space, made when a plan's path enters cells
+    the arm may not enter."""
     speed_scale: float = 0.5
     """Speed along the path, as a fraction of each joint's velocity limit (0, 1]."""
     check_resolution: float = 0.02
@@ -113,7 +118,15 @@ class OMPLReplanConfig(UnknownSettings):
     (0.03 m) of the arm, so these are never seen until the arm has moved; the same at the goal."""
 
     def __post_init__(self) -> None:
-        for name in ("plan_time", "check_resolution", "lookahead", "scan_horizon", "start_margin", "surface_margin"):
+        for name in (
+            "plan_time",
+            "known_plan_time",
+            "check_resolution",
+            "lookahead",
+            "scan_horizon",
+            "start_margin",
+            "surface_margin",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -147,6 +160,13 @@ def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np
     flat_known = known.reshape(-1)
     return np.unique(near[~flat_known[near]])
 
+
+_FRONTIER = 2
+"""Safe mode: [cells] the depth of unknown space a plan in known space treats as obstacles, next to
+the space the arm may enter (:meth:`OMPLReplanController._known_space_obstacles`): two cells
+(4 cm at the default resolution) are more than any body point moves between two of the planner's
+checks (0.01 rad per joint), and the follower's scan checks the path against every unknown cell
+anyway."""
 
 _GAIN = 0.3
 """Of the way back to the path per period the follower steers (stable while a command is held for
@@ -393,18 +413,29 @@ class OMPLReplanController(Controller):
         if not any(body.in_unknown(x, allowed) for _, x in self._samples(0.0, float(self.times[-1]))):
             return
         optimistic = (self.path, self.times, self.tau_limit)
-        blocked = ~allowed
-        blocked.reshape(-1)[self.occupied] = True
-        if self._plan_once(q, self._cells_checker(np.flatnonzero(blocked), q), 0.5):
+        if self._plan_once(q, self._cells_checker(self._known_space_obstacles(), q), self.config.known_plan_time):
             self.known_path = True
             self.stats["known_plans"] += 1
             return
         self.path, self.times, self.tau_limit = optimistic
         self.tau, self.looks, self.t_follow = 0.0, 0, None
 
-    def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, share: float = 1.0) -> bool:
-        """One plan from ``q`` against ``checker`` within ``share`` of ``plan_time``; True when it
-        found a path (then followed from its start)."""
+    def _known_space_obstacles(self) -> np.ndarray:
+        """Safe mode: flat indices of the obstacles of a plan in known space: the occupied cells
+        and the cells the arm may not enter within ``_FRONTIER`` cells of one it may (free and
+        allowed). A motion from where the arm is into the rest of the unknown space crosses these,
+        so they stand for all of it: a tenth of the unknown cells or fewer, an octree built in tens
+        of milliseconds where all of them took half a second."""
+        assert self.allowed is not None and self.occupied is not None
+        open_ = self.allowed.copy()
+        open_.reshape(-1)[self.occupied] = False
+        blocked = grow_cells(open_, _FRONTIER) & ~self.allowed
+        blocked.reshape(-1)[self.occupied] = True
+        return np.flatnonzero(blocked)
+
+    def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, time_limit: float | None = None) -> bool:
+        """One plan from ``q`` against ``checker`` within ``time_limit`` [s] (``plan_time`` by
+        default); True when it found a path (then followed from its start)."""
         task = self.task
         t0 = time.perf_counter()
         assert checker is not None
@@ -425,7 +456,8 @@ class OMPLReplanController(Controller):
             use_checker(problem, checker)
         else:
             self.planner.setup(problem)
-        result = self.planner.plan(problem, time_limit=share * self.config.plan_time, rng=self.rng)
+        limit = self.config.plan_time if time_limit is None else time_limit
+        result = self.planner.plan(problem, time_limit=limit, rng=self.rng)
         self.stats["plans"] += 1
         self.stats["plan_times"].append(time.perf_counter() - t0)
         if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
