@@ -107,6 +107,16 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         make_controller(name, **setting)
 
 
+@pytest.mark.parametrize(
+    "setting",
+    [{"known_plan_time": 0.0}, {"known_plan_time": float("nan")}, {"surface_margin": -1.0}, {"look_frames": 1.5}],
+)
+def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
+    key = next(iter(setting))
+    with pytest.raises(InvalidConfigError, match=key):
+        make_controller("ompl-replan", **setting)
+
+
 @pytest.mark.parametrize("name", ALL_CONTROLLERS)
 def test_defaults_chosen_on_dynamic_tune_field_controllers_free_ompl_replan_safe(name):
     expected = "occupied" if name == "ompl-replan" else "free"
