@@ -53,10 +53,26 @@ def test_user_errors_exit_2_with_a_message(capsys):
     assert "timed" in capsys.readouterr().err
 
 
-def test_list_shows_planners_robots_and_sets(capsys):
+def test_list_shows_planners_robots_sets_and_suites(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")  # one row per line
     assert main(["list"]) == 0
     text = capsys.readouterr().out
     assert "straight-line" in text and "panda" in text and "ur5" in text and "mbm" in text
+    suites = text[text.index("Suites") :]
+    from planbench.bench.suite import builtin_suites, load_suite
+
+    for name in builtin_suites():  # every built-in suite, with its kind and what it runs
+        row = next(line for line in suites.splitlines() if line.startswith(f"│ {name} "))
+        suite = load_suite(name)
+        assert suite.kind in row and suite.description[:40] in row
+
+
+def test_the_built_in_dynamic_suites_run_every_controller():
+    from planbench.bench.suite import load_suite
+
+    built_in = {"matrix-field", "matrix-field-qp", "matrix-field-guided", "edt-field", "distance-field", "ompl-replan"}
+    for name in ("dynamic", "dynamic-tune", "dynamic-test"):
+        assert {e.planner for e in load_suite(name).planners} == built_in, name
 
 
 def test_plot_needs_a_planner_with_a_figure(capsys):

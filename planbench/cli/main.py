@@ -69,7 +69,25 @@ def cmd_list(args: argparse.Namespace) -> int:
     sets.add_row("dynamic-test", "the other 288 (6 base problems): measure here")
     sets.add_row("dynamic-smoke", "4 of them, for the dynamic-smoke suite")
     console.print(sets)
+    console.print(_suites_table())
     return 0
+
+
+def _suites_table() -> Table:
+    """The built-in suites (``planbench bench --suite NAME``): what each runs, from its file."""
+    from planbench.bench.suite import builtin_suites, load_suite
+
+    table = Table(title="Suites (planbench bench --suite NAME)", title_justify="left")
+    for col in ("name", "kind", "what it runs"):
+        table.add_column(col)
+    for name in sorted(builtin_suites()):
+        try:
+            suite = load_suite(name)
+        except PlanbenchError as exc:
+            table.add_row(name, "-", f"cannot load: {exc}")
+            continue
+        table.add_row(name, suite.kind, suite.description)
+    return table
 
 
 METRICS = (  # (Evaluation field, label, display unit)
@@ -360,7 +378,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging (tracebacks of planner errors)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_CommandParser)
 
-    p = sub.add_parser("list", help="planners (with origin and availability), robots, problem sets")
+    p = sub.add_parser("list", help="planners and controllers (origin, availability), robots, problem sets, suites")
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser(
