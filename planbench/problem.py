@@ -6,7 +6,7 @@ JSON format (``planbench-problem/1``)::
      "id": "my-problem",
      "robot": "panda",                              # a shipped robot name or a settings .toml path
      "robot_overrides": {"fixed_joints": {"panda_finger_joint1": 0.04}},   # optional
-     "scene": {... a planbench-scene/1 object ...} or "scene.json",
+     "scene": {... a planbench-scene/1 object ...} or "scene.json" or "moveit.scene",
      "start": [q1, ..., qn],                        # [rad or m], robot.joint_names order
      "goal": {"q": [...],                           # a joint configuration, and/or
               "pose": {"frame": "panda_link8",      # an end-effector pose in the base frame
@@ -297,7 +297,7 @@ _FIELD_TYPES: dict[str, tuple[tuple[type, ...], str]] = {
     "id": ((str,), _TEXT),
     "robot": ((str, Mapping), "a robot name, a settings .toml path, or the robot's settings (an object)"),
     "robot_overrides": ((Mapping,), _OBJECT),
-    "scene": ((Mapping, str), "a scene object or a scene .json path"),
+    "scene": ((Mapping, str), "a scene object, or the path of a scene .json or MoveIt .scene file"),
     "goal": ((Mapping,), "an object with 'q' and/or 'pose'"),
     "tolerances": ((Mapping,), _OBJECT),
     "metadata": ((Mapping,), _OBJECT),

@@ -20,6 +20,9 @@ which are those of ``shape_msgs/SolidPrimitive``, URDF and coal)::
 scene frame (``p_scene = R p_local + position``); it defaults to the identity. A mesh or point
 cloud path is relative to the JSON file. A point cloud's geometry is the union of the cubes of edge
 ``2 radius`` on a lattice that hold a point (its octree's leaves): :mod:`planbench.geometry.pointcloud`.
+
+:meth:`Scene.load` and :meth:`Scene.save` also read and write MoveIt's text scenes (a ``.scene``
+path): :mod:`planbench.geometry.moveit_scene`.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import pinocchio as pin
 
 from planbench.errors import ProblemFileError
 from planbench.files.inputs import InputFileError, read_json, regular_file
+from planbench.geometry import moveit_scene
 from planbench.geometry.pointcloud import VoxelCloud, load_cloud
 
 __all__ = ["Obstacle", "Scene", "SHAPES", "read_problem_json"]
@@ -302,12 +306,21 @@ class Scene:
             raise ProblemFileError(source, str(exc)) from exc
 
     def save(self, path: str | Path) -> None:
-        """Write the scene as JSON, file paths relative to its folder (:meth:`to_dict`)."""
+        """Write the scene as JSON, file paths relative to its folder (:meth:`to_dict`); a path
+        ending in ``.scene``: as MoveIt's text scene (:mod:`planbench.geometry.moveit_scene`)."""
+        if Path(path).suffix.lower() == moveit_scene.SUFFIX:
+            moveit_scene.write_moveit_scene(self.to_dict(), path)
+            return
         Path(path).write_text(json.dumps(self.to_dict(relative_to=Path(path).resolve().parent), indent=1))
 
     @classmethod
-    def load(cls, path: str | Path) -> Scene:
+    def load(cls, path: str | Path, mesh_dir: str | Path | None = None) -> Scene:
+        """A scene file: planbench's JSON, or by its suffix a MoveIt ``.scene`` file, whose meshes
+        are written as OBJ files into ``mesh_dir`` (default: the user's cache,
+        :func:`planbench.geometry.moveit_scene.default_mesh_dir`)."""
         p = Path(path)
+        if p.suffix.lower() == moveit_scene.SUFFIX:
+            return cls.from_dict(moveit_scene.read_moveit_scene(p, mesh_dir), str(p))
         return cls.from_dict(read_problem_json(p), str(p), p.parent)
 
 

@@ -2,5 +2,6 @@
 
 - :mod:`~planbench.geometry.occupancy`: :class:`~planbench.geometry.occupancy.OccupancyGrid`, a scene voxelised.
 - :mod:`~planbench.geometry.pointcloud`: point-cloud obstacles (files, voxel clouds).
+- :mod:`~planbench.geometry.moveit_scene`: MoveIt's text scenes (``.scene``), read and written.
 - :mod:`~planbench.geometry.overlap`: exact cell-box overlap, for voxelisation.
 """
