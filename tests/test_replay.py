@@ -246,6 +246,10 @@ def test_planner_settings_from_a_results_file_are_read_as_json():
     info = ReplayInfo.from_row({"planner_settings": '{"range": 0.2}', "success": 1, "collision_segment": None})
     assert info.settings == {"range": 0.2} and info.verdict == "success (validated)" and info.collision_segment == -1
     assert ReplayInfo().verdict == ""  # no verdict given: none shown
+    odd = ReplayInfo.from_row({"planner_settings": '{"limit": NaN, "goal": [1, Infinity]}', "planner": "p"})
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    data = _data(replay_html(problem, None, info=odd))  # strict JSON, readable by the page's JSON.parse
+    assert data["settings"] == {"limit": "nan", "goal": [1, "inf"]}
 
 
 def test_the_point_cloud_example_replays_as_points_in_at_most_5_mb(tmp_path, capsys):

@@ -328,9 +328,21 @@ def replay_html(
 
 
 def _json_info(info: ReplayInfo) -> dict[str, Any]:
-    out = dataclasses.asdict(info)
-    out["settings"] = json.loads(json.dumps(dict(info.settings), default=str))
+    out = {f.name: getattr(info, f.name) for f in dataclasses.fields(info)}
+    out["settings"] = _plain(dict(info.settings))
     return {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in out.items()}
+
+
+def _plain(x: Any) -> Any:
+    """``x`` as strict JSON values: mappings and sequences kept, a non-finite number or any other
+    object as its text (planner settings may hold either)."""
+    if isinstance(x, Mapping):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if x is None or isinstance(x, (bool, int, str)) or (isinstance(x, float) and math.isfinite(x)):
+        return x
+    return str(x)
 
 
 def _panel(data: dict[str, Any]) -> str:
