@@ -281,17 +281,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.plot:
         planner.plot_result(problem, _result_of(records[0]), args.plot)
         console.print(f"figure written to {args.plot}")
-    if args.replay:
-        if path is None:
-            console.print("no path to replay")
-        else:
-            from planbench.geometry.occupancy import scene_grid
-            from planbench.visual.replay import write_replay
+    if args.replay:  # without a path, the page shows the problem's start and why there is none
+        from planbench.geometry.occupancy import scene_grid
+        from planbench.visual.replay import ReplayInfo, write_replay
 
-            name = f"{args.planner} on {problem.id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
-            grid = scene_grid(problem.scene, 0.02, robot=problem.robot)
-            write_replay(args.replay, problem, path, times, grid=grid, title=name)
-            console.print(f"replay written to {escape(args.replay)} (open it in a browser)")
+        name = f"{args.planner} on {problem.id}: " + ("success" if rows[0]["success"] else rows[0]["failure"])
+        grid = scene_grid(problem.scene, 0.02, robot=problem.robot)
+        info = ReplayInfo.from_row(rows[0], settings=dict(setup.settings))
+        write_replay(args.replay, problem, path, times, grid=grid, title=name, info=info)
+        console.print(f"replay written to {escape(args.replay)} (open it in a browser)")
     if args.json:
         out = [
             {**row, "message": message, "path": _array(path), "times": _array(times)}
