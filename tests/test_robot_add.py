@@ -73,8 +73,10 @@ def toy(tmp_path: Path) -> Path:
 
 
 def _arm_args(name: str) -> list[str]:
+    """The arm's command line, its files by their paths inside example-robot-data's robots/ folder
+    (or, for the UR10, by a full path)."""
     args = ARMS[name]
-    return [str(ERD / args[0]), *(str(ERD / a) if a.endswith(".srdf") else a for a in args[1:])]
+    return [str(ERD / args[0]), *args[1:]] if name == "ur10" else args
 
 
 # --- continuous joints in the loader ------------------------------------------------------------------
@@ -157,6 +159,17 @@ def test_the_tool_frame_proposed_is_the_leaf_with_most_movable_joints(toy: Path)
     assert p.settings.fixed_joints == {}
     held = propose(toy, samples=50, fixed={"finger_joint": 0.03})
     assert held.settings.fixed_joints == {"finger_joint": 0.03}
+
+
+def test_a_pair_touching_at_the_default_configuration_and_in_other_ones_stays_checked() -> None:
+    """The Z1 rests folded at all-zero joints, link02 on link06; they touch in other configurations
+    too, so the pair is checked (MoveIt's assistant would disable it), and home is free of it."""
+    p = propose(
+        "z1_description/urdf/z1.urdf", "z1_description/srdf/z1.srdf", fixed={"jointGripper": None}, samples=2000
+    )
+    assert ("link02", "link06") in p.default_kept and ("link02", "link06") in p.kept
+    assert ("link02", "link06") not in {(d.a, d.b) for d in p.disabled}
+    assert p.settings.home != (0.0,) * 6 and p.home_source == "the SRDF's group_state 'arm_up'"
 
 
 # --- the command ---------------------------------------------------------------------------------------

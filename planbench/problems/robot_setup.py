@@ -1,7 +1,9 @@
 """``planbench robot add``: a robot settings file (TOML) for a URDF, proposed the way MoveIt's setup
 assistant proposes one.
 
-:func:`propose` reads the URDF (and an SRDF when given) and proposes:
+:func:`propose` reads the URDF (and an SRDF when given; a relative path not found from the working
+folder is looked up in example-robot-data's ``robots/`` folder, as a settings file's are) and
+proposes:
 
 - **the planned joints**: the movable joints (revolute, continuous, prismatic) on the chain from the
   root link to the tool frame; every other movable joint (a gripper's, say) is held fixed at its
@@ -18,15 +20,18 @@ assistant proposes one.
   the first reason that holds: ``adjacent`` (parent and child in the kinematic tree; a link without
   collision geometry is skipped, its children counting as adjacent to its nearest ancestor that has
   some); ``always`` (in collision in at least :data:`ALWAYS_FRACTION` of the random configurations,
-  MoveIt's default 95 %); ``default`` (in collision at the default configuration: every joint at its
-  default value); ``never`` (in collision in none of the random configurations). MoveIt tests
-  ``default`` before ``always``; the pairs disabled are the same, only the label of a pair that is
-  both differs. The random configurations are :data:`DEFAULT_SAMPLES` (``samples``) uniform draws
+  MoveIt's default 95 %); ``default`` (in collision at the default configuration, every joint at its
+  default value, and in none of the random configurations); ``never`` (in collision in none of the
+  random configurations). Two departures from MoveIt, which tests ``default`` before ``always`` and
+  disables every pair touching at the default configuration: a pair both ``always`` and touching
+  there is labelled ``always`` (the same pairs disabled); a pair touching there that also touches in
+  some random configurations and is apart in others stays checked (``default_kept``: a folded rest
+  pose whose links touch, such as the Unitree Z1's, does not make a real collision invisible).
+  The random configurations are :data:`DEFAULT_SAMPLES` (``samples``) uniform draws
   over the joint ranges from ``numpy.random.default_rng(seed)``, so the same inputs give the same
   file. Pairs the SRDF's ``disable_collisions`` already remove are not checked again (the file
   names the SRDF). Like MoveIt's, ``never`` is a sampled verdict: a pair that collides only in a
-  sliver of the joint space may be disabled (more samples make that less likely), and ``default``
-  trusts the default configuration to be a valid one;
+  sliver of the joint space may be disabled (more samples make that less likely);
 - **home**: the first of the SRDF's ``<group_state>`` configurations that names every planned joint
   and is collision-free with the pairs kept (and the ``default`` ones: home does not lean on the
   assumption that disabled them), else the middle of the ranges, else the default
@@ -126,6 +131,8 @@ class RobotProposal:
     disabled: tuple[DisabledPair, ...]
     kept: tuple[tuple[str, str], ...]
     """Link pairs still checked for self-collision."""
+    default_kept: tuple[tuple[str, str], ...]
+    """Of ``kept``, the pairs touching at the default configuration that MoveIt would disable."""
     srdf_pairs: int
     """Link pairs the SRDF already disables."""
     continuous: tuple[str, ...]
@@ -133,6 +140,18 @@ class RobotProposal:
     ee_source: str
     samples: int
     seed: int
+
+
+def _input_path(path: str | Path) -> Path:
+    """``path`` from the working folder, else in example-robot-data's robots/ folder; as given
+    (for the error that names it) when in neither."""
+    given = Path(path).expanduser()
+    if given.exists():
+        return given.resolve()
+    if given.is_absolute():
+        return given
+    inside = example_robot_data_dir() / "robots" / given
+    return inside if inside.exists() else given.absolute()
 
 
 def _read_urdf(path: Path) -> tuple[_Urdf, str]:
@@ -225,9 +244,9 @@ def propose(
     """
     if samples < 1:
         raise PlanbenchError(f"samples must be >= 1, got {samples}")
-    urdf_path = Path(urdf).expanduser().resolve()
+    urdf_path = _input_path(urdf)
     model, _ = _read_urdf(urdf_path)
-    srdf_path = Path(srdf).expanduser().resolve() if srdf is not None else None
+    srdf_path = _input_path(srdf) if srdf is not None else None
     srdf_root = _read_srdf(srdf_path) if srdf_path is not None else None
 
     if ee_frame is not None:
@@ -264,7 +283,7 @@ def propose(
         source=str(urdf_path),
     )
     robot = Robot(settings)
-    disabled, kept, srdf_pairs = _disabled_pairs(robot, model, samples, seed)
+    disabled, kept, default_kept, srdf_pairs = _disabled_pairs(robot, model, samples, seed)
     settings = settings.replace(ignore_collision_pairs=tuple((p.a, p.b) for p in disabled))
     # Home is free of the "default" pairs too: they are disabled on the assumption that the default
     # configuration is valid, not because they cannot touch.
@@ -272,7 +291,16 @@ def propose(
     home, home_source = _home(Robot(strict), srdf_root, samples, seed)
     settings = settings.replace(home=tuple(round(float(x), 6) for x in home))
     return RobotProposal(
-        settings, tuple(disabled), tuple(kept), srdf_pairs, continuous, home_source, ee_source, samples, seed
+        settings,
+        tuple(disabled),
+        tuple(kept),
+        tuple(default_kept),
+        srdf_pairs,
+        continuous,
+        home_source,
+        ee_source,
+        samples,
+        seed,
     )
 
 
@@ -315,7 +343,7 @@ def _samples(robot: Robot, n: int, seed: int) -> np.ndarray:
 
 def _disabled_pairs(
     robot: Robot, model: _Urdf, samples: int, seed: int
-) -> tuple[list[DisabledPair], list[tuple[str, str]], int]:
+) -> tuple[list[DisabledPair], list[tuple[str, str]], list[tuple[str, str]], int]:
     import pinocchio as pin
 
     from planbench.checking.collision import fresh_geometry_data
@@ -361,19 +389,21 @@ def _disabled_pairs(
             sometimes.append(lp)
             for k in pairs[lp]:
                 gdata.deactivateCollisionPair(k)
-    kept = []
+    kept, default_kept = [], []
     for lp in sorted(counts):
         fraction = counts[lp] / samples
         if lp in undecided and fraction >= ALWAYS_FRACTION:
             decided[lp] = DisabledPair(*lp, "always", fraction)
-        elif lp in at_default:
+        elif lp in at_default and counts[lp] == 0:
             decided[lp] = DisabledPair(*lp, "default")
         elif lp in undecided and counts[lp] == 0:
             decided[lp] = DisabledPair(*lp, "never", 0.0)
         else:
             kept.append(lp)
+            if lp in at_default:
+                default_kept.append(lp)
     disabled = sorted(decided.values(), key=lambda p: (REASONS.index(p.reason), p.a, p.b))
-    return disabled, kept, srdf_pairs
+    return disabled, kept, default_kept, srdf_pairs
 
 
 def _home(robot: Robot, srdf: ET.Element | None, samples: int, seed: int) -> tuple[np.ndarray, str]:
@@ -450,12 +480,15 @@ def settings_text(proposal: RobotProposal, out: str | Path) -> str:
         "# Link pairs never checked for self-collision, as MoveIt's setup assistant finds them: adjacent",
         f"# (parent and child), always (touching in at least {ALWAYS_FRACTION:.0%} of {proposal.samples} random "
         f"configurations, seed {proposal.seed}),",
-        "# default (touching with every joint at 0, or mid-range where 0 is outside it), never (touching in none",
-        "# of the random configurations).",
+        "# default (touching with every joint at 0, or mid-range where 0 is outside it, and in none of the random",
+        "# configurations), never (touching in none of the random configurations).",
     ]
     if proposal.srdf_pairs:
         lines.append(f"# The SRDF disables {proposal.srdf_pairs} more link pairs.")
     lines.append(f"# Still checked: {len(proposal.kept)} link pairs.")
+    if proposal.default_kept:
+        lines.append("# Touching at the default configuration and in some random configurations too, so still checked")
+        lines.append("# (MoveIt would disable them): " + ", ".join(f"{a}-{b}" for a, b in proposal.default_kept) + ".")
     lines.append("ignore_collision_pairs = [")
     for reason in REASONS:
         group = [p for p in proposal.disabled if p.reason == reason]
@@ -541,6 +574,11 @@ def describe(proposal: RobotProposal) -> Sequence[str]:
         + f"{len(proposal.kept)} link pairs still checked"
         + (f"; the SRDF disables {proposal.srdf_pairs} more" if proposal.srdf_pairs else ""),
     ]
+    if proposal.default_kept:
+        out.append(
+            "still checked though touching at the default configuration (they touch in some random ones too; "
+            "MoveIt would disable them): " + ", ".join(f"{a}-{b}" for a, b in proposal.default_kept)
+        )
     if proposal.continuous:
         lo, hi = CONTINUOUS_RANGE
         out.append(f"continuous joints {', '.join(proposal.continuous)}: range [{lo:.6g}, {hi:.6g}] rad")
