@@ -289,7 +289,8 @@ def propose(
     # configuration is valid, not because they cannot touch.
     strict = settings.replace(ignore_collision_pairs=tuple((p.a, p.b) for p in disabled if p.reason != "default"))
     home, home_source = _home(Robot(strict), srdf_root, samples, seed)
-    settings = settings.replace(home=tuple(round(float(x), 6) for x in home))
+    home = np.clip(np.round(home, 6), robot.lower, robot.upper)  # 1 urad, as the generated sets round
+    settings = settings.replace(home=tuple(float(x) for x in home))
     return RobotProposal(
         settings,
         tuple(disabled),
@@ -510,7 +511,7 @@ def settings_text(proposal: RobotProposal, out: str | Path) -> str:
             "# Continuous joints, planned over one full turn [rad] (planbench's default, CONTINUOUS_RANGE);",
             "# widen a range here to let the planners turn a joint further.",
         ]
-        lines += [f"{_toml_str(k)} = [{_num(lo)}, {_num(hi)}]" for k, (lo, hi) in s.position_limits.items()]
+        lines += [f"{_toml_str(k)} = [{lo!r}, {hi!r}]" for k, (lo, hi) in s.position_limits.items()]
     return "\n".join(lines) + "\n"
 
 
