@@ -14,7 +14,8 @@ Settings file keys (units: m, rad, s)::
     home = [...]                         # optional: a configuration of the planned joints
     ignore_collision_pairs = [["a", "b"]]  # optional: more link pairs never checked for self-collision
     [fixed_joints]      name = value     # optional: joints held fixed [rad or m]
-    [position_limits]   name = [lo, hi]  # optional: override the URDF's [rad or m]
+    [position_limits]   name = [lo, hi]  # optional: override the URDF's [rad or m]; a continuous
+                                         # joint without one gets CONTINUOUS_RANGE, [-pi, pi]
     [velocity_limits]   name = value     # optional: override the URDF's [rad/s or m/s]
     [acceleration_limits] name = value   # optional: [rad/s^2 or m/s^2] (URDFs have none); without
                                          # them the time-parameterised duration is not reported
@@ -24,6 +25,12 @@ Settings file keys (units: m, rad, s)::
 
 Relative file paths are looked up beside the settings file first, then in example-robot-data's
 ``robots/`` folder (found through the installed distribution, never a machine path).
+
+A continuous joint (URDF ``type="continuous"``, which pinocchio would model as a unit circle, two
+coordinates for one velocity) is planned as a revolute joint over its ``[position_limits]`` entry,
+or over :data:`CONTINUOUS_RANGE` (one full turn, ``[-pi, pi]``) without one; a URDF's own
+lower/upper on a continuous joint are ignored, as the URDF specification says.
+``planbench robot add`` writes that range into the settings file it makes.
 """
 
 from __future__ import annotations
@@ -31,7 +38,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import importlib.metadata
+import math
 import sys
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +58,19 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["RobotSettings", "Robot", "link_of", "load_robot", "robot_names", "example_robot_data_dir"]
+__all__ = [
+    "CONTINUOUS_RANGE",
+    "RobotSettings",
+    "Robot",
+    "link_of",
+    "load_robot",
+    "robot_names",
+    "example_robot_data_dir",
+]
+
+CONTINUOUS_RANGE = (-math.pi, math.pi)
+"""[rad] The range a continuous joint is planned over when the settings give it no
+``[position_limits]`` entry: one full turn."""
 
 
 @functools.cache
@@ -217,12 +238,17 @@ class Robot:
             why = "URDF file not found" if exc.problem.endswith("no such file") else f"URDF file: {exc.problem}"
             raise RobotFileError(settings.urdf, f"{why} (robot {settings.name!r})") from None
         share = example_robot_data_dir().parent
+        package_dirs = [str(share), str(settings.urdf.parent)]
+        xml, self.continuous_joints = _revolute_urdf(settings.urdf, settings.position_limits)
+        """Names of the URDF's continuous joints, planned as revolute ones (module docstring)."""
         try:
-            full, geom = pin.buildModelsFromUrdf(
-                str(settings.urdf),
-                package_dirs=[str(share), str(settings.urdf.parent)],
-                geometry_types=pin.GeometryType.COLLISION,
-            )
+            if xml is None:
+                full, geom = pin.buildModelsFromUrdf(
+                    str(settings.urdf), package_dirs=package_dirs, geometry_types=pin.GeometryType.COLLISION
+                )
+            else:
+                full = pin.buildModelFromXML(xml)
+                geom = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.COLLISION, package_dirs=package_dirs)
         except (RuntimeError, ValueError) as exc:
             raise RobotFileError(settings.urdf, f"pinocchio cannot parse it: {exc}") from exc
         if geom.ngeoms == 0:
@@ -257,8 +283,8 @@ class Robot:
         if model.nq != model.nv:
             raise RobotFileError(
                 settings.urdf,
-                "it has continuous or multi-dof joints (nq != nv); planbench plans revolute and "
-                "prismatic joints only: give them limits or list them under [fixed_joints]",
+                "it has multi-dof joints (floating or planar, nq != nv); planbench plans revolute, "
+                "continuous and prismatic joints only: list the others under [fixed_joints]",
             )
         self.model = model
         self.collision_model = geom
@@ -367,6 +393,38 @@ class Robot:
 
     def __repr__(self) -> str:
         return f"Robot({self.name!r}, nq={self.nq}, ee_frame={self.settings.ee_frame!r})"
+
+
+def _revolute_urdf(
+    urdf: Path, position_limits: Mapping[str, tuple[float, float]]
+) -> tuple[str | None, tuple[str, ...]]:
+    """The URDF's text with each continuous joint made revolute over its range (``position_limits``
+    or :data:`CONTINUOUS_RANGE`), and those joints' names; ``(None, ())`` when it has none."""
+    text = read_text(urdf)
+    if "continuous" not in text:
+        return None, ()
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError:
+        return None, ()  # pinocchio's parser says what is wrong with it
+    names = []
+    for joint in root.findall("joint"):
+        if joint.get("type") != "continuous":
+            continue
+        name = str(joint.get("name"))
+        lo, hi = position_limits.get(name, CONTINUOUS_RANGE)
+        limit = joint.find("limit")
+        if limit is None:
+            limit = ET.SubElement(joint, "limit", effort="0", velocity="0")
+        joint.set("type", "revolute")
+        limit.set("lower", repr(float(lo)))
+        limit.set("upper", repr(float(hi)))
+        for key in ("effort", "velocity"):
+            limit.set(key, limit.get(key, "0"))
+        names.append(name)
+    if not names:
+        return None, ()
+    return ET.tostring(root, encoding="unicode"), tuple(names)
 
 
 def link_of(geometry_name: str) -> str:

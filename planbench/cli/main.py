@@ -33,7 +33,7 @@ from planbench.settings import parse_setting, settings_text
 log = logging.getLogger("planbench")
 
 # Core modules that contribute subcommands through an ``add_commands(subparsers)`` function.
-COMMAND_MODULES = ("planbench.cli.bench", "planbench.cli.field", "planbench.cli.scenario")
+COMMAND_MODULES = ("planbench.cli.bench", "planbench.cli.field", "planbench.cli.scenario", "planbench.cli.robot")
 
 
 def cmd_list(args: argparse.Namespace) -> int:

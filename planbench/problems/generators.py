@@ -260,9 +260,10 @@ def _shelf(rng: np.random.Generator, ws: Workspace) -> _Layout:
     w2 = width / 2
     tops = base + t + np.cumsum(heights + t)  # top of each row's upper board
     top = float(tops[-1])
-    obstacles = [
-        _floor(ws),
-        _box("plinth", f, (0.0, -w2 - t, ws.floor), (depth + t, w2 + t, base)),
+    obstacles = [_floor(ws)]
+    if round(base - ws.floor, 4) > 0:  # a plinth thinner than the files' 0.1 mm is none (not a 0-high box)
+        obstacles.append(_box("plinth", f, (0.0, -w2 - t, ws.floor), (depth + t, w2 + t, base)))
+    obstacles += [
         _box("back", f, (depth, -w2 - t, base), (depth + t, w2 + t, top)),
         _box("left", f, (0.0, w2, base), (depth, w2 + t, top)),
         _box("right", f, (0.0, -w2 - t, base), (depth, -w2, top)),
@@ -694,6 +695,31 @@ def write_set(
     return manifest
 
 
+def write_problem_files(
+    out: Path,
+    robots: Sequence[str],
+    families: Sequence[str] = FAMILIES,
+    n: int = SHIPPED_COUNT,
+    seed: int = SHIPPED_SEED,
+    log: Callable[[str], None] = print,
+) -> list[Path]:
+    """Generate ``n`` problems per robot (a shipped name or a settings .toml) and family into
+    ``out``, one planbench problem file each (``<robot>_<family>_<index>.json``, the robot named as
+    :meth:`Problem.save` names it: a settings file by its path relative to ``out``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name in robots:
+        robot = load_robot(name)
+        for family in families:
+            t0 = time.perf_counter()
+            for problem in generate(robot, family, n, seed):
+                path = out / f"{robot.name}_{family}_{problem.metadata['index']:04d}.json"
+                problem.save(path)
+                written.append(path)
+            log(f"{robot.name}_{family}: {n} problem files, {time.perf_counter() - t0:.1f} s")
+    return written
+
+
 # --- solvability --------------------------------------------------------------------------------
 
 
@@ -735,6 +761,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--families", default=",".join(FAMILIES), help="families, comma-separated")
     ap.add_argument("-n", type=int, default=SHIPPED_COUNT, help="problems per robot and family")
     ap.add_argument("--seed", type=int, default=SHIPPED_SEED)
+    ap.add_argument(
+        "--problem-files",
+        action="store_true",
+        help="write each problem as a planbench problem file, <out>/<robot>_<family>_<index>.json, which "
+        "`planbench plan --problem <out>` and `planbench bench --problems <out>` read; needed for a robot given "
+        "as a settings .toml (one that planbench does not ship)",
+    )
     ap.add_argument(
         "--solvability",
         type=float,
@@ -785,7 +818,15 @@ def _main(args: argparse.Namespace) -> int:
     robots = args.robots.split(",")
     for name in robots:
         load_robot(name)  # an unknown robot before any generating
-    write_set(args.out, robots, families, args.n, args.seed)
+        if name.endswith(".toml") and not args.problem_files:
+            raise InvalidConfigError(
+                f"--robots {name}: a robot planbench does not ship needs --problem-files (the set's files name "
+                "their robot by its shipped name)"
+            )
+    if args.problem_files:
+        write_problem_files(args.out, robots, families, args.n, args.seed)
+    else:
+        write_set(args.out, robots, families, args.n, args.seed)
     return 0
 
 
