@@ -118,3 +118,26 @@ def test_check_runs_the_conformance_checker_in_its_own_process(monkeypatch, caps
     assert out[-2:] == ["  passed: interface, settings", f"  not run: {after_raises(CONTROLLER_CHECKS)}"]
     assert main(["check", "no-such-planner"]) == 2
     assert "unknown planner 'no-such-planner'" in capsys.readouterr().err
+
+
+def test_building_the_parser_imports_no_runner_loop_or_numerics():
+    """``planbench --help`` builds every command's parser: the benchmark's runner, the closed loop,
+    trimesh, numba, scipy and matplotlib are imported by the commands that use them, not for the
+    parser (they were most of its 1-2 s)."""
+    import subprocess
+    import sys
+
+    heavy = ["planbench.bench.runner", "planbench.reactive.runner", "trimesh", "numba", "scipy", "matplotlib", "ompl"]
+    code = (
+        "import sys; from planbench.cli.main import build_parser; build_parser(); "
+        f"print([m for m in {heavy!r} if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_the_executor_choices_are_the_executors():
+    from planbench.bench.executors import EXECUTORS
+    from planbench.cli.bench import EXECUTORS as CHOICES
+
+    assert CHOICES == EXECUTORS

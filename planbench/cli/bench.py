@@ -12,36 +12,26 @@ import json
 import logging
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from planbench.bench import export
-from planbench.bench.benchmark import run_benchmark, select
-from planbench.bench.db import ResultsDB
-from planbench.bench.executors import EXECUTORS, Executor, make_executor
-from planbench.bench.html import write_html
-from planbench.bench.plots import write_plots
-from planbench.bench.report import (
-    DYNAMIC_METRICS,
-    certificate_rows,
-    failures,
-    metrics_for,
-    summarize,
-    to_csv,
-    to_markdown,
-    to_rich,
-)
-from planbench.bench.results import write_parquet
-from planbench.bench.runner import Runner
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
-from planbench.bench.task import RunTask
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.files.inputs import check_writable
 from planbench.files.outputs import check_output
 from planbench.settings import parse_setting, settings_text
+
+if TYPE_CHECKING:
+    from planbench.bench.executors import Executor
+    from planbench.bench.task import RunTask
+
+EXECUTORS = ("local", "ray")
+"""The ``--executor`` choices (:data:`planbench.bench.executors.EXECUTORS`; a test holds the two
+equal): written here so that building the parser imports no runner. The benchmark, report and
+export modules are imported by the commands that use them: ``planbench --help`` stays fast."""
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +159,8 @@ def _by(choice: str) -> tuple[str, ...]:
 
 def _bench_suite(args: argparse.Namespace) -> Any:
     """The suite the ``bench`` options ask for; every option is checked before any file is touched."""
+    from planbench.bench.benchmark import select
+
     if args.jobs < 0:
         raise InvalidConfigError(f"--jobs must be >= 1 (or 0: all cores), got {args.jobs}")
     if args.time_limit is not None:
@@ -186,6 +178,8 @@ def _bench_suite(args: argparse.Namespace) -> Any:
 
 def _stored_count(path: str, suite: str) -> int:
     """Runs of ``suite`` in the results file (0 when there is none yet), read without writing."""
+    from planbench.bench.db import ResultsDB
+
     if not Path(path).is_file():
         return 0
     with ResultsDB(path, read_only=True) as db:
@@ -193,6 +187,8 @@ def _stored_count(path: str, suite: str) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    from planbench.bench.executors import make_executor
+
     console = Console(stderr=False)
     suite = _bench_suite(args)
     executor = make_executor(args.executor, args.jobs, args.address, args.ray_runtime_env)
@@ -205,6 +201,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def _where(executor: Executor) -> tuple[str, str]:
     """Where the runs execute, as a phrase and as the progress bar's label. A Ray executor connects
     here: a missing Ray or an unreachable cluster is reported before any file is touched."""
+    from planbench.bench.runner import Runner
+
     if isinstance(executor, Runner):
         return f"on {executor.jobs} worker process{'es' if executor.jobs > 1 else ''}", "benchmark"
     info = executor.connect()  # type: ignore[attr-defined]
@@ -212,6 +210,10 @@ def _where(executor: Executor) -> tuple[str, str]:
 
 
 def _bench(args: argparse.Namespace, suite: Any, executor: Executor, console: Any) -> int:
+    from planbench.bench.benchmark import run_benchmark
+    from planbench.bench.db import ResultsDB
+    from planbench.bench.report import failures, metrics_for, summarize, to_rich
+
     where, label = _where(executor)
     progress = _Progress(console, enabled=not args.no_progress)
 
@@ -320,6 +322,20 @@ def _writing(path: str | Path) -> Iterator[None]:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from planbench.bench.db import ResultsDB
+    from planbench.bench.html import write_html
+    from planbench.bench.plots import write_plots
+    from planbench.bench.report import (
+        DYNAMIC_METRICS,
+        certificate_rows,
+        failures,
+        metrics_for,
+        summarize,
+        to_csv,
+        to_markdown,
+        to_rich,
+    )
+
     console = Console()
     for out in (args.markdown, args.csv, args.html):
         if out:
@@ -381,6 +397,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from planbench.bench import export
+    from planbench.bench.db import ResultsDB
+    from planbench.bench.results import write_parquet
+
     db_path = Path(args.db)
     default = {
         "ompl-log": db_path.with_suffix("").as_posix() + "-ompl-logs",
