@@ -6,6 +6,16 @@ OMPL's benchmark log (the text ``ompl::tools::Benchmark::saveResultsToFile`` wri
 the SQLite schema that ``ompl_benchmark_statistics.py`` builds from such logs and Planner Arena
 reads (``experiments``, ``plannerConfigs``, ``enums``, ``runs``, ``progress``), directly.
 
+Experiments: Planner Arena offers one entry per experiment *name* ("Motion planning problem") and
+pools every run of every experiment row with that name; the columns of ``experiments`` after its
+twelve fixed ones are *problem parameters*, each a selector (one value, "all (aggregate)" or "all
+(separate)"). So each problem stays one experiment row (one log), with the parameters ``family``
+and ``problem``, and its *name* is the group chosen with ``by`` (:data:`EXPERIMENT_GROUPS`):
+``"family"`` (the default: MotionBenchMaker's ``mbm:box/0001`` is in experiment ``box``; a problem
+without a family is its own experiment), ``"suite"`` (one experiment per suite) or ``"problem"``
+(one per problem). With runs of several suites, family and problem names are prefixed
+``suite:``.
+
 Run properties, in both: OMPL's own names where planbench has the quantity -- ``time`` (planning
 time [s]), ``solved`` (planbench's validated success), ``status`` (an enum over
 :class:`planbench.PlanStatus`), ``approximate solution``, ``correct solution``, ``solution length``
@@ -31,9 +41,20 @@ import numpy as np
 from planbench.files.outputs import check_output, csv_cell
 from planbench.planner import PlanStatus
 
-__all__ = ["RUN_PROPERTIES", "write_ompl_logs", "write_planner_arena", "write_runs_csv", "experiments"]
+__all__ = [
+    "EXPERIMENT_GROUPS",
+    "RUN_PROPERTIES",
+    "write_ompl_logs",
+    "write_planner_arena",
+    "write_runs_csv",
+    "experiments",
+]
 
 STATUS_ENUM = [s.value for s in PlanStatus]
+EXPERIMENT_GROUPS = ("family", "suite", "problem")
+"""What one exported experiment name holds: a problem family, a suite, or one problem."""
+EXPERIMENT_PARAMETERS = ("family", "problem")
+"""Planner Arena's problem parameters of each experiment row (``experiments`` columns after its twelve)."""
 
 # (OMPL-style property name, SQL type, function of a planbench row)
 RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
@@ -69,24 +90,36 @@ def _value(v: Any) -> Any:
     return v
 
 
-def experiments(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Rows grouped into OMPL experiments: one per (suite, problem), planners in label order."""
+def experiments(rows: Sequence[dict[str, Any]], by: str = "family") -> list[dict[str, Any]]:
+    """Rows grouped into OMPL experiments: one per (suite, problem), planners in label order, each
+    named by its group ``by`` (:data:`EXPERIMENT_GROUPS`, see the module docstring), sorted by name
+    then problem."""
+    if by not in EXPERIMENT_GROUPS:
+        raise ValueError(f"by must be one of {EXPERIMENT_GROUPS}, got {by!r}")
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault((r["suite"], r["problem"]), []).append(r)
+    several_suites = len({s for s, _ in groups}) > 1
     out = []
-    for (suite, problem), members in sorted(groups.items()):
+    for (suite, problem), members in groups.items():
         planners: dict[str, list[dict[str, Any]]] = {}
         for r in sorted(members, key=lambda r: (r["planner"], r["seed"])):
             planners.setdefault(r["planner"], []).append(r)
         settings = _json(members[0].get("settings"))
         versions = _json(members[0].get("versions"))
+        family = members[0].get("family") or ""
+        if by == "suite":
+            name = suite
+        else:
+            name = family if by == "family" and family else problem
+            name = f"{suite}:{name}" if several_suites else name
         out.append(
             {
-                "name": f"{suite}:{problem}" if len(groups) and len({s for s, _ in groups}) > 1 else problem,
+                "name": name,
                 "suite": suite,
                 "problem": problem,
-                "family": members[0].get("family") or "",
+                "family": family,
+                "parameters": {"family": _token(family) if family else "none", "problem": _token(problem)},
                 "planners": planners,
                 "time_limit": float(members[0].get("time_limit") or 0.0),
                 "memory_limit": float(settings.get("memory_limit", 0.0) or 0.0),
@@ -100,7 +133,7 @@ def experiments(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
                 "cpuinfo": versions.get("platform", ""),
             }
         )
-    return out
+    return sorted(out, key=lambda e: (e["name"], e["suite"], e["problem"]))
 
 
 def _json(v: Any) -> dict[str, Any]:
@@ -132,8 +165,8 @@ def ompl_log(exp: dict[str, Any]) -> str:
     lines = [
         f"planbench version {exp['version']}",
         f"Experiment {_token(exp['name'])}",
-        "1 experiment properties",
-        f"family TEXT = {_token(exp['family']) if exp['family'] else 'none'}",
+        f"{len(EXPERIMENT_PARAMETERS)} experiment properties",
+        *(f"{name} TEXT = {exp['parameters'][name]}" for name in EXPERIMENT_PARAMETERS),
         f"Running on {_token(exp['host'])}",
         f"Starting at {exp['date']}",
         "<<<|",
@@ -167,13 +200,17 @@ def ompl_log(exp: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_ompl_logs(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[Path]:
-    """One OMPL benchmark log per problem in ``folder``; returns the files written."""
+def write_ompl_logs(rows: Sequence[dict[str, Any]], folder: str | Path, by: str = "family") -> list[Path]:
+    """One OMPL benchmark log per problem in ``folder``, its experiment named by ``by`` (see
+    :func:`experiments`); returns the files written."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     files = []
-    for exp in experiments(rows):
-        f = check_output(out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", exp["name"]) + ".log"))
+    exps = experiments(rows, by)
+    several_suites = len({e["suite"] for e in exps}) > 1
+    for exp in exps:
+        stem = f"{exp['suite']}_{exp['problem']}" if several_suites else exp["problem"]
+        f = check_output(out / (re.sub(r"[^A-Za-z0-9_.-]+", "_", stem) + ".log"))
         f.write_text(ompl_log(exp))
         files.append(f)
     return files
@@ -182,7 +219,7 @@ def write_ompl_logs(rows: Sequence[dict[str, Any]], folder: str | Path) -> list[
 _ARENA_SCHEMA = """
 CREATE TABLE experiments (id INTEGER PRIMARY KEY AUTOINCREMENT, name VARCHAR(512), totaltime REAL,
     timelimit REAL, memorylimit REAL, runcount INTEGER, version VARCHAR(128), hostname VARCHAR(1024),
-    cpuinfo TEXT, date DATETIME, seed VARCHAR(24), setup TEXT, family TEXT);
+    cpuinfo TEXT, date DATETIME, seed VARCHAR(24), setup TEXT, family TEXT, problem TEXT);
 CREATE TABLE plannerConfigs (id INTEGER PRIMARY KEY AUTOINCREMENT, name VARCHAR(512) NOT NULL, settings TEXT);
 CREATE TABLE enums (name VARCHAR(512), value INTEGER, description TEXT, PRIMARY KEY (name, value));
 CREATE TABLE runs (id INTEGER PRIMARY KEY AUTOINCREMENT, experimentid INTEGER, plannerid INTEGER,
@@ -197,9 +234,10 @@ def _column(name: str) -> str:
     return name.replace(" ", "_")
 
 
-def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path, by: str = "family") -> Path:
     """A Planner Arena database at ``path`` (a file there is replaced, never a SQLite database:
-    :func:`~planbench.files.outputs.check_output`); see the module docstring."""
+    :func:`~planbench.files.outputs.check_output`), experiments named by ``by``; see the module
+    docstring."""
     out = check_output(path)
     if out.exists():
         out.unlink()
@@ -213,10 +251,10 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Pat
             planner_ids: dict[tuple[str, str], int] = {}
             cols = ["experimentid", "plannerid", *(_column(n) for n, _, _ in RUN_PROPERTIES)]
             insert = f"INSERT INTO runs ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})"
-            for exp in experiments(rows):
+            for exp in experiments(rows, by):
                 cur = conn.execute(
                     "INSERT INTO experiments (name, totaltime, timelimit, memorylimit, runcount, version, hostname,"
-                    " cpuinfo, date, seed, setup, family) VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
+                    " cpuinfo, date, seed, setup, family, problem) VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?)",
                     (
                         _token(exp["name"]),
                         exp["total_time"],
@@ -229,7 +267,7 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path) -> Pat
                         exp["date"],
                         str(exp["seed"]),
                         exp["setup"],
-                        exp["family"] or "none",
+                        *(exp["parameters"][name] for name in EXPERIMENT_PARAMETERS),
                     ),
                 )
                 exp_id = cur.lastrowid

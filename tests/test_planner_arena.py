@@ -1,0 +1,163 @@
+"""The Planner Arena export as Planner Arena uses it: experiments per family (or suite, or problem),
+read back with the plannerarena package's own loader and filters, and with the SQL the original R
+app runs (OMPL's ``scripts/plannerarena/server.R``: its joins, its renames, its problem parameters).
+
+Records are made in-process with the worker's own ``run_one`` (fast planners, no worker processes).
+"""
+
+import sqlite3
+
+import pytest
+
+from planbench.bench.db import ResultsDB
+from planbench.bench.export import EXPERIMENT_PARAMETERS, experiments, write_ompl_logs, write_planner_arena
+from planbench.bench.task import RunTask
+from planbench.bench.worker import run_one
+from planbench.cli.main import main
+
+PROBLEMS = {"mbm:box/0001": "box", "mbm:box/0002": "box", "mbm:table_pick/0001": "table_pick"}
+PLANNERS = {"straight-line": "straight-line", "noisy": "bench_planners:NoisyPlanner"}
+SEEDS = (0, 1)
+
+# What server.R reads: the experiments' twelve fixed columns (then the problem parameters), the
+# planner configurations, and runs joined to both by id (`runs_ext`), filtered by name and version.
+FIXED_EXPERIMENT_COLUMNS = [
+    "id",
+    "name",
+    "totaltime",
+    "timelimit",
+    "memorylimit",
+    "runcount",
+    "version",
+    "hostname",
+    "cpuinfo",
+    "date",
+    "seed",
+    "setup",
+]
+RUNS_EXT = (
+    "SELECT plannerConfigs.name AS planner, plannerConfigs.settings, runs.*, experiments.* FROM plannerConfigs "
+    "JOIN runs ON plannerConfigs.id = runs.plannerid JOIN experiments ON runs.experimentid = experiments.id "
+    "WHERE experiments.name = ? AND experiments.version = ?"
+)
+
+
+def _record(db, suite, problem, family, label, seed):
+    task = RunTask(
+        suite=suite, problem_id=problem, problem_ref=problem, label=label, planner=PLANNERS[label], seed=seed
+    )
+    fields = dict(
+        suite=suite,
+        problem=problem,
+        family=family,
+        planner=label,
+        seed=seed,
+        planner_name=PLANNERS[label],
+        planner_settings={},
+        time_limit=1.0,
+        settings={"time_limit": 1.0},
+    )
+    db.add_run(fields, run_one(task))
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    path = tmp_path_factory.mktemp("arena") / "results.db"
+    with ResultsDB(path) as db:
+        for problem, family in PROBLEMS.items():
+            for label in PLANNERS:
+                for seed in SEEDS:
+                    _record(db, "s", problem, family, label, seed)
+    return path
+
+
+@pytest.fixture(scope="module")
+def rows(results):
+    with ResultsDB(results, read_only=True) as db:
+        return db.rows()
+
+
+def _connect(path):
+    conn = sqlite3.connect(path)
+    conn.row_factory = sqlite3.Row
+    return conn
+
+
+def test_one_experiment_per_family_holds_every_run_of_that_family(rows, tmp_path):
+    path = write_planner_arena(rows, tmp_path / "arena.db")
+    conn = _connect(path)
+    columns = [r[1] for r in conn.execute("PRAGMA table_info(experiments)")]
+    assert columns == FIXED_EXPERIMENT_COLUMNS + list(EXPERIMENT_PARAMETERS)
+    names = [r[0] for r in conn.execute("SELECT DISTINCT name FROM experiments ORDER BY name")]
+    assert names == ["box", "table_pick"]
+    version = conn.execute("SELECT version FROM experiments").fetchone()[0]
+    for family in names:
+        runs = conn.execute(RUNS_EXT, (family, version)).fetchall()
+        expected = [r for r in rows if r["family"] == family]
+        assert len(runs) == len(expected) == sum(p == family for p in PROBLEMS.values()) * len(PLANNERS) * len(SEEDS)
+        assert {r["problem"] for r in runs} == {r["problem"] for r in expected}
+        # every planner has all of its runs of the family under one planner configuration
+        for label in PLANNERS:
+            mine = [r for r in runs if r["planner"] == label]
+            assert len(mine) == len(expected) // len(PLANNERS) and len({r["plannerid"] for r in mine}) == 1
+    conn.close()
+
+
+@pytest.mark.parametrize(
+    ("by", "names"),
+    [("suite", ["s"]), ("problem", sorted(PROBLEMS)), ("family", ["box", "table_pick"])],
+)
+def test_experiments_by_suite_family_or_problem(rows, by, names):
+    exps = experiments(rows, by)
+    assert sorted({e["name"] for e in exps}) == names
+    assert sum(len(runs) for e in exps for runs in e["planners"].values()) == len(rows)
+    assert [e["parameters"]["problem"] for e in exps if e["problem"] == "mbm:box/0002"] == ["mbm:box/0002"]
+
+
+def test_several_suites_keep_their_experiments_apart(rows):
+    other = [{**r, "suite": "t"} for r in rows]
+    names = sorted({e["name"] for e in experiments(rows + other, "family")})
+    assert names == ["s:box", "s:table_pick", "t:box", "t:table_pick"]
+    with pytest.raises(ValueError, match="family"):
+        experiments(rows, "planner")
+
+
+def test_plannerarenas_loader_shows_families_and_filters_each_problem(rows, tmp_path):
+    database = pytest.importorskip("plannerarena.database", reason="pip install plannerarena")
+    widgets = pytest.importorskip("plannerarena.widgets")
+    path = write_planner_arena(rows, tmp_path / "arena.db")
+    data = database.load_database(path)
+    assert data["problem_names"] == ["box", "table_pick"]
+    assert data["parameters"] == ["family", "problem"]
+    # what the performance page plots for experiment "box": all its runs, every planner
+    box = data["runs"].filter(data["runs"]["experiment"] == "box")
+    assert box.height == 2 * len(PLANNERS) * len(SEEDS)
+    assert set(box["planner"].cast(str).to_list()) == set(PLANNERS)
+    # one problem of the family, as its problem-parameter selector filters it
+    one = widgets.problem_parameter_filter(box, {"problem": "mbm:box/0002", "family": "box"})
+    assert one.height == len(PLANNERS) * len(SEEDS) and set(one["problem"].to_list()) == {"mbm:box/0002"}
+    every = widgets.problem_parameter_filter(box, {"problem": widgets.PROBLEM_PARAMETERS_AGGREGATE_TEXT})
+    assert every.height == box.height
+
+
+def test_ompl_logs_read_by_ompls_reader_give_the_same_experiments(rows, tmp_path):
+    tools = pytest.importorskip("ompl.tools")
+    logs = write_ompl_logs(rows, tmp_path / "logs", by="family")
+    assert sorted(f.name for f in logs) == ["mbm_box_0001.log", "mbm_box_0002.log", "mbm_table_pick_0001.log"]
+    tools.readBenchmarkLog(str(tmp_path / "from_logs.db"), [str(f) for f in logs], False)
+    write_planner_arena(rows, tmp_path / "arena.db", by="family")
+    query = "SELECT name, family, problem, runcount FROM experiments ORDER BY name, problem"
+    from_logs = [tuple(r) for r in _connect(tmp_path / "from_logs.db").execute(query)]
+    direct = [tuple(r) for r in _connect(tmp_path / "arena.db").execute(query)]
+    assert from_logs == direct
+    assert [r[0] for r in direct] == ["box", "box", "table_pick"]
+
+
+def test_cli_export_experiments_per_suite(results, tmp_path, capsys):
+    out = tmp_path / "suite.db"
+    assert main(["export", str(results), "--format", "planner-arena", "--experiments", "suite", "--out", str(out)]) == 0
+    assert "1 experiment(s), one per suite" in capsys.readouterr().out
+    conn = _connect(out)
+    assert [r[0] for r in conn.execute("SELECT DISTINCT name FROM experiments")] == ["s"]
+    assert conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0] == len(PROBLEMS) * len(PLANNERS) * len(SEEDS)
+    conn.close()
