@@ -5,15 +5,29 @@ app runs (OMPL's ``scripts/plannerarena/server.R``: its joins, its renames, its 
 Records are made in-process with the worker's own ``run_one`` (fast planners, no worker processes).
 """
 
+import json
+import math
 import sqlite3
 
+import numpy as np
 import pytest
 
+from conftest import midpoint_wall
 from planbench.bench.db import ResultsDB
-from planbench.bench.export import EXPERIMENT_PARAMETERS, experiments, write_ompl_logs, write_planner_arena
+from planbench.bench.export import (
+    EXPERIMENT_PARAMETERS,
+    experiments,
+    run_progress,
+    write_ompl_logs,
+    write_planner_arena,
+)
 from planbench.bench.task import RunTask
 from planbench.bench.worker import run_one
 from planbench.cli.main import main
+from planbench.errors import InvalidSettingError
+from planbench.problem import Problem
+from planbench.registry import REGISTRY
+from planbench.scene import Scene
 
 PROBLEMS = {"mbm:box/0001": "box", "mbm:box/0002": "box", "mbm:table_pick/0001": "table_pick"}
 PLANNERS = {"straight-line": "straight-line", "noisy": "bench_planners:NoisyPlanner"}
@@ -161,3 +175,144 @@ def test_cli_export_experiments_per_suite(results, tmp_path, capsys):
     assert [r[0] for r in conn.execute("SELECT DISTINCT name FROM experiments")] == ["s"]
     assert conn.execute("SELECT COUNT(*) FROM runs").fetchone()[0] == len(PROBLEMS) * len(PLANNERS) * len(SEEDS)
     conn.close()
+
+
+RRTSTAR = {"optimize": True, "params": {"range": 0.5}}  # (with OMPL's default range, no path around the plate in 1 s)
+
+
+@pytest.fixture(scope="module")
+def anytime_results(tmp_path_factory, panda):
+    """RRT* (optimize: the whole 1 s) in free space and around a plate, RRT-Connect (no progress) there."""
+    folder = tmp_path_factory.mktemp("progress")
+    start, goal = panda.home, panda.home + 0.3
+    scenes = {"free": Scene(name="free"), "plate": Scene([midpoint_wall(panda, start, goal)], name="plate")}
+    for name, scene in scenes.items():
+        Problem.create(panda, scene, start, goal, id=name).save(folder / f"{name}.json")
+    path = folder / "results.db"
+    with ResultsDB(path) as db:
+        for problem, label, planner, settings in (
+            ("free", "rrtstar", "ompl-rrtstar", RRTSTAR),
+            ("plate", "rrtstar", "ompl-rrtstar", RRTSTAR),
+            ("plate", "rrtconnect", "ompl-rrtconnect", {}),
+        ):
+            ref = str(folder / f"{problem}.json")
+            task = RunTask(
+                suite="p",
+                problem_id=problem,
+                problem_ref=ref,
+                label=label,
+                planner=planner,
+                seed=0,
+                settings=settings,
+                time_limit=1.0,
+            )
+            fields = dict(
+                suite="p",
+                problem=problem,
+                family="",
+                planner=label,
+                seed=0,
+                planner_name=planner,
+                planner_settings=settings,
+                time_limit=1.0,
+                settings={"time_limit": 1.0},
+            )
+            db.add_run(fields, run_one(task))
+    with ResultsDB(path, read_only=True) as db:
+        return db.rows()
+
+
+@pytest.mark.slow
+def test_an_anytime_planners_best_cost_over_time_reaches_the_progress_table(anytime_results, tmp_path):
+    free = [r for r in anytime_results if r["planner"] == "rrtstar" and r["problem"] == "free"]
+    assert free[0]["status"] == "success", free[0]["message"]
+    recorded = json.loads(free[0]["info"])["progress"]
+    assert recorded["interval"] == 0.05 and set(recorded) == {"interval", "time", "best cost", "iterations"}
+    path = write_planner_arena(anytime_results, tmp_path / "arena.db")
+    conn = _connect(path)
+    assert [r[1] for r in conn.execute("PRAGMA table_info(progress)")] == ["runid", "time", "best_cost", "iterations"]
+    query = (  # server.R's progPerf: runs_ext joined to progress by run id
+        "SELECT plannerConfigs.name AS planner, experiments.name AS experiment, runs.id AS run, "
+        "runs.time AS planning_time, progress.time, progress.best_cost, progress.iterations FROM plannerConfigs "
+        "JOIN runs ON plannerConfigs.id = runs.plannerid JOIN experiments ON runs.experimentid = experiments.id "
+        "JOIN progress ON runs.id = progress.runid ORDER BY runs.id, progress.time"
+    )
+    samples = conn.execute(query).fetchall()
+    assert {s["planner"] for s in samples} == {"rrtstar"}  # RRT-Connect records no progress
+    assert {s["experiment"] for s in samples} == {"free", "plate"}
+    for experiment in ("free", "plate"):
+        mine = [s for s in samples if s["experiment"] == experiment]
+        times = [s["time"] for s in mine]
+        costs = [s["best_cost"] for s in mine if s["best_cost"] is not None]
+        iterations = [s["iterations"] for s in mine]
+        assert 10 <= len(mine) <= 40  # every 0.05 s of a 1 s search, and one at its end
+        assert all(0 <= a < b for a, b in zip(times, times[1:], strict=False))
+        assert all(b <= a for a, b in zip(costs, costs[1:], strict=False))  # non-increasing
+        assert all(math.isfinite(c) and c > 0 for c in costs)
+        assert iterations == sorted(iterations) and iterations[-1] > 0
+        if experiment == "free":
+            assert costs and times[-1] <= mine[0]["planning_time"] + 0.05
+            # once found, a solution stays: no empty best cost after the first
+            first = next(k for k, s in enumerate(mine) if s["best_cost"] is not None)
+            assert all(s["best_cost"] is not None for s in mine[first:])
+    conn.close()
+
+
+@pytest.mark.slow
+def test_plannerarenas_progress_page_gets_the_samples(anytime_results, tmp_path):
+    database = pytest.importorskip("plannerarena.database", reason="pip install plannerarena")
+    data = database.load_database(write_planner_arena(anytime_results, tmp_path / "arena.db"))
+    assert data["progress"].columns[2:] == ["best cost", "iterations"]  # its "Progress attribute" choices
+    # what the progress page plots: progress joined to the experiment's runs of the chosen planners
+    runs = data["runs"].filter(data["runs"]["experiment"] == "free")
+    joined = data["progress"].join(runs.select(["id", "planner"]), left_on="runid", right_on="id")
+    assert set(joined["planner"].cast(str).to_list()) == {"rrtstar"}
+    assert joined["best cost"].drop_nulls().len() > 0
+
+
+@pytest.mark.slow
+def test_ompl_logs_carry_the_progress_to_ompls_reader(anytime_results, tmp_path):
+    tools = pytest.importorskip("ompl.tools")
+    logs = write_ompl_logs(anytime_results, tmp_path / "logs")
+    tools.readBenchmarkLog(str(tmp_path / "from_logs.db"), [str(f) for f in logs], False)
+    write_planner_arena(anytime_results, tmp_path / "arena.db")
+    query = "SELECT runid, time, best_cost, iterations FROM progress ORDER BY runid, time"
+    from_logs = _connect(tmp_path / "from_logs.db").execute(query).fetchall()
+    direct = _connect(tmp_path / "arena.db").execute(query).fetchall()
+    assert len(direct) > 20
+    assert [tuple(r) for r in from_logs] == [tuple(r) for r in direct]
+
+
+def test_malformed_progress_is_left_out_whole():
+    def row(progress):
+        return {"info": json.dumps({"progress": progress})}
+
+    good = {"interval": 0.05, "time": [0.0, 0.05], "best cost": [None, 2.0], "iterations": [1, 9]}
+    assert run_progress(row(good)) == {"time": [0.0, 0.05], "best cost": [None, 2.0], "iterations": [1, 9]}
+    for bad in (
+        {**good, "time": [0.05, 0.05]},  # not increasing
+        {**good, "time": [0.0, float("nan")]},
+        {**good, "best cost": [1.0]},  # length
+        {**good, "best cost": ["x", 1.0]},
+        {"time": "soon"},
+        [1, 2],
+    ):
+        assert run_progress(row(bad)) is None
+    assert run_progress({"info": "{not json"}) is None
+    assert run_progress(row({**good, "drop table": [1, 2], "bad;name": [1, 2]}))["drop table"] == [1, 2]
+    assert "bad;name" not in run_progress(row({**good, "bad;name": [1, 2]}))
+
+
+def test_progress_is_recorded_by_anytime_planners_only_and_can_be_turned_off(free_problem):
+    def plan(name, **settings):
+        planner = REGISTRY.make(name, **settings)
+        planner.setup(free_problem)
+        return planner.plan(free_problem, time_limit=1.0, rng=np.random.default_rng(0)).info
+
+    info = plan("ompl-rrtstar")  # stops at its first solution: a short series, ending with its cost
+    assert info["progress"]["best cost"][-1] > 0 and info["progress"]["iterations"][-1] == info["iterations"]
+    assert "progress" not in plan("ompl-rrtstar", progress_interval=0)
+    assert "progress" not in plan("ompl-rrtconnect")  # no best cost to report
+    for bad in (-0.05, float("nan"), "often"):
+        with pytest.raises(InvalidSettingError, match="progress_interval"):
+            REGISTRY.make("ompl-rrtstar", progress_interval=bad)

@@ -23,6 +23,14 @@ time [s]), ``solved`` (planbench's validated success), ``status`` (an enum over
 clearance`` (min clearance [m]) -- and every other planbench metric as an extra column
 (``setup time``, ``ee path length``, ``duration``, ``seed``, ...). Runs killed or crashed have no
 time; they appear with ``time`` empty and status ``timeout`` or ``crash``.
+
+Progress (Planner Arena's "Progress" page): a run whose planner recorded ``info["progress"]``
+(OMPL's anytime planners do: :mod:`ompl_planners.base`) has its samples in ``progress``: ``time``
+[s] since the plan began, ``best cost`` (None before the first solution) and ``iterations``, the
+property names of OMPL's own planners (:data:`PROGRESS_PROPERTIES`), plus any other numeric series
+it recorded. The samples are the planner's word, shown as information only: a series that is not
+numbers with strictly increasing finite times is left out whole. The ``progress`` table always has
+the ``best_cost`` column, which Planner Arena's original (R) app requires.
 """
 
 from __future__ import annotations
@@ -81,6 +89,50 @@ RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
     ("wall time", "REAL", lambda r: r["wall_time"]),
     ("seed", "INTEGER", lambda r: r["seed"]),
 )
+
+
+PROGRESS_PROPERTIES: tuple[tuple[str, str], ...] = (("best cost", "REAL"), ("iterations", "INTEGER"))
+"""(OMPL's progress property name, SQL type): the columns every exported ``progress`` table has."""
+_PROGRESS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9 ]{0,63}")
+
+
+def run_progress(row: dict[str, Any]) -> dict[str, list[Any]] | None:
+    """The progress samples of a run (``info["progress"]``) as ``{"time": [...], property: [...]}``,
+    or None when it has none or they are malformed (see the module docstring)."""
+    data = _json(row.get("info")).get("progress")
+    if not isinstance(data, dict):
+        return None
+    times = data.get("time")
+    if not (isinstance(times, list) and times and all(_is_number(t) and math.isfinite(t) for t in times)):
+        return None
+    if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+        return None
+    out: dict[str, list[Any]] = {"time": [float(t) for t in times]}
+    for name, values in data.items():
+        if name in ("time", "interval") or not _PROGRESS_NAME.fullmatch(str(name)):
+            continue
+        if not (isinstance(values, list) and len(values) == len(times)):
+            return None
+        if not all(v is None or _is_number(v) for v in values):
+            return None
+        out[name] = [_value(float(v)) if isinstance(v, float) else v for v in values]
+    return out
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _progress_properties(runs: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
+    """(name, SQL type) of the progress properties of ``runs``: OMPL's first, then any others."""
+    names: dict[str, str] = {}
+    for r in runs:
+        for name, values in (run_progress(r) or {}).items():
+            if name != "time":
+                integer = all(v is None or isinstance(v, int) for v in values)
+                names[name] = "INTEGER" if integer and names.get(name, "INTEGER") == "INTEGER" else "REAL"
+    known = [(n, t) for n, t in PROGRESS_PROPERTIES if n in names]
+    return known + sorted((n, t) for n, t in names.items() if n not in dict(PROGRESS_PROPERTIES))
 
 
 def _value(v: Any) -> Any:
@@ -195,8 +247,20 @@ def ompl_log(exp: dict[str, Any]) -> str:
             *(f"{name} {sql}" for name, sql, _ in RUN_PROPERTIES),
             f"{len(runs)} runs",
             *("".join(f"{_log_number(fn(r))}; " for _, _, fn in RUN_PROPERTIES) for r in runs),
-            ".",
         ]
+        progress = _progress_properties(runs)
+        if progress:  # OMPL's layout: "time REAL" first, then one "t,v,...,;" group per sample
+            lines += [f"{len(progress) + 1} progress properties for each run", "time REAL"]
+            lines += [f"{name} {sql}" for name, sql in progress]
+            lines.append(f"{len(runs)} runs")
+            for r in runs:
+                series = run_progress(r) or {"time": []}
+                samples = []
+                for k, t in enumerate(series["time"]):
+                    values = [t, *(series.get(name, [None] * len(series["time"]))[k] for name, _ in progress)]
+                    samples.append("".join(f"{_log_number(v)}," for v in values) + ";")
+                lines.append("".join(samples))
+        lines.append(".")
     return "\n".join(lines) + "\n"
 
 
@@ -228,6 +292,7 @@ CREATE TABLE runs (id INTEGER PRIMARY KEY AUTOINCREMENT, experimentid INTEGER, p
 CREATE TABLE progress (runid INTEGER, time REAL, PRIMARY KEY (runid, time),
     FOREIGN KEY (runid) REFERENCES runs(id) ON DELETE CASCADE);
 """
+# (the progress columns are added per property: PROGRESS_PROPERTIES always, others as runs have them)
 
 
 def _column(name: str) -> str:
@@ -247,6 +312,14 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path, by: st
             conn.executescript(_ARENA_SCHEMA)
             for name, sql, _ in RUN_PROPERTIES:
                 conn.execute(f"ALTER TABLE runs ADD {_column(name)} {sql}")
+            progress_columns = list(PROGRESS_PROPERTIES)
+            progress_columns += [p for p in _progress_properties(rows) if p[0] not in dict(PROGRESS_PROPERTIES)]
+            for name, sql in progress_columns:
+                conn.execute(f"ALTER TABLE progress ADD {_column(name)} {sql}")
+            progress_insert = (
+                f"INSERT INTO progress (runid, time, {', '.join(_column(n) for n, _ in progress_columns)}) "
+                f"VALUES ({', '.join('?' * (len(progress_columns) + 2))})"
+            )
             conn.executemany("INSERT INTO enums VALUES ('status', ?, ?)", list(enumerate(STATUS_ENUM)))
             planner_ids: dict[tuple[str, str], int] = {}
             cols = ["experimentid", "plannerid", *(_column(n) for n, _, _ in RUN_PROPERTIES)]
@@ -282,8 +355,23 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path, by: st
                             or 0
                         )
                     for r in runs:
-                        conn.execute(
+                        run_id = conn.execute(
                             insert, [exp_id, planner_ids[pkey], *(_value(fn(r)) for _, _, fn in RUN_PROPERTIES)]
+                        ).lastrowid
+                        series = run_progress(r)
+                        if series is None:
+                            continue
+                        n = len(series["time"])
+                        conn.executemany(
+                            progress_insert,
+                            [
+                                [
+                                    run_id,
+                                    series["time"][k],
+                                    *(series.get(name, [None] * n)[k] for name, _ in progress_columns),
+                                ]
+                                for k in range(n)
+                            ],
                         )
     finally:
         conn.close()
