@@ -5,6 +5,7 @@ app runs (OMPL's ``scripts/plannerarena/server.R``: its joins, its renames, its 
 Records are made in-process with the worker's own ``run_one`` (fast planners, no worker processes).
 """
 
+import dataclasses
 import json
 import math
 import sqlite3
@@ -13,14 +14,17 @@ import numpy as np
 import pytest
 
 from conftest import midpoint_wall
+from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.export import (
     EXPERIMENT_PARAMETERS,
     experiments,
+    planner_settings,
     run_progress,
     write_ompl_logs,
     write_planner_arena,
 )
+from planbench.bench.suite import parse_suite
 from planbench.bench.task import RunTask
 from planbench.bench.worker import run_one
 from planbench.cli.main import main
@@ -28,6 +32,7 @@ from planbench.errors import InvalidSettingError
 from planbench.problem import Problem
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
+from planbench_plugins.ompl_planners.base import OMPLConfig
 
 PROBLEMS = {"mbm:box/0001": "box", "mbm:box/0002": "box", "mbm:table_pick/0001": "table_pick"}
 PLANNERS = {"straight-line": "straight-line", "noisy": "bench_planners:NoisyPlanner"}
@@ -316,3 +321,63 @@ def test_progress_is_recorded_by_anytime_planners_only_and_can_be_turned_off(fre
     for bad in (-0.05, float("nan"), "often"):
         with pytest.raises(InvalidSettingError, match="progress_interval"):
             REGISTRY.make("ompl-rrtstar", progress_interval=bad)
+
+
+SETTINGS_SUITE = """
+[suite]
+name = "settings"
+problems = ["mbm:table_pick/0001"]
+seeds = [0]
+time_limit = 2.0
+
+[[planners]]
+planner = "ompl-rrtconnect"
+settings = { simplify = false }
+
+[[planners]]
+planner = "straight-line"
+"""
+
+
+@pytest.mark.slow
+def test_every_planner_setting_is_kept_defaults_included(tmp_path):
+    db_path = tmp_path / "r.db"
+    run_benchmark(parse_suite(SETTINGS_SUITE, "settings.toml"), db_path, jobs=1)
+    with ResultsDB(db_path, read_only=True) as db:
+        rows = {r["planner"]: r for r in db.rows()}
+        definition, _ = db.suite_settings("settings")
+    ompl = rows["ompl-rrtconnect"]
+    assert json.loads(ompl["planner_settings"]) == {"simplify": False}  # the settings given
+    config = json.loads(ompl["planner_config"])  # every setting of the planner as built
+    assert set(config) == {f.name for f in dataclasses.fields(OMPLConfig)}
+    assert config["simplify"] is False and config["collision"] == "primitives" and config["progress_interval"] == 0.05
+    assert config["params"] == {"range": 0.5}  # planbench's default of RRT-Connect's own parameter
+    assert {p["label"]: p["config"] for p in definition["planners"]}["ompl-rrtconnect"] == config
+    assert json.loads(ompl["info"])["ompl_parameters"] == {"intermediate_states": False, "range": 0.5}
+    arena = write_planner_arena(list(rows.values()), tmp_path / "arena.db")
+    settings = dict(_connect(arena).execute("SELECT name, settings FROM plannerConfigs").fetchall())
+    expected = [
+        "planner = ompl-rrtconnect;",
+        "simplify = false;",
+        "collision = primitives;",
+        "resolution = 0.01;",
+        "progress_interval = 0.05;",
+        "params.range = 0.5;",
+        "ompl.range = 0.5;",
+        "ompl.intermediate_states = false;",
+    ]
+    assert all(item in settings["ompl-rrtconnect"] for item in expected), settings["ompl-rrtconnect"]
+    assert settings["straight-line"].startswith("planner = straight-line;")
+    # the same settings reach OMPL's reader through the logs (it keeps each line's newline)
+    tools = pytest.importorskip("ompl.tools")
+    logs = write_ompl_logs(list(rows.values()), tmp_path / "logs")
+    tools.readBenchmarkLog(str(tmp_path / "from_logs.db"), [str(f) for f in logs], False)
+    from_logs = _connect(tmp_path / "from_logs.db").execute("SELECT name, settings FROM plannerConfigs")
+    assert {name: text.replace("\n", "") for name, text in from_logs} == settings
+
+
+def test_planner_settings_of_an_older_file_are_the_settings_given():
+    row = {"planner": "x", "planner_name": "ompl-rrtstar", "planner_settings": '{"params": {"range": 1.0}}'}
+    assert planner_settings(row) == [("planner", "ompl-rrtstar"), ("params.range", "1.0")]
+    row = {**row, "planner_config": '{"a": "two\\nlines", "b": [1, 2], "c": {}}', "info": "{}"}
+    assert planner_settings(row) == [("planner", "ompl-rrtstar"), ("a", "two lines"), ("b", "[1, 2]"), ("c", "{}")]

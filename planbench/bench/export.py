@@ -24,6 +24,13 @@ clearance`` (min clearance [m]) -- and every other planbench metric as an extra 
 (``setup time``, ``ee path length``, ``duration``, ``seed``, ...). Runs killed or crashed have no
 time; they appear with ``time`` empty and status ``timeout`` or ``crash``.
 
+Planner configurations (``plannerConfigs``; an OMPL log's "common properties"): one per label
+and settings, its ``settings`` every setting of the planner as built, defaults included (the run's
+``planner_config``; a results file written before it existed: the settings given), one ``name =
+value`` per setting, nested ones with dotted names (``params.range``), then an OMPL planner's own
+parameters as it reported them on the experiment's first run (``info["ompl_parameters"]``, named
+``ompl.<name>``), as :func:`planner_settings` lists them.
+
 Progress (Planner Arena's "Progress" page): a run whose planner recorded ``info["progress"]``
 (OMPL's anytime planners do: :mod:`ompl_planners.base`) has its samples in ``progress``: ``time``
 [s] since the plan began, ``best cost`` (None before the first solution) and ``iterations``, the
@@ -51,7 +58,10 @@ from planbench.planner import PlanStatus
 
 __all__ = [
     "EXPERIMENT_GROUPS",
+    "PROGRESS_PROPERTIES",
     "RUN_PROPERTIES",
+    "planner_settings",
+    "run_progress",
     "write_ompl_logs",
     "write_planner_arena",
     "write_runs_csv",
@@ -133,6 +143,40 @@ def _progress_properties(runs: Sequence[dict[str, Any]]) -> list[tuple[str, str]
                 names[name] = "INTEGER" if integer and names.get(name, "INTEGER") == "INTEGER" else "REAL"
     known = [(n, t) for n, t in PROGRESS_PROPERTIES if n in names]
     return known + sorted((n, t) for n, t in names.items() if n not in dict(PROGRESS_PROPERTIES))
+
+
+def planner_settings(row: dict[str, Any]) -> list[tuple[str, str]]:
+    """(name, value) of every setting of a run's planner, as the export writes them (see the module
+    docstring): ``planner`` first, then its full configuration, then OMPL's own parameters."""
+    config = _json(row.get("planner_config")) or _json(row.get("planner_settings"))
+    out = [("planner", _setting_text(row.get("planner_name") or row.get("planner") or ""))]
+    out += _flatten(config, "")
+    ompl = _json(row.get("info")).get("ompl_parameters")
+    if isinstance(ompl, dict):
+        out += [(f"ompl.{_token(str(k))}", _setting_text(v)) for k, v in sorted(ompl.items())]
+    return out
+
+
+def _flatten(d: dict[str, Any], prefix: str) -> list[tuple[str, str]]:
+    out = []
+    for k, v in sorted(d.items()):
+        name = prefix + _token(str(k))
+        if isinstance(v, dict) and v:
+            out += _flatten(v, name + ".")
+        else:
+            out.append((name, _setting_text(v)))
+    return out
+
+
+def _setting_text(v: Any) -> str:
+    """A setting's value on one line: text as it is, anything else as JSON."""
+    text = v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=str)
+    return re.sub(r"[\r\n]+", " ", text)
+
+
+def _settings_text(settings: list[tuple[str, str]]) -> str:
+    """The ``settings`` text of ``plannerConfigs``: what OMPL's reader makes of the common properties."""
+    return "".join(f"{name} = {value};" for name, value in settings)
 
 
 def _value(v: Any) -> Any:
@@ -237,12 +281,11 @@ def ompl_log(exp: dict[str, Any]) -> str:
         f"{len(exp['planners'])} planners",
     ]
     for label, runs in exp["planners"].items():
-        settings = runs[0].get("planner_settings") or "{}"
+        settings = planner_settings(runs[0])
         lines += [
             _token(label),
-            "2 common properties",
-            f"planner = {runs[0].get('planner_name', label)}",
-            f"settings = {settings}",
+            f"{len(settings)} common properties",
+            *(f"{name} = {value}" for name, value in settings),
             f"{len(RUN_PROPERTIES)} properties for each run",
             *(f"{name} {sql}" for name, sql, _ in RUN_PROPERTIES),
             f"{len(runs)} runs",
@@ -345,10 +388,8 @@ def write_planner_arena(rows: Sequence[dict[str, Any]], path: str | Path, by: st
                 )
                 exp_id = cur.lastrowid
                 for label, runs in exp["planners"].items():
-                    # the same text OMPL's reader makes of the log's common properties
-                    name, conf = runs[0].get("planner_name", label), runs[0].get("planner_settings") or "{}"
-                    settings = f"planner = {name};settings = {conf};"
-                    pkey = (_token(label), settings)
+                    # the text OMPL's reader makes of the log's common properties (without their newlines)
+                    pkey = (_token(label), _settings_text(planner_settings(runs[0])))
                     if pkey not in planner_ids:
                         planner_ids[pkey] = (
                             conn.execute("INSERT INTO plannerConfigs (name, settings) VALUES (?, ?)", pkey).lastrowid
