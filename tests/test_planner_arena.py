@@ -6,6 +6,7 @@ Records are made in-process with the worker's own ``run_one`` (fast planners, no
 """
 
 import dataclasses
+import io
 import json
 import math
 import sqlite3
@@ -381,3 +382,45 @@ def test_planner_settings_of_an_older_file_are_the_settings_given():
     assert planner_settings(row) == [("planner", "ompl-rrtstar"), ("params.range", "1.0")]
     row = {**row, "planner_config": '{"a": "two\\nlines", "b": [1, 2], "c": {}}', "info": "{}"}
     assert planner_settings(row) == [("planner", "ompl-rrtstar"), ("a", "two lines"), ("b", "[1, 2]"), ("c", "{}")]
+
+
+def _draw(plot):
+    buffer = io.BytesIO()
+    plot.save(buffer, format="png", verbose=False, width=4, height=3, dpi=50)
+    return len(buffer.getvalue())
+
+
+def test_plannerarenas_performance_views_draw_a_family(rows, tmp_path):
+    performance = pytest.importorskip("plannerarena.performance", reason="pip install plannerarena")
+    database = pytest.importorskip("plannerarena.database")
+    data = database.load_database(write_planner_arena(rows, tmp_path / "arena.db"))
+    box = data["runs"].filter(data["runs"]["experiment"] == "box")
+    status = data["enums"].filter(data["enums"]["name"] == "status")
+    assert _draw(performance.boxplot(box, "time", [], "o", False)) > 0  # every run of the family
+    assert _draw(performance.boxplot(box, "time", "problem", "o", False)) > 0  # "all (separate)": one per problem
+    assert _draw(performance.enums_plot(box, status, [])) > 0
+
+
+def test_plannerarenas_progress_view_draws_best_cost_over_time(rows, tmp_path):
+    p9 = pytest.importorskip("plotnine")
+    database = pytest.importorskip("plannerarena.database", reason="pip install plannerarena")
+    # a family's worth of anytime runs (the view smooths over all runs: a handful of runs of ~20
+    # samples is too few for its loess), their samples as an OMPL planner records them
+    rng = np.random.default_rng(0)
+    anytime = []
+    for k, r in enumerate(x for x in rows if x["planner"] == "noisy"):
+        t = np.sort(rng.uniform(0.0, 1.0, 21))
+        cost = np.minimum.accumulate(2.0 + 1.0 / (0.2 + t) + rng.normal(0.0, 0.1, t.size))
+        progress = {"interval": 0.05, "time": t.tolist(), "best cost": [None, *cost[1:].tolist()]}
+        anytime.append({**r, "planner": "anytime", "seed": 100 + k, "info": json.dumps({"progress": progress})})
+    data = database.load_database(write_planner_arena(rows + anytime, tmp_path / "arena.db"))
+    runs = data["runs"].filter(data["runs"]["experiment"] == "box")
+    df = data["progress"].join(runs.select(["id", "planner"]), left_on="runid", right_on="id")
+    assert df.height == 4 * 21 and set(df["planner"].cast(str).to_list()) == {"anytime"}
+    # the plot of plannerarena.progress's plot_object, for the attribute "best cost"
+    plot = (
+        p9.ggplot(df, p9.aes(x="time", y="best cost", color="planner", fill="planner"))
+        + p9.xlab("time (s)")
+        + p9.geom_smooth(na_rm=True, method="loess", span=0.1, se=False)
+    )
+    assert _draw(plot) > 0
