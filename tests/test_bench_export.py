@@ -91,7 +91,7 @@ def test_ompl_log_parses_with_ompls_own_reader_and_matches_the_planner_arena_exp
     assert from_logs == direct  # OMPL's reader of our logs gives exactly our Planner Arena tables
     crash = [r for r in direct if r["planner"] == "crashy"][0]
     assert crash["time"] is None and crash["solved"] == 0
-    ok = [r for r in direct if r["planner"] == "straight-line" and r["experiment"] == "mbm:table_pick/0001"]
+    ok = [r for r in direct if r["planner"] == "straight-line" and r["experiment"] == "table_pick"]
     assert [r["solved"] for r in ok] == [1, 1] and ok[0]["time"] > 0 and ok[0]["solution_length"] > 0
     names = {r[1] for r in sqlite3.connect(tmp_path / "arena.db").execute("PRAGMA table_info(runs)")}
     assert {"time", "solved", "status", "solution_length", "solution_clearance", "ee_path_length", "seed"} <= names
@@ -102,10 +102,10 @@ def test_planner_arena_database_loads_with_plannerarenas_reader(rows, tmp_path):
     database = pytest.importorskip("plannerarena.database", reason="pip install plannerarena")
     write_planner_arena(rows, tmp_path / "arena.db")
     data = database.load_database(tmp_path / "arena.db")
-    assert sorted(data["problem_names"]) == ["mbm:box/0001", "mbm:table_pick/0001"]
+    assert sorted(data["problem_names"]) == ["box", "table_pick"]  # experiments per family
     assert data["runs"].height == 9
     assert {"time", "solved", "status", "solution length", "setup time"} <= set(data["attributes"])
-    assert data["parameters"] == ["family"]
+    assert data["parameters"] == ["family", "problem"]
     assert set(data["planner_configs"]["planner"].cast(str).to_list()) == {"straight-line", "noisy", "crashy"}
     assert "crash" in data["enums"]["description"].to_list()
 

@@ -19,6 +19,7 @@ from planbench.bench.records import Record, failure_record
 from planbench.bench.runner import Runner
 from planbench.bench.suite import PlannerEntry, Suite, load_suite, parse_seeds
 from planbench.bench.task import RunTask
+from planbench.bench.wire import BadField, clean_info
 from planbench.errors import InvalidSettingError, PlanbenchError, UnstorableValueError
 
 log = logging.getLogger(__name__)
@@ -86,10 +87,13 @@ def select(
     return s.with_changes(**changes) if changes else s
 
 
-def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[str, str]]:
+def _check_planners(
+    suite: Suite,
+) -> tuple[list[PlannerEntry], list[str], dict[str, str], dict[str, dict[str, Any]]]:
     """Planners that can run, with their settings parsed to their types (checked here, before any
-    worker starts), labels of optional planners skipped with the reason, and each label's planner
-    version.
+    worker starts), labels of optional planners skipped with the reason, each label's planner
+    version, and each label's full configuration (every setting, defaults included; informational:
+    the word of the probe, kept as JSON data within the size of a run's ``info``).
 
     The planners are loaded and built in a throw-away process (:mod:`planbench.bench.probe`): this
     process checks results and writes the database, so no planner code runs in it. A planner that
@@ -98,7 +102,7 @@ def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[s
     """
     kind = kind_of(suite.kind).entry
     answers = probe_planners([(e.planner, dict(e.settings), dict(e.text_settings)) for e in suite.planners], kind=kind)
-    usable, skipped, versions = [], [], {}
+    usable, skipped, versions, configs = [], [], {}, {}
     for entry, answer in zip(suite.planners, answers, strict=True):
         where = suite.source + (f", planner label {entry.label!r}" if entry.label != entry.planner else "")
         if not answer.get("ok"):
@@ -114,7 +118,11 @@ def _check_planners(suite: Suite) -> tuple[list[PlannerEntry], list[str], dict[s
         if not (isinstance(settings, dict) and set(settings) == set(given)):
             raise PlanbenchError(f"{suite.source}: planner {entry.label!r}: its settings came back malformed")
         usable.append(replace(entry, settings=settings, text_settings={}, fresh_process=fresh))
-    return usable, skipped, versions
+        try:
+            configs[entry.label] = clean_info(answer.get("config", {}))
+        except BadField:  # informational: a malformed answer stores none rather than failing the suite
+            configs[entry.label] = {}
+    return usable, skipped, versions, configs
 
 
 def _setting_error(answer: dict[str, Any], where: str) -> InvalidSettingError | None:
@@ -156,7 +164,7 @@ def prepare(
     suite: Suite, db: ResultsDB, resume: bool = False, overwrite: bool = False
 ) -> tuple[list[RunTask], int, list[str]]:
     """Tasks still to run, how many are already done, and the skipped optional planners."""
-    planners, skipped, versions = _check_planners(suite)
+    planners, skipped, versions, configs = _check_planners(suite)
     if not planners:
         raise PlanbenchError(f"{suite.source}: no planner of the suite can be loaded: " + "; ".join(skipped))
     checked = {p.label: p for p in planners}  # settings parsed: what is stored and compared
@@ -188,6 +196,8 @@ def prepare(
                     f"{(p.planner, p.settings)}; give it another label or use another --out"
                 )
     definition = suite.to_dict()
+    for p in definition["planners"]:
+        p["config"] = configs.get(p["label"], {})
     if stored is not None and n_before:  # keep the union of planners run so far
         labels = {p.label for p in suite.planners}
         definition["planners"] = [p for p in stored[0]["planners"] if p["label"] not in labels] + list(
@@ -257,6 +267,8 @@ def run_benchmark(
             raise
         if on_start is not None:
             on_start(len(tasks), n_done, skipped)
+        stored = db.suite_settings(suite.name)
+        configs = {p.get("label"): p.get("config") or {} for p in (stored[0].get("planners", []) if stored else [])}
 
         def write(task: RunTask, record: Record) -> None:
             fields = {
@@ -267,6 +279,7 @@ def run_benchmark(
                 "seed": task.seed,
                 "planner_name": task.planner,
                 "planner_settings": task.settings,
+                "planner_config": configs.get(task.label, {}),
                 "planner_version": task.planner_version,
                 "time_limit": task.time_limit,
                 "settings": task.run_settings,

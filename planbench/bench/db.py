@@ -7,7 +7,8 @@ Schema (``planbench-results/1``)::
            settings TEXT, created TEXT)             -- the settings that change results, JSON
     runs(id INTEGER PRIMARY KEY,
          suite, problem, family, planner (the label), seed,        -- UNIQUE(suite, problem, planner, seed)
-         planner_name, planner_settings (JSON), planner_version,
+         planner_name, planner_settings (JSON: the settings given), planner_config (JSON: every
+         setting of the planner as built, defaults included), planner_version,
          time_limit [s], status, success (0/1), failure, message, traceback,
          <every field of planbench.Evaluation: planning_time [s], setup_time [s],
           joint_path_length [rad], ee_path_length [m], min_clearance [m], duration [s], ...>,
@@ -83,6 +84,7 @@ _RUN_COLS: tuple[tuple[str, str], ...] = (
     ("seed", "INTEGER NOT NULL"),
     ("planner_name", "TEXT"),
     ("planner_settings", "TEXT"),
+    ("planner_config", "TEXT"),
     ("planner_version", "TEXT"),
     ("time_limit", "REAL"),
     ("message", "TEXT"),

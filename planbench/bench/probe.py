@@ -7,7 +7,9 @@ checks results and writes the database. The probe is spawned, loads each planner
 settings to the types of its ``Config`` (which needs the plugin's classes, hence here) and builds
 it (its ``__init__`` may check settings too), and answers with data only
 (:mod:`planbench.bench.wire`): whether it loaded (else the error's text and kind, and a bad
-setting's data), the parsed settings, its module and whether it asks for a fresh process per run.
+setting's data), the parsed settings, every setting of the built instance (its whole ``Config``,
+defaults included: what the benchmark stores as each run's ``planner_config``), its module and
+whether it asks for a fresh process per run.
 It is contained like a worker: sandboxed to a scratch folder of its own
 (:mod:`planbench.bench.sandbox`) and in a cgroup that is killed with it, so a plugin's import can
 neither plant files for later processes nor leave a process behind.
@@ -15,6 +17,7 @@ neither plant files for later processes nor leave a process behind.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing as mp
 import os
@@ -48,7 +51,7 @@ def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str], kin
             except (TypeError, ValueError) as exc:
                 expected = f"a benchmark stores settings as JSON data, and this value is not ({exc})"
                 raise InvalidSettingError(setup.name, key, value, expected) from None
-        setup.build()  # its __init__ may check settings too (OMPL: the planner's name, its params)
+        instance = setup.build()  # its __init__ may check settings too (OMPL: the planner's name, its params)
     except InvalidSettingError as exc:
         return {"ok": False, "error": str(exc), "planbench_error": True, "setting_error": exc.to_data()}
     except PlanbenchError as exc:
@@ -61,7 +64,21 @@ def _probe_one(planner: str, settings: dict[str, Any], text: dict[str, str], kin
         "module": module if isinstance(module, str) else "",
         "fresh_process": bool(getattr(setup.cls, "fresh_process", False)),
         "settings": setup.settings,
+        "config": full_config(instance, setup.kwargs),
     }
+
+
+def full_config(instance: Any, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Every setting of a built planner: its ``config`` dataclass as a dict (defaults included, as
+    its ``__init__`` left it), else the keyword arguments it was built with; values that are not
+    JSON data as their ``repr``."""
+    config = getattr(instance, "config", None)
+    if dataclasses.is_dataclass(config) and not isinstance(config, type):
+        values: dict[str, Any] = dataclasses.asdict(config)
+    else:
+        values = dict(kwargs)
+    out = json.loads(json.dumps(values, allow_nan=True, default=repr))
+    return out if isinstance(out, dict) else {}
 
 
 def _probe_main(
@@ -87,7 +104,8 @@ def probe_planners(
 ) -> list[dict[str, Any]]:
     """For each ``(planner, settings, text settings)``, what :func:`_probe_one` found, in a spawned
     process: ``ok`` and, when true, the ``settings`` parsed to their fields' types (see
-    :meth:`~planbench.registry.Registry.configure`), the planner's ``module`` and ``fresh_process``;
+    :meth:`~planbench.registry.Registry.configure`), its full ``config`` (:func:`full_config`), the
+    planner's ``module`` and ``fresh_process``;
     else the ``error``'s text (and ``setting_error``, an :class:`InvalidSettingError`'s data).
 
     The answers are the word of a process that ran plugin code: the caller checks what it uses.

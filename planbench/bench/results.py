@@ -11,8 +11,8 @@
 Columns are the results file's (:mod:`planbench.bench.db`): the run's key (suite, problem, family,
 planner label, seed), ``success`` and ``failure`` (planbench's own verdict), every metric in SI
 units (NaN where a run has none), ``path`` and ``times`` as numpy arrays (None without a path),
-and the JSON columns (``info``, ``checks``, ``planner_settings``, ``settings``, ``versions``)
-decoded to dicts. pandas and pyarrow are the optional extra ``planbench[data]``.
+and the JSON columns (``info``, ``checks``, ``planner_settings``, ``planner_config``, ``settings``,
+``versions``) decoded to dicts. pandas and pyarrow are the optional extra ``planbench[data]``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from planbench.files.outputs import check_output
 
 __all__ = ["JSON_COLUMNS", "load", "write_parquet"]
 
-JSON_COLUMNS = ("info", "checks", "planner_settings", "settings", "versions")
+JSON_COLUMNS = ("info", "checks", "planner_settings", "planner_config", "settings", "versions")
 """Columns the results file stores as JSON text."""
 
 

@@ -150,6 +150,14 @@ def add_commands(subparsers: Any) -> None:
         "--paths", action="store_true", help="csv: add each run's path and time stamps (JSON lists) as columns"
     )
     p.add_argument("--suite", help="only this suite")
+    p.add_argument(
+        "--experiments",
+        choices=export.EXPERIMENT_GROUPS,
+        default="family",
+        help="planner-arena, ompl-log: what one experiment (a 'problem' in Planner Arena) holds: every run of a "
+        "problem family (default; a problem without one is its own), of a suite, or of one problem; each "
+        "problem stays selectable as a problem parameter",
+    )
     p.set_defaults(func=cmd_export)
 
 
@@ -419,11 +427,18 @@ def cmd_export(args: argparse.Namespace) -> int:
         return 1
     with _writing(out):
         if args.format == "ompl-log":
-            files = export.write_ompl_logs(rows, out)
-            print(f"{len(files)} OMPL benchmark logs written to {out} (one per problem)")
+            files = export.write_ompl_logs(rows, out, by=args.experiments)
+            print(
+                f"{len(files)} OMPL benchmark logs written to {out} "
+                f"(one per problem, experiments per {args.experiments})"
+            )
         elif args.format == "planner-arena":
-            export.write_planner_arena(rows, out)
-            print(f"Planner Arena database written to {out} (open it with `DATABASE={out} plannerarena`)")
+            export.write_planner_arena(rows, out, by=args.experiments)
+            n = len({e["name"] for e in export.experiments(rows, args.experiments)})
+            print(
+                f"Planner Arena database written to {out}: {n} experiment(s), one per {args.experiments} "
+                f"(open it with `DATABASE={out} plannerarena`)"
+            )
         elif args.format == "parquet":
             write_parquet(rows, out)
             print(f"{len(rows)} runs written to {out} (paths as nested lists; pandas.read_parquet reads it)")
