@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from planbench.bench.export import EXPERIMENT_GROUPS
 from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.files.inputs import check_writable
@@ -152,7 +153,7 @@ def add_commands(subparsers: Any) -> None:
     p.add_argument("--suite", help="only this suite")
     p.add_argument(
         "--experiments",
-        choices=export.EXPERIMENT_GROUPS,
+        choices=EXPERIMENT_GROUPS,
         default="family",
         help="planner-arena, ompl-log: what one experiment (a 'problem' in Planner Arena) holds: every run of a "
         "problem family (default; a problem without one is its own), of a suite, or of one problem; each "
