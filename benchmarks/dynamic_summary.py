@@ -32,7 +32,11 @@ ORDER = {"slow": 0, "medium": 1, "fast": 2, "truth": 0, "depth": 1}
 
 
 def rate(rows: Sequence[dict[str, Any]]) -> str:
-    n, k = len(rows), sum(1 for r in rows if r["success"])
+    return _rate(sum(1 for r in rows if r["success"]), len(rows))
+
+
+def _rate(k: int, n: int) -> str:
+    """``k`` successes of ``n`` as a percentage with its 95 % Wilson interval."""
     if not n:
         return "-"
     lo, hi = wilson_interval(k, n)
@@ -155,6 +159,33 @@ def compare(quiet: Sequence[dict[str, Any]], loaded: Sequence[dict[str, Any]]) -
     return "\n".join(lines)
 
 
+def truth_gap(rows: Sequence[dict[str, Any]]) -> str:
+    """Per controller and robot, success with depth sensing against truth sensing on the same
+    scenarios (base problem, behaviour and speed), for the controllers that ran both."""
+    verdicts: dict[tuple[str, str, str], bool] = {}
+    robot_of: dict[str, str] = {}
+    for r in rows:
+        keys = scenario_keys(r["problem"])
+        sensing = keys.get("sensing")
+        if sensing in ("truth", "depth"):
+            same = str(r["problem"]).replace(f"_{sensing}/", "/")
+            verdicts[(r["planner"], sensing, same)] = bool(r["success"])
+            robot_of[same] = keys["robot"]
+    lines = ["| controller | robot | truth | depth | gap [points] |", "|---|---|---|---|---|"]
+    for c in sorted({k[0] for k in verdicts}):
+        both = sorted(
+            p for (cc, sensing, p) in verdicts if (cc, sensing) == (c, "depth") and (c, "truth", p) in verdicts
+        )
+        robots = sorted({robot_of[p] for p in both})
+        for robot in [*robots, "all"] if len(robots) > 1 else robots:
+            mine = [p for p in both if robot in ("all", robot_of[p])]
+            t = sum(verdicts[(c, "truth", p)] for p in mine)
+            d = sum(verdicts[(c, "depth", p)] for p in mine)
+            gap = round(100 * t / len(mine)) - round(100 * d / len(mine))
+            lines.append(f"| `{c}` | {robot} | {_rate(t, len(mine))} | {_rate(d, len(mine))} | {gap} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("db", nargs="+", help="results files (their closed-loop runs are pooled)")
@@ -163,12 +194,20 @@ def main() -> None:
     )
     parser.add_argument("--sensing", choices=("truth", "depth"), help="only the scenarios of this sensing model")
     parser.add_argument(
+        "--truth-gap",
+        action="store_true",
+        help="only: each controller's success with depth sensing against truth sensing on the same scenarios",
+    )
+    parser.add_argument(
         "--common",
         action="store_true",
         help="only the scenarios every controller has a run of (a partial run compares like with like)",
     )
     args = parser.parse_args()
     rows = _rows(args.db)
+    if args.truth_gap:
+        print(f"### Depth sensing against truth sensing\n\n{truth_gap(rows)}")
+        return
     if args.sensing:
         rows = [r for r in rows if scenario_keys(r["problem"]).get("sensing") == args.sensing]
     if args.common:
