@@ -66,6 +66,7 @@ __all__ = [
     "load_robot",
     "robot_names",
     "example_robot_data_dir",
+    "package_dirs",
 ]
 
 CONTINUOUS_RANGE = (-math.pi, math.pi)
@@ -88,6 +89,18 @@ def example_robot_data_dir() -> Path:
             i = parts.index("example-robot-data")
             return Path(str(dist.locate_file(Path(*parts[: i + 1])))).resolve()
     raise RobotFileError("example-robot-data", "installed, but no robots/ folder found in it")
+
+
+def package_dirs(urdf: Path) -> list[str]:
+    """The folders pinocchio searches for a URDF's ``package://`` and relative mesh names, in
+    order: the URDF's own folder, then example-robot-data's ``share`` folder (when installed), so a
+    robot whose meshes lie beside its URDF (a bundle: :mod:`planbench.bundle`) needs no package."""
+    dirs = [str(Path(urdf).parent)]
+    try:
+        dirs.append(str(example_robot_data_dir().parent))
+    except RobotFileError:
+        pass  # not installed: only robots that need none of its files load
+    return dirs
 
 
 def shipped_settings_dir() -> Path:
@@ -159,14 +172,13 @@ def _resolve(path: str | Path, base: Path | None) -> Path:
     p = Path(path).expanduser()
     if p.is_absolute():
         return p
-    candidates = ([base / p] if base is not None else []) + [
-        Path.cwd() / p,
-        example_robot_data_dir() / "robots" / p,
-    ]
+    candidates = ([base / p] if base is not None else []) + [Path.cwd() / p]
     for c in candidates:
         if c.exists():
             return c.resolve()
-    return candidates[-1]
+    # not beside the settings: example-robot-data's (its error says to install it when it is not)
+    c = example_robot_data_dir() / "robots" / p
+    return c.resolve() if c.exists() else c
 
 
 def _point3(p: Any) -> tuple[float, float, float]:
@@ -237,18 +249,17 @@ class Robot:
         except InputFileError as exc:
             why = "URDF file not found" if exc.problem.endswith("no such file") else f"URDF file: {exc.problem}"
             raise RobotFileError(settings.urdf, f"{why} (robot {settings.name!r})") from None
-        share = example_robot_data_dir().parent
-        package_dirs = [str(share), str(settings.urdf.parent)]
+        dirs = package_dirs(settings.urdf)
         xml, self.continuous_joints = _revolute_urdf(settings.urdf, settings.position_limits)
         """Names of the URDF's continuous joints, planned as revolute ones (module docstring)."""
         try:
             if xml is None:
                 full, geom = pin.buildModelsFromUrdf(
-                    str(settings.urdf), package_dirs=package_dirs, geometry_types=pin.GeometryType.COLLISION
+                    str(settings.urdf), package_dirs=dirs, geometry_types=pin.GeometryType.COLLISION
                 )
             else:
                 full = pin.buildModelFromXML(xml)
-                geom = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.COLLISION, package_dirs=package_dirs)
+                geom = pin.buildGeomFromUrdfString(full, xml, pin.GeometryType.COLLISION, package_dirs=dirs)
         except (RuntimeError, ValueError) as exc:
             raise RobotFileError(settings.urdf, f"pinocchio cannot parse it: {exc}") from exc
         if geom.ngeoms == 0:
