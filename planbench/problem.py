@@ -30,7 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from planbench.checking.collision import CollisionChecker
-from planbench.errors import PlanbenchError, ProblemFileError
+from planbench.errors import OutputFileError, PlanbenchError, ProblemFileError
 from planbench.robot import (
     Robot,
     RobotSettings,
@@ -271,16 +271,35 @@ class Problem:
         except (ValueError, TypeError, KeyError) as exc:
             raise ProblemFileError(source, str(exc)) from exc
 
-    def save(self, path: str | Path) -> None:
-        """Write the problem as JSON; a robot settings file outside planbench's own, and the scene's
-        mesh and point-cloud files, are written relative to the problem file, so that they can move
-        together."""
+    def save(self, path: str | Path, bundle: bool = False) -> Path:
+        """Write the problem as JSON at ``path``, creating missing folders; returns ``path``.
+
+        Without ``bundle``, a robot settings file outside planbench's own and the scene's mesh and
+        point-cloud files are named relative to the problem file (so that they can move together)
+        but stay where they are; a shipped robot is named (``"panda"``). With ``bundle``, the
+        folder of ``path`` becomes a portable bundle: the robot's settings, URDF, SRDF and meshes
+        and the scene's files are copied into it and named relative to it, so that the folder
+        loads anywhere (:mod:`planbench.bundle`). :class:`~planbench.errors.OutputFileError` when
+        ``path`` is a folder or cannot be written.
+        """
         out = Path(path)
+        if out.is_dir():
+            raise OutputFileError(out, "is a folder; give the problem file's name (e.g. problem.json)")
+        if bundle:
+            from planbench.bundle import save_bundle
+
+            return save_bundle(self, out.parent, [out.name])[0]
         d = self.to_dict()
-        d["scene"] = self.scene.to_dict(relative_to=out.resolve().parent)
-        if isinstance(d["robot"], str) and d["robot"].endswith(".toml") and Path(d["robot"]).is_absolute():
-            d["robot"] = os.path.relpath(d["robot"], out.resolve().parent)
-        out.write_text(json.dumps(d, indent=1))
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            folder = out.resolve().parent
+            d["scene"] = self.scene.to_dict(relative_to=folder)
+            if isinstance(d["robot"], str) and d["robot"].endswith(".toml") and Path(d["robot"]).is_absolute():
+                d["robot"] = os.path.relpath(d["robot"], folder)
+            out.write_text(json.dumps(d, indent=1))
+        except OSError as exc:
+            raise OutputFileError(out, f"cannot write the problem file: {exc.strerror or exc}") from None
+        return out
 
     @classmethod
     def load(cls, path: str | Path) -> Problem:
