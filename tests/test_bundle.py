@@ -231,3 +231,23 @@ def test_a_bundle_of_a_robot_with_a_missing_mesh_names_it(tmp_path):
     problem = Problem.create(robot, Scene(), robot.home, goal_q=robot.home)
     with pytest.raises(RobotFileError, match="nowhere.dae.*not found"):
         save_bundle(problem, tmp_path / "bundle")
+
+
+def test_planbench_bundle_writes_a_suites_problems_that_a_suite_then_names_by_folder(tmp_path, capsys):
+    from planbench.bench.suite import expand_problems, load_suite
+    from planbench.cli.main import main
+
+    suite = tmp_path / "mine.toml"
+    suite.write_text(
+        '[suite]\nname = "mine"\nproblems = ["mbm:box/0001-0002", "mbm:cage/0001"]\n\n'
+        '[[planners]]\nplanner = "straight-line"\n'
+    )
+    assert main(["bundle", "--suite", str(suite), "--problem", "mbm:box/0002", "--out", str(tmp_path / "b")]) == 0
+    assert "3 problems bundled" in capsys.readouterr().out
+    (tmp_path / "b" / "suite.toml").write_text(
+        suite.read_text().replace('"mbm:box/0001-0002", "mbm:cage/0001"', '"./"')
+    )
+    refs = expand_problems(load_suite(tmp_path / "b" / "suite.toml").problems)
+    assert [r.id for r in refs] == ["mbm:box/0001", "mbm:box/0002", "mbm:cage/0001"]
+    assert main(["bundle", "--out", str(tmp_path / "c")]) == 2
+    assert "--problem SELECTOR" in capsys.readouterr().err

@@ -313,6 +313,25 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bundle(args: argparse.Namespace) -> int:
+    from planbench.bench.suite import load_suite
+    from planbench.bundle import save_bundle
+
+    selectors = list(args.problem or [])
+    if args.suite:
+        suite = load_suite(args.suite)
+        if suite.kind != "static":
+            raise PlanbenchError(f"suite {suite.name!r} is a closed-loop suite; only problems can be bundled")
+        selectors += list(suite.problems)
+    if not selectors:
+        raise PlanbenchError("name the problems to bundle: --problem SELECTOR (repeatable) and/or --suite SUITE")
+    problems = [p for ref in expand_problems(selectors) for p in planbench.load_problems(ref.ref)]
+    paths = save_bundle(problems, args.out)
+    robots = sorted({p.robot.name for p in problems})
+    print(f"{len(paths)} problems bundled in {args.out} (robots: {', '.join(robots)})")
+    return 0
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from planbench.cli.check import check_in_subprocess
 
@@ -414,6 +433,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run", type=int, required=True, help="the run's id (the id column of export --format csv)")
     p.add_argument("--out", default="replay.html", help="the HTML file to write")
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser(
+        "bundle",
+        help="write problems (or a suite's) with their robot and mesh files into a folder that loads anywhere",
+        description="Write problems into one folder together with every file they need: the robot's settings, "
+        "URDF, SRDF and meshes, and the scenes' mesh and point-cloud files, all named relative to the folder. "
+        "The folder can be moved or copied to another machine (example-robot-data not needed there); a suite "
+        'names it as a problem selector (problems = ["FOLDER/"]).',
+    )
+    p.add_argument("--problem", action="append", help="mbm:box/0001, mbm:box/0001-0010, a problem .json (repeatable)")
+    p.add_argument("--suite", help="a suite name or .toml: bundle its problems")
+    p.add_argument("--out", required=True, help="the bundle folder (made if missing)")
+    p.set_defaults(func=cmd_bundle)
 
     p = sub.add_parser(
         "check",
