@@ -165,7 +165,9 @@ class _BundleWriter:
                 raise RobotFileError(settings.srdf, f"SRDF file not found (robot {settings.name!r})")
             self.copy(settings.srdf, files / settings.srdf.name)
             raw["srdf"] = f"{name}/{settings.srdf.name}"
-        self.write_text(self.root / toml_rel, settings_toml(raw, f"bundled from {settings.source}"))
+        self.write_text(
+            self.root / toml_rel, settings_toml(raw, f"Bundled by planbench from {Path(settings.source).name}.")
+        )
         self.robots[key] = toml_rel
         return toml_rel
 
@@ -180,7 +182,8 @@ class _BundleWriter:
         except ET.ParseError as exc:
             raise RobotFileError(settings.urdf, f"not valid XML: {exc}") from None
         dirs = package_dirs(settings.urdf)
-        copied: dict[str, str] = {}
+        copied: dict[str, str] = {}  # reference -> its name in the bundle
+        sources: dict[str, Path] = {}  # name in the bundle -> the file copied there
         for mesh in root.iter("mesh"):
             ref = mesh.get("filename")
             if not ref:
@@ -192,6 +195,9 @@ class _BundleWriter:
                         settings.urdf, f"mesh {ref!r} not found (searched {', '.join(map(str, dirs))})"
                     )
                 rel = _mesh_name(ref)
+                if sources.get(rel, source) != source:  # two files, one name (a/m.stl, package://a/m.stl)
+                    rel = _unique(rel, set(sources))
+                sources[rel] = source
                 self.copy(source, files / rel)
                 copied[ref] = rel
             mesh.set("filename", copied[ref])

@@ -163,14 +163,19 @@ def test_a_bundle_takes_the_scenes_mesh_and_point_cloud_files_along(tmp_path, hi
 
 def test_a_suite_bundle_writes_each_robot_and_file_once(tmp_path, hide_example_robot_data):
     problems = planbench.load_problems("mbm:box/0001") + planbench.load_problems("mbm:box/0002")
-    ur5 = load_robot("ur5")
-    problems.append(Problem.create(ur5, Scene(), ur5.home, goal_q=ur5.home))
+    for name in ("ur5", "xarm7"):
+        robot = load_robot(name)
+        problems.append(Problem.create(robot, Scene(), robot.home, goal_q=robot.home, id=name))
     configurations = [_configurations(p, 4) for p in problems]
     verdicts = [_verdicts(p, c) for p, c in zip(problems, configurations, strict=True)]
     paths = save_bundle(problems, tmp_path / "suite")
     hide_example_robot_data()
-    assert [p.name for p in paths] == ["mbm_box_0001.json", "mbm_box_0002.json", "problem.json"]
-    assert sorted(p.name for p in (tmp_path / "suite" / "robots").glob("*.toml")) == ["panda.toml", "ur5.toml"]
+    assert [p.name for p in paths] == ["mbm_box_0001.json", "mbm_box_0002.json", "ur5.json", "xarm7.json"]
+    assert sorted(p.name for p in (tmp_path / "suite" / "robots").glob("*.toml")) == [
+        "panda.toml",
+        "ur5.toml",
+        "xarm7.toml",
+    ]
     for path, problem, qs, v in zip(paths, problems, configurations, verdicts, strict=True):
         _same_problem(problem, Problem.load(path), qs, v)
 
