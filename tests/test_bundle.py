@@ -214,6 +214,9 @@ def test_a_bundle_target_that_is_a_file_or_unwritable_is_refused(tmp_path):
         save_bundle(problem, tmp_path / "file" / "inside")
     with pytest.raises(OutputFileError, match="is a file; a bundle is a folder"):
         problem.save(tmp_path / "file" / "p.json", bundle=True)
+    if Path("/sys/kernel").is_dir():  # sysfs: no folder can be made there, not even by root
+        with pytest.raises(OutputFileError, match="cannot make the bundle folder"):
+            save_bundle(problem, "/sys/planbench-bundle")
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)
@@ -256,3 +259,16 @@ def test_planbench_bundle_writes_a_suites_problems_that_a_suite_then_names_by_fo
     assert [r.id for r in refs] == ["mbm:box/0001", "mbm:box/0002", "mbm:cage/0001"]
     assert main(["bundle", "--out", str(tmp_path / "c")]) == 2
     assert "--problem SELECTOR" in capsys.readouterr().err
+
+
+def test_a_file_that_cannot_be_written_into_the_bundle_is_a_named_error(tmp_path, monkeypatch):
+    """What a full disk or a read-only file does (root passes the permission test above)."""
+    import planbench.bundle
+
+    def refuse(source, dest):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(planbench.bundle.shutil, "copyfile", refuse)
+    problem = planbench.load_problems("mbm:box/0001")[0]
+    with pytest.raises(OutputFileError, match=r"meshes/.*: cannot copy .* Permission denied"):
+        save_bundle(problem, tmp_path / "b")
