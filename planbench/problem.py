@@ -271,24 +271,19 @@ class Problem:
         except (ValueError, TypeError, KeyError) as exc:
             raise ProblemFileError(source, str(exc)) from exc
 
-    def save(self, path: str | Path, bundle: bool = False) -> Path:
+    def save(self, path: str | Path) -> Path:
         """Write the problem as JSON at ``path``, creating missing folders; returns ``path``.
 
         Without ``bundle``, a robot settings file outside planbench's own and the scene's mesh and
         point-cloud files are named relative to the problem file (so that they can move together)
-        but stay where they are; a shipped robot is named (``"panda"``). With ``bundle``, the
-        folder of ``path`` becomes a portable bundle: the robot's settings, URDF, SRDF and meshes
-        and the scene's files are copied into it and named relative to it, so that the folder
-        loads anywhere (:mod:`planbench.bundle`). :class:`~planbench.errors.OutputFileError` when
-        ``path`` is a folder or cannot be written.
+        but stay where they are; a shipped robot is named (``"panda"``); a folder that loads
+        anywhere, with the robot's files and the scene's copied in, is a bundle
+        (:func:`planbench.problems.bundle.save_bundle`). :class:`~planbench.errors.OutputFileError`
+        when ``path`` is a folder or cannot be written.
         """
         out = Path(path)
         if out.is_dir():
             raise OutputFileError(out, "is a folder; give the problem file's name (e.g. problem.json)")
-        if bundle:
-            from planbench.bundle import save_bundle
-
-            return save_bundle(self, out.parent, [out.name])[0]
         d = self.to_dict()
         try:
             out.parent.mkdir(parents=True, exist_ok=True)

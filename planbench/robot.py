@@ -94,7 +94,7 @@ def example_robot_data_dir() -> Path:
 def package_dirs(urdf: Path) -> list[str]:
     """The folders pinocchio searches for a URDF's ``package://`` and relative mesh names, in
     order: the URDF's own folder, then example-robot-data's ``share`` folder (when installed), so a
-    robot whose meshes lie beside its URDF (a bundle: :mod:`planbench.bundle`) needs no package."""
+    robot whose meshes lie beside its URDF (a bundle: :mod:`planbench.problems.bundle`) needs no package."""
     dirs = [str(Path(urdf).parent)]
     try:
         dirs.append(str(example_robot_data_dir().parent))

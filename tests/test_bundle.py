@@ -1,4 +1,4 @@
-"""Portable bundles (planbench.bundle): a problem folder that loads anywhere."""
+"""Portable bundles (planbench.problems.bundle): a problem folder that loads anywhere."""
 
 import json
 import os
@@ -12,9 +12,9 @@ import pytest
 import planbench
 import planbench.robot
 from planbench import Problem, Scene
-from planbench.bundle import resolve_resource, save_bundle
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import OutputFileError, RobotFileError
+from planbench.problems.bundle import resolve_resource, save_bundle
 from planbench.robot import load_robot, package_dirs
 from planbench.scene import Obstacle
 
@@ -100,7 +100,7 @@ def test_a_bundled_panda_problem_loads_after_a_move_without_example_robot_data(
     original = planbench.load_problems("mbm:box/0001")[0]
     configurations = _configurations(original)
     verdicts = _verdicts(original, configurations)
-    out = original.save(tmp_path / "made" / "here" / "problem.json", bundle=True)  # folders made
+    (out,) = save_bundle(original, tmp_path / "made" / "here", ["problem.json"])  # folders made
     assert out == tmp_path / "made" / "here" / "problem.json"
     folder = out.parent
     names = _paths_in_bundle(folder)
@@ -212,8 +212,6 @@ def test_a_bundle_target_that_is_a_file_or_unwritable_is_refused(tmp_path):
         save_bundle(problem, tmp_path / "file")
     with pytest.raises(OutputFileError, match="is a file, not a folder"):
         save_bundle(problem, tmp_path / "file" / "inside")
-    with pytest.raises(OutputFileError, match="is a file; a bundle is a folder"):
-        problem.save(tmp_path / "file" / "p.json", bundle=True)
     if Path("/sys/kernel").is_dir():  # sysfs: no folder can be made there, not even by root
         with pytest.raises(OutputFileError, match="cannot make the bundle folder"):
             save_bundle(problem, "/sys/planbench-bundle")
@@ -263,12 +261,12 @@ def test_planbench_bundle_writes_a_suites_problems_that_a_suite_then_names_by_fo
 
 def test_a_file_that_cannot_be_written_into_the_bundle_is_a_named_error(tmp_path, monkeypatch):
     """What a full disk or a read-only file does (root passes the permission test above)."""
-    import planbench.bundle
+    import planbench.problems.bundle
 
     def refuse(source, dest):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(planbench.bundle.shutil, "copyfile", refuse)
+    monkeypatch.setattr(planbench.problems.bundle.shutil, "copyfile", refuse)
     problem = planbench.load_problems("mbm:box/0001")[0]
     with pytest.raises(OutputFileError, match=r"meshes/.*: cannot copy .* Permission denied"):
         save_bundle(problem, tmp_path / "b")

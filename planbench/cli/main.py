@@ -315,7 +315,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def cmd_bundle(args: argparse.Namespace) -> int:
     from planbench.bench.suite import load_suite
-    from planbench.bundle import save_bundle
+    from planbench.problems.bundle import save_bundle
 
     selectors = list(args.problem or [])
     if args.suite:

@@ -16,8 +16,7 @@ Each mesh a URDF names is found the way pinocchio finds it for planbench's robot
 folder when it is installed, then ``ROS_PACKAGE_PATH``), a ``file://`` or absolute name as is. In
 the copied URDF each becomes a path relative to the URDF, which is found beside the URDF first.
 
-:func:`save_bundle` writes one problem or many (a suite's); ``Problem.save(path, bundle=True)``
-writes one problem's bundle in the folder of ``path``.
+:func:`save_bundle` writes one problem or many (a suite's); ``planbench bundle`` is the command.
 """
 
 from __future__ import annotations
