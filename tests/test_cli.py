@@ -136,8 +136,11 @@ def test_building_the_parser_imports_no_runner_loop_or_numerics():
     assert out.strip() == "[]"
 
 
-def test_the_executor_choices_are_the_executors():
+def test_the_parsers_copies_are_the_benchmarks_values():
     from planbench.bench.executors import EXECUTORS
-    from planbench.cli.bench import EXECUTORS as CHOICES
+    from planbench.bench.export import EXPERIMENT_GROUPS
+    from planbench.bench.suite import DEFAULT_MEMORY_LIMIT
+    from planbench.cli import bench
 
-    assert CHOICES == EXECUTORS
+    assert bench.EXECUTORS == EXECUTORS and bench.EXPERIMENT_GROUPS == EXPERIMENT_GROUPS
+    assert bench.DEFAULT_MEMORY_LIMIT == DEFAULT_MEMORY_LIMIT

@@ -14,39 +14,15 @@ Command line: ``planbench bench --suite smoke``, ``planbench report results.db``
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from planbench.bench.benchmark import BenchmarkOutcome, run_benchmark
-    from planbench.bench.db import ResultsDB
-    from planbench.bench.report import summarize
-    from planbench.bench.suite import PlannerEntry, Suite, SuiteFileError, load_suite, parse_suite
-
-_HOMES = {
-    "BenchmarkOutcome": "planbench.bench.benchmark",
-    "run_benchmark": "planbench.bench.benchmark",
-    "ResultsDB": "planbench.bench.db",
-    "summarize": "planbench.bench.report",
-    "PlannerEntry": "planbench.bench.suite",
-    "Suite": "planbench.bench.suite",
-    "SuiteFileError": "planbench.bench.suite",
-    "load_suite": "planbench.bench.suite",
-    "parse_suite": "planbench.bench.suite",
-}
-"""Where each name of :data:`__all__` lives: imported on first use, so that a light submodule
-(``planbench.bench.suite`` for the command line's argument checks) does not pull in the runner,
-the closed loop and the reports (0.7 s, most of ``planbench --help``)."""
-
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'planbench.bench' has no attribute {name!r}")
-    return getattr(importlib.import_module(home), name)
-
+from planbench.bench.benchmark import BenchmarkOutcome, run_benchmark, select
+from planbench.bench.db import ResultsDB
+from planbench.bench.executors import make_executor
+from planbench.bench.report import summarize
+from planbench.bench.suite import PlannerEntry, Suite, SuiteFileError, load_suite, parse_suite
 
 __all__ = [
     "BenchmarkOutcome",
@@ -87,11 +63,6 @@ def benchmark(
     dict per group of ``by`` (see :func:`planbench.bench.report.summarize`). ``executor="ray"`` runs
     on a Ray cluster (``address``; default a local Ray instance), see docs/benchmarking.md.
     """
-    from planbench.bench.benchmark import run_benchmark, select
-    from planbench.bench.db import ResultsDB
-    from planbench.bench.executors import make_executor
-    from planbench.bench.report import summarize
-
     s = select(suite, planners, problems, seeds, time_limit, settings=settings)
     runner = make_executor(executor, jobs, address)
     try:

@@ -18,8 +18,6 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from planbench.bench.export import EXPERIMENT_GROUPS
-from planbench.bench.suite import DEFAULT_MEMORY_LIMIT, check_seconds, expand_problems, parse_memory_limit
 from planbench.errors import InvalidConfigError, PlanbenchError
 from planbench.files.inputs import check_writable
 from planbench.files.outputs import check_output
@@ -30,8 +28,12 @@ if TYPE_CHECKING:
     from planbench.bench.task import RunTask
 
 EXECUTORS = ("local", "ray")
-"""The ``--executor`` choices (:data:`planbench.bench.executors.EXECUTORS`; a test holds the two
-equal): written here so that building the parser imports no runner. The benchmark, report and
+EXPERIMENT_GROUPS = ("family", "suite", "problem")
+DEFAULT_MEMORY_LIMIT = 4096.0
+"""The ``--executor`` and ``--experiments`` choices and the default memory limit [MiB]
+(:data:`planbench.bench.executors.EXECUTORS`, :data:`planbench.bench.export.EXPERIMENT_GROUPS`,
+:data:`planbench.bench.suite.DEFAULT_MEMORY_LIMIT`; a test holds them equal): written here, as
+importing any part of :mod:`planbench.bench` imports its runner. The benchmark, report and
 export modules are imported by the commands that use them: ``planbench --help`` stays fast."""
 
 log = logging.getLogger(__name__)
@@ -169,6 +171,7 @@ def _by(choice: str) -> tuple[str, ...]:
 def _bench_suite(args: argparse.Namespace) -> Any:
     """The suite the ``bench`` options ask for; every option is checked before any file is touched."""
     from planbench.bench.benchmark import select
+    from planbench.bench.suite import check_seconds, parse_memory_limit
 
     if args.jobs < 0:
         raise InvalidConfigError(f"--jobs must be >= 1 (or 0: all cores), got {args.jobs}")
@@ -357,6 +360,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         if rows and ((args.plots or args.html) and metrics_for(rows) is DYNAMIC_METRICS or args.replays):
             rows = db.rows(args.suite, with_arrays=True)  # trajectories: the clearance plot, the replays
     if args.problems:
+        from planbench.bench.suite import expand_problems
+
         wanted = {ref.id for ref in expand_problems(args.problems)}
         rows = [row for row in rows if row["problem"] in wanted]
     if not rows:

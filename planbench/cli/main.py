@@ -19,7 +19,6 @@ from rich.markup import escape
 from rich.table import Table
 
 import planbench
-from planbench.bench.suite import check_seconds, check_seed, expand_problems
 from planbench.errors import PlanbenchError
 from planbench.files.inputs import check_writable, release_outputs
 from planbench.files.outputs import check_output
@@ -219,6 +218,8 @@ def _result_of(record: dict[str, Any]) -> PlanResult:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
+    from planbench.bench.suite import check_seconds, check_seed, expand_problems
+
     check_seconds(args.time_limit, "--time-limit")
     check_seed(args.seed)
     setup = REGISTRY.configure(args.planner, text=settings_text(args.set))  # settings checked before anything runs
@@ -314,7 +315,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_bundle(args: argparse.Namespace) -> int:
-    from planbench.bench.suite import load_suite
+    from planbench.bench.suite import expand_problems, load_suite
     from planbench.problems.bundle import save_bundle
 
     selectors = list(args.problem or [])
@@ -333,6 +334,7 @@ def cmd_bundle(args: argparse.Namespace) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    from planbench.bench.suite import check_seconds
     from planbench.cli.check import check_in_subprocess
 
     check_seconds(args.timeout, "--timeout")

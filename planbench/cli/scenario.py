@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from planbench.bench.suite import check_seconds
 from planbench.errors import PlanbenchError, ScenarioFileError
 from planbench.files.inputs import InputFileError, check_writable, read_json
 from planbench.reactive.certificate import Certificate
@@ -71,6 +70,7 @@ class _Entry:
 
 
 def cmd_check_scenario(args: argparse.Namespace) -> int:
+    from planbench.bench.suite import check_seconds
     from planbench.reactive.solvability import verify_certificate
     from planbench.reactive.spacetime import SpaceTimeSettings, find_certificate
 
