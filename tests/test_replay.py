@@ -111,23 +111,25 @@ def test_replay_commands_write_pages_and_refuse_what_they_cannot_show(tmp_path, 
         replay_html(planbench.load_problems("mbm:box/0001")[0], np.full((2, 7), np.nan))
 
 
+HEADLESS = [
+    str(CHROMIUM),
+    "--headless=new",
+    "--no-sandbox",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--enable-logging=stderr",
+    "--v=0",
+    "--window-size=800,600",
+    "--virtual-time-budget=5000",
+]
+"""Chromium without a screen, software WebGL, the page's console on stderr, 5 s of page time."""
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason=NO_CHROMIUM)
 def test_the_replay_loads_in_a_headless_browser_without_errors_and_draws_something(page, tmp_path):
     shot = tmp_path / "shot.png"
     proc = subprocess.run(
-        [
-            CHROMIUM,
-            "--headless=new",
-            "--no-sandbox",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--enable-logging=stderr",
-            "--v=0",
-            "--window-size=800,600",
-            "--virtual-time-budget=5000",
-            f"--screenshot={shot}",
-            page.as_uri(),
-        ],
+        [*HEADLESS, f"--screenshot={shot}", page.as_uri()],
         capture_output=True,
         text=True,
         timeout=120,
@@ -284,19 +286,7 @@ def test_the_failure_page_shows_its_panel_and_opens_at_the_failure_in_a_browser(
     page.html#failure moved the animation to the failure, with no JS error on the way."""
     *_, ev, page = failed
     proc = subprocess.run(
-        [
-            CHROMIUM,
-            "--headless=new",
-            "--no-sandbox",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--enable-logging=stderr",
-            "--v=0",
-            "--window-size=800,600",
-            "--virtual-time-budget=5000",
-            "--dump-dom",
-            page.as_uri() + "#failure",
-        ],
+        [*HEADLESS, "--dump-dom", page.as_uri() + "#failure"],
         capture_output=True,
         text=True,
         timeout=120,

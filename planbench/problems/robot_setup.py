@@ -154,17 +154,25 @@ def _input_path(path: str | Path) -> Path:
     return inside if inside.exists() else given.absolute()
 
 
-def _read_urdf(path: Path) -> tuple[_Urdf, str]:
+def _read_robot_xml(path: Path, kind: str) -> tuple[ET.Element, str]:
+    """The root ``<robot>`` element of a URDF or SRDF (``kind``) and its text; a named error for a
+    file that cannot be read, is not XML or has another root."""
+    article = "an" if kind == "SRDF" else "a"
     try:
         text = read_text(path, MAX_TEXT_BYTES)
     except InputFileError as exc:
-        raise RobotFileError(path, f"URDF: {exc.problem}") from None
+        raise RobotFileError(path, f"{kind}: {exc.problem}") from None
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
-        raise RobotFileError(path, f"not a URDF: not XML ({exc})") from None
+        raise RobotFileError(path, f"not {article} {kind}: not XML ({exc})") from None
     if root.tag != "robot":
-        raise RobotFileError(path, f"not a URDF: its root element is <{root.tag}>, not <robot>")
+        raise RobotFileError(path, f"not {article} {kind}: its root element is <{root.tag}>, not <robot>")
+    return root, text
+
+
+def _read_urdf(path: Path) -> tuple[_Urdf, str]:
+    root, text = _read_robot_xml(path, "URDF")
     links = tuple(str(link.get("name")) for link in root.findall("link"))
     joints = []
     for j in root.findall("joint"):
@@ -186,17 +194,7 @@ def _read_urdf(path: Path) -> tuple[_Urdf, str]:
 
 
 def _read_srdf(path: Path) -> ET.Element:
-    try:
-        text = read_text(path, MAX_TEXT_BYTES)
-    except InputFileError as exc:
-        raise RobotFileError(path, f"SRDF: {exc.problem}") from None
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise RobotFileError(path, f"not an SRDF: not XML ({exc})") from None
-    if root.tag != "robot":
-        raise RobotFileError(path, f"not an SRDF: its root element is <{root.tag}>, not <robot>")
-    return root
+    return _read_robot_xml(path, "SRDF")[0]
 
 
 def _tool_frame(urdf: _Urdf, srdf: ET.Element | None) -> tuple[str, str]:
