@@ -125,18 +125,20 @@ HEADLESS = [
 """Chromium without a screen, software WebGL, the page's console on stderr, 5 s of page time."""
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason=NO_CHROMIUM)
-def test_the_replay_loads_in_a_headless_browser_without_errors_and_draws_something(page, tmp_path):
-    shot = tmp_path / "shot.png"
-    proc = subprocess.run(
-        [*HEADLESS, f"--screenshot={shot}", page.as_uri()],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+def _chromium(*args: str) -> str:
+    """Headless chromium on ``args`` (what to do, the page); its standard output, after checking that
+    the page's console logged no error."""
+    proc = subprocess.run([*HEADLESS, *args], capture_output=True, text=True, timeout=120)
     console = [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
     errors = [line for line in console if "Uncaught" in line or "Error" in line]
     assert not errors, errors
+    return proc.stdout
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason=NO_CHROMIUM)
+def test_the_replay_loads_in_a_headless_browser_without_errors_and_draws_something(page, tmp_path):
+    shot = tmp_path / "shot.png"
+    _chromium(f"--screenshot={shot}", page.as_uri())
     import matplotlib.image
 
     pixels = matplotlib.image.imread(shot).reshape(-1, 3)
@@ -285,16 +287,7 @@ def test_the_failure_page_shows_its_panel_and_opens_at_the_failure_in_a_browser(
     """Headless chromium runs the page's scripts and prints the DOM: the panel's text is there, and
     page.html#failure moved the animation to the failure, with no JS error on the way."""
     *_, ev, page = failed
-    proc = subprocess.run(
-        [*HEADLESS, "--dump-dom", page.as_uri() + "#failure"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    console = [line for line in proc.stderr.splitlines() if ":CONSOLE" in line]
-    errors = [line for line in console if "Uncaught" in line or "Error" in line]
-    assert not errors, errors
-    dom = proc.stdout
+    dom = _chromium("--dump-dom", page.as_uri() + "#failure")
     panel = dom[dom.index('<div id="planbench-panel">') :]
     panel_text = re.sub(r"<[^>]+>", " ", panel[: panel.index("</table>")])
     for text in ("mbm:box/0001", "straight-line", "collision on segment 0", "min clearance", "planning time"):
