@@ -13,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import selectors
 import signal
 import socket
 import sqlite3
@@ -490,6 +491,52 @@ class _Server:
         self.sock.close()
 
 
+_SERVER_SCRIPT = """
+import socket, sys
+answer = bytes.fromhex(sys.argv[1])
+sock = socket.socket()
+sock.bind(("127.0.0.1", 0))
+sock.listen(8)
+print(sock.getsockname()[1], flush=True)
+conns = []
+while True:
+    conn, _ = sock.accept()
+    conns.append(conn)
+    if answer:
+        conn.sendall(answer)
+    print("accepted", flush=True)
+"""
+
+
+class _ServerProcess:
+    """:class:`_Server` in a process of its own, which says on its standard output when it has
+    accepted a connection (and answered it)."""
+
+    def __init__(self, answer: bytes = b"") -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _SERVER_SCRIPT, answer.hex()], stdout=subprocess.PIPE, text=True
+        )
+        assert self.proc.stdout is not None
+        self.port = int(self.proc.stdout.readline())
+
+    def wait_for_connection(self, client: subprocess.Popen, timeout: float) -> None:
+        """Return once the server has accepted a connection; fail if ``client`` ends first."""
+        assert self.proc.stdout is not None
+        with selectors.DefaultSelector() as sel:
+            sel.register(self.proc.stdout, selectors.EVENT_READ)
+            deadline = time.monotonic() + timeout
+            while not sel.select(0.05):
+                assert client.poll() is None, client.stderr.read() if client.stderr else "the command ended"
+                assert time.monotonic() < deadline, f"no connection within {timeout:g} s"
+        assert self.proc.stdout.readline().strip() == "accepted"
+
+    def close(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+
+
 def test_cluster_addresses_are_parsed_without_ray(monkeypatch):
     from planbench.bench.ray_executor import cluster_endpoint
     from planbench.errors import InvalidConfigError
@@ -553,7 +600,9 @@ def test_ctrl_c_ends_a_connect_at_once(server, tmp_path):
     """Interrupted during the reachability check (a silent port) or inside ray.init (a port that
     answers the gRPC greeting, so Ray's own client waits on it): exit code 130 within a second."""
     pytest.importorskip("ray", reason="Ray is not installed (pip install 'planbench[ray]')")
-    fake = _Server(b"" if server == "silent" else b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+    # the fake server runs in its own process: a thread of this one can be held off for seconds by
+    # the test process's own leftovers when the machine is loaded, so that it answers too late
+    fake = _ServerProcess(b"" if server == "silent" else b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
     try:
         args = ["bench", "--executor", "ray", "--address", f"127.0.0.1:{fake.port}", "--problems", "mbm:box/0001"]
         # Ray alone would wait minutes; and it keeps 127.0.0.1 (not this host's address) with the variable at 0
@@ -566,11 +615,10 @@ def test_ctrl_c_ends_a_connect_at_once(server, tmp_path):
             text=True,
         )
         # into the wait: the command connects once its imports are done (about 2 s on a quiet
-        # machine, several times that beside load), then Ray's client waits on the gRPC port
-        deadline = time.monotonic() + 120.0
-        while not fake.conns and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.0 if server == "silent" else 4.0)
+        # machine, several times that beside load), then Ray's client waits on the gRPC port; the
+        # reachability check's own wait is 5 s, so the signal comes well inside it
+        fake.wait_for_connection(proc, 120.0)
+        time.sleep(0.5 if server == "silent" else 4.0)
         assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
         os.kill(proc.pid, signal.SIGINT)
         started = time.monotonic()
