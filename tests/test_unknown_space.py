@@ -109,7 +109,15 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
 
 @pytest.mark.parametrize(
     "setting",
-    [{"known_plan_time": 0.0}, {"known_plan_time": float("nan")}, {"surface_margin": -1.0}, {"look_frames": 1.5}],
+    [
+        {"known_plan_time": 0.0},
+        {"known_plan_time": float("nan")},
+        {"surface_margin": -1.0},
+        {"look_frames": 1.5},
+        {"known_checks_per_tick": -1},
+        {"known_checks_per_tick": True},
+        {"known_plan_checks": 0},
+    ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
     key = next(iter(setting))
@@ -203,19 +211,26 @@ def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBo
     raise AssertionError("no place for the block")
 
 
-def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space):
+@pytest.mark.parametrize("per_tick", [50, 0])
+def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick):
     """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
-    seen. The default follows its path through it; the safe mode plans in known space first, around
-    it, and the arm's body is never in one of its cells."""
+    seen. The default follows its path through it; the safe mode plans in known space around it, in
+    slices while the arm follows the first path up to the cube (or at once, the arm held still:
+    ``known_checks_per_tick`` 0), and the arm's body is never in one of its cells."""
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
     through, _ = _run(free_task, _seeing(grid, known), 400, unknown="free")
     assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
-    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied")
+    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied", known_checks_per_tick=per_tick)
     info = c.info()
     assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
     assert info["known_plans"] >= 1 and info["forced"] == 0
+    if per_tick:  # the plan took ticks, and the arm moved meanwhile
+        assert info["known_slices"] > 1
+        assert np.linalg.norm(qs[info["known_slices"] // 2] - qs[0]) > 0.01, info
+    else:
+        assert info["known_slices"] == 0
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info  # around it to the goal
 
 

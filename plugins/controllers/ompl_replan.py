@@ -27,10 +27,15 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
   obstacles for every plan, never entered after a look (below); found when a plan needs them, as
   a frame's check of the rest of the path stops short of every unknown cell anyway;
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
-  not enter (below), the arm plans again with every such cell an obstacle (within
-  ``known_plan_time``; the occupied cells and the two-cell layer of unknown ones next to the
-  space the arm may enter stand for them all: any motion into the rest crosses that layer) and
-  follows that path if there is one;
+  not enter (below), the arm plans again with every such cell an obstacle (the occupied cells and
+  the two-cell layer of unknown ones next to the space the arm may enter stand for them all: any
+  motion into the rest crosses that layer). That plan runs in slices of ``known_checks_per_tick``
+  collision checks, one per tick, up to ``known_plan_checks`` in all, while the arm follows the
+  first path up to the unknown cells: held still for the plan (``known_checks_per_tick`` 0, as
+  before), the arm was a still target for the moving obstacle. When the plan has a path and the
+  first path still enters cells the arm may not enter, the arm goes straight to the farthest of
+  its waypoints that a free motion reaches (else back the way it came); while it runs, the arm
+  waits short of unknown cells instead of going in after its looks;
 - **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
   scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
   ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
@@ -67,7 +72,7 @@ from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
 from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
 from planbench_plugins.controllers.unknown import UnknownSettings
-from planbench_plugins.ompl_planners import cells_checker
+from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_checker
 
 __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 
@@ -87,7 +92,16 @@ class OMPLReplanConfig(UnknownSettings):
     """Time limit of one (re)plan [s]."""
     known_plan_time: float = 0.5
     """Safe mode: time limit [s] of the plan in known space, made when a plan's path enters cells
-    the arm may not enter."""
+    the arm may not enter (with ``known_checks_per_tick`` 0: the plan is made at once, the arm
+    held still meanwhile)."""
+    known_checks_per_tick: int = 50
+    """Safe mode: the plan in known space is made in slices of this many collision checks, one
+    per tick (about 3-6 ms; 60-110 µs a check measured on a loaded 2-core machine), while the arm follows the optimistic path up to the unknown cells
+    (:mod:`planbench_plugins.ompl_planners.sliced`); 0: at once, the arm held still for up to
+    ``known_plan_time`` (the stall a moving obstacle exploits)."""
+    known_plan_checks: int = 10000
+    """Safe mode: the most collision checks of a sliced plan in known space (its budget: about
+    0.5-1 s of work, spread over 200 ticks)."""
     speed_scale: float = 0.5
     """Speed along the path, as a fraction of each joint's velocity limit (0, 1]."""
     check_resolution: float = 0.02
@@ -134,8 +148,13 @@ class OMPLReplanConfig(UnknownSettings):
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
-        if isinstance(self.look_frames, bool) or not isinstance(self.look_frames, int) or self.look_frames < 0:
-            raise InvalidConfigError(f"look_frames must be an integer >= 0, got {self.look_frames!r}")
+        for name in ("look_frames", "known_checks_per_tick"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise InvalidConfigError(f"{name} must be an integer >= 0, got {v!r}")
+        v = self.known_plan_checks
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InvalidConfigError(f"known_plan_checks must be an integer >= 1, got {v!r}")
         self.validate_unknown()
 
 
@@ -197,6 +216,7 @@ class OMPLReplanController(Controller):
         self.through = np.zeros(0, dtype=np.intp)  # safe mode: unknown cells entered after a look
         self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
         self.known_path = False  # safe mode: the path was planned in known space
+        self.known_query: SlicedRRTConnect | None = None  # safe mode: the plan in known space, in slices
         self.observation: Observation | None = None
         self.checker: CollisionChecker | None = None  # the frame's obstacles, less what the arm touches
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
@@ -211,7 +231,7 @@ class OMPLReplanController(Controller):
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats.update(known_plans=0, looks=0, forced=0)
+        self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -236,7 +256,10 @@ class OMPLReplanController(Controller):
             if self.path is None:
                 return np.zeros_like(q)
         self.still = False
-        return self._follow(q, t)
+        command = self._follow(q, t)
+        if self.known_query is not None:
+            self._known_slice(q)
+        return command
 
     def info(self) -> dict[str, Any]:
         return dict(self.stats)
@@ -353,6 +376,7 @@ class OMPLReplanController(Controller):
             if self.checker.in_collision(x):
                 self.stats["invalidated"] += 1
                 self.path = None
+                self.known_query = None  # the next plan starts over
                 return
         if self.allowed is None:
             return
@@ -362,7 +386,7 @@ class OMPLReplanController(Controller):
             return
         self.looks += 1  # held short of unknown cells: look, then go on
         self.stats["looks"] += 1
-        if self.looks > self.config.look_frames:
+        if self.looks > self.config.look_frames and self.known_query is None:  # not while a way round is sought
             self._go_through(block)
 
     def _go_through(self, block: float) -> None:
@@ -398,7 +422,7 @@ class OMPLReplanController(Controller):
         """Plan from ``q`` as the default does; in safe mode, when that path enters cells the arm
         may not enter, plan again in known space (every unknown cell an obstacle but those it may
         enter) and follow that path instead if there is one."""
-        self.known_path = False
+        self.known_path, self.known_query = False, None
         checker = self.checker
         safe = self.safe and self.observation is not None and self.observation.grid.known is not None
         if safe and self.observation is not None and self.observation.scene is None:
@@ -412,13 +436,54 @@ class OMPLReplanController(Controller):
         allowed, body = self.allowed, self.body
         if not any(body.in_unknown(x, allowed) for _, x in self._samples(0.0, float(self.times[-1]))):
             return
+        known = self._cells_checker(self._known_space_obstacles(), q)
+        goal_q = self.task.goal.q
+        if self.config.known_checks_per_tick > 0 and goal_q is not None:
+            try:  # in slices, while the arm follows the optimistic path up to the unknown cells
+                self.known_query = SlicedRRTConnect(known, q, np.asarray(goal_q), seed=int(self.rng.integers(2**31)))
+            except ValueError:  # the start or the goal touches the cells that stand for unknown space
+                self.known_query = None
+            return
         optimistic = (self.path, self.times, self.tau_limit)
-        if self._plan_once(q, self._cells_checker(self._known_space_obstacles(), q), self.config.known_plan_time):
+        if self._plan_once(q, known, self.config.known_plan_time):
             self.known_path = True
             self.stats["known_plans"] += 1
             return
         self.path, self.times, self.tau_limit = optimistic
         self.tau, self.looks, self.t_follow = 0.0, 0, None
+
+    def _known_slice(self, q: np.ndarray) -> None:
+        """Safe mode: one slice of the plan in known space; once it has a path, switch to it from
+        where the arm is, unless the optimistic path's rest no longer enters cells the arm may not
+        enter (the frames seen since have shown them)."""
+        query = self.known_query
+        assert query is not None
+        before = query.checks
+        done = query.advance(self.config.known_checks_per_tick)
+        self.stats["known_slices"] += 1
+        if not done:
+            if query.checks >= self.config.known_plan_checks or query.checks == before:
+                self.known_query = None  # over its budget, or stuck: the optimistic path stays
+                self.stats["known_failed"] += 1
+            return
+        self.known_query = None
+        assert query.path is not None and self.times is not None and self.allowed is not None
+        if self.body is None or not any(
+            self.body.in_unknown(x, self.allowed) for _, x in self._samples(self.tau, float(self.times[-1]))
+        ):
+            self.stats["known_unneeded"] += 1
+            return
+        here, known = q, query.path
+        for j in range(len(known) - 1, -1, -1):  # the farthest waypoint the arm reaches straight
+            if query.segments.motion_free(here, known[j]):
+                path = np.vstack([here, known[j:]])
+                break
+        else:  # back along the way it came, then the path in known space
+            i = min(int(np.searchsorted(self.times, self.tau, side="right")) - 1, len(self.path) - 1)  # type: ignore[arg-type]
+            path = np.vstack([here, self.path[i::-1], known[1:]])  # type: ignore[index]
+        self._take(path)
+        self.known_path = True
+        self.stats["known_plans"] += 1
 
     def _known_space_obstacles(self) -> np.ndarray:
         """Safe mode: flat indices of the obstacles of a plan in known space: the occupied cells
@@ -463,12 +528,15 @@ class OMPLReplanController(Controller):
         if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
             self.stats["failed_plans"] += 1
             return False
-        path = np.array(result.path, dtype=float)
+        self._take(np.array(result.path, dtype=float))
+        return True
+
+    def _take(self, path: np.ndarray) -> None:
+        """Follow ``path`` from its start, timed at the scaled velocity limits."""
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
         self.tau, self.tau_limit, self.looks, self.t_follow = 0.0, math.inf, 0, None
         self._limit(0.0)
-        return True
 
     def _samples(self, t0: float, t1: float) -> list[tuple[float, np.ndarray]]:
         """The path's configurations at the times [s] in ``[t0, t1]`` on a fixed grid along it
