@@ -59,3 +59,39 @@ def test_it_follows_its_path_and_replans_around_an_obstacle_that_appears_on_it(f
     new = np.vstack([q, c.path])
     dense = [a + u * (b - a) for a, b in zip(new[:-1], new[1:], strict=True) for u in np.linspace(0, 1, 20)]
     assert not any(checker.in_collision(x) for x in dense)  # the new path goes around the box
+
+
+def _depth(grid: OccupancyGrid, t: float, frame: int) -> Observation:
+    """A depth observation of ``grid``, every cell seen."""
+    known = np.ones(grid.shape, dtype=bool)
+    return Observation(t, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=known), frame)
+
+
+def test_an_obstacle_standing_on_the_goal_is_waited_out_not_driven_into(free_task):
+    """Depth: cells next to the arm's body at the goal are left out of plans (a surface the goal
+    touches), but a box filling the hand's cells at the goal is an obstacle on it: no plan goes
+    there, the arm does not move into it, and once frames show it gone the arm reaches the goal."""
+    robot, goal_q = free_task.robot, np.asarray(free_task.goal.q)
+    empty = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    hand = robot.frame_pose(goal_q, free_task.goal.pose.frame).translation
+    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.1, 0.1, 0.1)),))
+    blocked = OccupancyGrid.from_scene(box, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
+    assert blocked.shape == empty.shape and (blocked.data >= 0.5).sum() > 100
+    checker = CollisionChecker(robot, box)
+    c = make_controller("ompl-replan")
+    c.setup(free_task)
+    q = np.array(free_task.start, dtype=float)
+    c.reset(q.copy(), np.random.default_rng(0))
+    vmax = np.asarray(robot.velocity_limit)
+    for k in range(300):  # 3 s with the box on the goal, a frame every 3 ticks
+        if k % 3 == 0:
+            c.update(_depth(blocked, 0.01 * k, k // 3))
+        q = q + 0.01 * np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
+        assert not checker.in_collision(q), k  # never into the box
+    info = c.info()
+    assert info["goal_blocked"] > 0 and info["plans"] > 1 and info["plans"] == info["failed_plans"]
+    for k in range(300, 900):  # the box has left
+        if k % 3 == 0:
+            c.update(_depth(empty, 0.01 * k, k // 3))
+        q = q + 0.01 * np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
+    assert np.allclose(q, goal_q, atol=1e-3), c.info()

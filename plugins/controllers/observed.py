@@ -35,6 +35,8 @@ class ArmCells:
         """The arm's body on the grid last fitted (None before)."""
         self.near_goal = np.zeros(0, dtype=np.intp)
         """Flat indices of the cells within a cell of the arm's body at the goal (none without one)."""
+        self.at_goal = np.zeros(0, dtype=np.intp)
+        """Flat indices of the cells the arm's body fills at the goal (none without one)."""
         self.size = 0
         """Cells of the grid last fitted."""
         self._key: tuple[object, ...] | None = None
@@ -49,6 +51,7 @@ class ArmCells:
         self.body = ArmBody(self.robot, grid.origin, grid.shape, grid.resolution)
         self.size = int(np.prod(grid.shape))
         self.near_goal = self.near(self.goal_q, 1) if self.goal_q is not None else np.zeros(0, dtype=np.intp)
+        self.at_goal = self.body.cells(self.goal_q) if self.goal_q is not None else np.zeros(0, dtype=np.intp)
         return True
 
     def near(self, q: np.ndarray, cells: int) -> np.ndarray:

@@ -8,9 +8,11 @@ occupied cells with ``depth`` sensing (whole cells, as one coal octree when the 
 checker, :meth:`~planbench_plugins.ompl_planners.base.OMPLPlanner.use_checker`, else as boxes;
 ``cell_inset`` shrinks the boxes). The obstacles the arm already touches where a plan starts are
 left out of that plan and of the path's checks (truth: whole obstacles; depth: the occupied cells
-within a cell of the arm's body, and of its body at the goal, which the task asserts free: observed
-cells lie up to a cell beyond the true surface, so an arm a centimetre from a table can be "in" its
-cells). The follower moves along the path at ``speed_scale`` of every joint's velocity limit. On
+within a cell of the arm's body, and of its body at the goal, which the static scene leaves free:
+observed cells lie up to a cell beyond the true surface, so an arm a centimetre from a table can be
+"in" its cells; but when more than a contact's few of the cells the body fills at the goal are
+occupied, an obstacle stands on the goal, and those are kept: no plan reaches the goal, and the arm
+waits until it leaves, ``goal_blocked`` in ``info``). The follower moves along the path at ``speed_scale`` of every joint's velocity limit. On
 every new frame the rest of the path (from the arm's configuration) is checked against the new
 observation every ``check_resolution`` rad; when it collides, the controller commands a stop in
 that tick and replans in the next, so that the command the runner holds while the planning time is
@@ -96,7 +98,8 @@ class OMPLReplanConfig(UnknownSettings):
     held still meanwhile)."""
     known_checks_per_tick: int = 50
     """Safe mode: the plan in known space is made in slices of this many collision checks, one
-    per tick (about 3-6 ms; 60-110 µs a check measured on a loaded 2-core machine), while the arm follows the optimistic path up to the unknown cells
+    per tick (about 3-6 ms; 60-110 µs a check measured on a loaded 2-core machine), while the
+    arm follows the optimistic path up to the unknown cells
     (:mod:`planbench_plugins.ompl_planners.sliced`); 0: at once, the arm held still for up to
     ``known_plan_time`` (the stall a moving obstacle exploits)."""
     known_plan_checks: int = 10000
@@ -187,6 +190,14 @@ the space the arm may enter (:meth:`OMPLReplanController._known_space_obstacles`
 checks (0.01 rad per joint), and the follower's scan checks the path against every unknown cell
 anyway."""
 
+_CONTACT_CELLS = 4
+"""Depth: at most this many occupied cells among those the arm's body fills at the goal are a
+surface it touches there (observed cells lie up to a cell beyond the true surface), left out of
+plans like the cells next to the body; more are an obstacle standing on the goal (a box parked
+there): kept, so that no plan drives into it and the arm waits until it leaves. In the static
+scenes of ``dynamic-tune`` and ``dynamic-test`` none of the 216 depth scenarios' goals has one
+(Panda ``/0002``: 8 cells next to the body, none in it)."""
+
 _GAIN = 0.3
 """Of the way back to the path per period the follower steers (stable while a command is held for
 fewer than 1 / 0.3 periods: a frame's checks cost 10-25 ms at a 10 ms period)."""
@@ -231,7 +242,9 @@ class OMPLReplanController(Controller):
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
+        self.stats.update(
+            known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0, goal_blocked=0
+        )
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -317,7 +330,12 @@ class OMPLReplanController(Controller):
         if not touched:
             return checker
         assert self.near_goal is not None
-        near = np.concatenate([self.arm.near(q, 1), self.near_goal])
+        near_goal = self.near_goal
+        on_goal = cells[np.isin(cells, self.arm.at_goal)]
+        if len(on_goal) > _CONTACT_CELLS:  # an obstacle on the goal: planned around, waited out
+            near_goal = near_goal[~np.isin(near_goal, on_goal)]
+            self.stats["goal_blocked"] += 1
+        near = np.concatenate([self.arm.near(q, 1), near_goal])
         kept = cells[~np.isin(cells, near)]
         self.stats["dropped"] += len(cells) - len(kept)
         return self._checker_of(kept)
