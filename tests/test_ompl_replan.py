@@ -68,9 +68,10 @@ def _depth(grid: OccupancyGrid, t: float, frame: int) -> Observation:
 
 
 def test_an_obstacle_standing_on_the_goal_is_waited_out_not_driven_into(free_task):
-    """Depth: cells next to the arm's body at the goal are left out of plans (a surface the goal
-    touches), but a box filling the hand's cells at the goal is an obstacle on it: no plan goes
-    there, the arm does not move into it, and once frames show it gone the arm reaches the goal."""
+    """Depth, ``goal_obstacles = "wait"``: cells next to the arm's body at the goal are left out of
+    plans (a surface the goal touches), but a box filling the hand's cells at the goal is an
+    obstacle on it: no plan goes there, the arm does not move into it, and once frames show it gone
+    the arm reaches the goal."""
     robot, goal_q = free_task.robot, np.asarray(free_task.goal.q)
     empty = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
     hand = robot.frame_pose(goal_q, free_task.goal.pose.frame).translation
@@ -78,7 +79,9 @@ def test_an_obstacle_standing_on_the_goal_is_waited_out_not_driven_into(free_tas
     blocked = OccupancyGrid.from_scene(box, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
     assert blocked.shape == empty.shape and (blocked.data >= 0.5).sum() > 100
     checker = CollisionChecker(robot, box)
-    c = make_controller("ompl-replan")
+    with pytest.raises(InvalidSettingError, match="goal_obstacles"):
+        make_controller("ompl-replan", goal_obstacles="avoid")
+    c = make_controller("ompl-replan", goal_obstacles="wait")
     c.setup(free_task)
     q = np.array(free_task.start, dtype=float)
     c.reset(q.copy(), np.random.default_rng(0))
