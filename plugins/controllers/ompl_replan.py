@@ -36,8 +36,9 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
   first path up to the unknown cells: held still for the plan (``known_checks_per_tick`` 0, as
   before), the arm was a still target for the moving obstacle. When the plan has a path and the
   first path still enters cells the arm may not enter, the arm goes straight to the farthest of
-  its waypoints that a free motion reaches (else back the way it came); while it runs, the arm
-  waits short of unknown cells instead of going in after its looks;
+  its waypoints that a free motion reaches (else back the way it came). The looks below go on
+  meanwhile: made to wait for the plan, the arm stood still for its whole budget (2 s and more)
+  where the plan at once stalled it for 0.5 s;
 - **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
   scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
   ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
@@ -414,7 +415,7 @@ class OMPLReplanController(Controller):
             return
         self.looks += 1  # held short of unknown cells: look, then go on
         self.stats["looks"] += 1
-        if self.looks > self.config.look_frames and self.known_query is None:  # not while a way round is sought
+        if self.looks > self.config.look_frames:
             self._go_through(block)
 
     def _go_through(self, block: float) -> None:
