@@ -215,8 +215,8 @@ def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBo
 def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick):
     """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
     seen. The default follows its path through it; the safe mode plans in known space around it, in
-    slices while the arm follows the first path up to the cube (or at once, the arm held still:
-    ``known_checks_per_tick`` 0), and the arm's body is never in one of its cells."""
+    slices while the arm follows the first path up to the cube (``known_checks_per_tick`` > 0), or
+    at once, the arm held still (the default), and the arm's body is never in one of its cells."""
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
