@@ -12,11 +12,12 @@ within a cell of the arm's body, and of its body at the goal, which the static s
 observed cells lie up to a cell beyond the true surface, so an arm a centimetre from a table can be
 "in" its cells; with ``goal_obstacles = "wait"``, when more than a contact's few of the cells the
 body fills at the goal are occupied, an obstacle stands on the goal, and those are kept: no plan
-reaches the goal, and the arm waits until it leaves, ``goal_blocked`` in ``info``). The follower moves along the path at ``speed_scale`` of every joint's velocity limit. On
-every new frame the rest of the path (from the arm's configuration) is checked against the new
-observation every ``check_resolution`` rad; when it collides, the controller commands a stop in
-that tick and replans in the next, so that the command the runner holds while the planning time is
-charged (as on a robot) is the stop, not the old path's velocity. A failed plan leaves the arm
+reaches the goal, and the arm waits until it leaves, ``goal_blocked`` in ``info``). The follower
+moves along the path at ``speed_scale`` of every joint's velocity limit. On every new frame the
+rest of the path (from the arm's configuration) is checked against the new observation every
+``check_resolution`` rad; when it collides, the controller commands a stop in that tick and
+replans in the next, so that the command the runner holds while the planning time is charged (as
+on a robot) is the stop, not the old path's velocity. A failed plan leaves the arm
 still until the next frame.
 
 **Safe mode** (``unknown = "occupied"``, the default, chosen on ``dynamic-tune``; ``"free"`` plans and
