@@ -1,5 +1,5 @@
 """VAMP (vectorised sampling-based planning, SIMD collision checks of a sphere model) as planbench
-baselines: ``vamp-rrtc`` and ``vamp-fcit`` (:mod:`.planners`), scenes converted to VAMP's
+baseline: ``vamp-rrtc`` (:mod:`.planners`), scenes converted to VAMP's
 primitives (:mod:`.convert`).
 
 Needs the ``vamp`` module of the ``vamp-planner`` package: the optional extra ``planbench[vamp]``,
@@ -12,13 +12,12 @@ from __future__ import annotations
 import vamp  # noqa: F401  (missing: ModuleNotFoundError, reported by the registry with its hint)
 
 from .convert import SUPPORTED_ROBOTS, UnsupportedRobotError, VampRobot, environment, vamp_robot
-from .planners import VampConfig, VampFCITPlanner, VampPlanner, VampRRTCPlanner, own_verdict
+from .planners import VampConfig, VampPlanner, VampRRTCPlanner, own_verdict
 
 __all__ = [
     "SUPPORTED_ROBOTS",
     "UnsupportedRobotError",
     "VampConfig",
-    "VampFCITPlanner",
     "VampPlanner",
     "VampRRTCPlanner",
     "VampRobot",
