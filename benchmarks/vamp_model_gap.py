@@ -38,7 +38,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     lower, upper = np.maximum(robot.lower, vr.lower), np.minimum(robot.upper, vr.upper)
     geoms = robot.collision_model.geometryObjects
-    local = []
+    local: list[np.ndarray | None] = []
     for g in geoms:
         kind = type(g.geometry).__name__
         if kind == "Box":  # coal's Box keeps half sides

@@ -198,3 +198,60 @@ def test_vamps_own_verdict_sees_an_obstacle_on_a_segment():
 def test_bad_settings_are_refused(settings):
     with pytest.raises(planbench.errors.InvalidConfigError):
         planbench.registry.REGISTRY.make("vamp-rrtc", **settings)
+
+
+def _task(robot_name):
+    from planbench.problem import Tolerances
+    from planbench.reactive.controller import ControlTask
+
+    problem = trivial_problem(robot_name)
+    return ControlTask(problem.robot, problem.start, problem.goal, Tolerances(), 0.01)
+
+
+@needs_vamp
+def test_vamp_replan_conforms():
+    from planbench.reactive.conformance import check_controller
+    from planbench_plugins.controllers.vamp_replan import VampReplanController
+
+    assert check_controller(VampReplanController) == []
+
+
+@needs_vamp
+def test_vamp_replan_refuses_a_robot_vamp_has_no_model_of():
+    from planbench_plugins.controllers.vamp_replan import VampReplanController
+    from planbench_plugins.vamp_planners import UnsupportedRobotError
+
+    with pytest.raises(UnsupportedRobotError, match="xarm7"):
+        VampReplanController().setup(_task("xarm7"))
+
+
+@needs_vamp
+def test_vamp_replan_plans_around_a_frames_points_and_leaves_out_those_the_arm_touches():
+    from planbench.geometry.occupancy import OccupancyGrid
+    from planbench.reactive.controller import Observation
+    from planbench_plugins.controllers.vamp_replan import VampReplanController
+
+    task = _task("panda")
+    robot, q = task.robot, np.array(task.start)
+    hand = robot.frame_pose(q).translation
+    a, b = robot.frame_pose(q).translation, robot.frame_pose(task.goal.q).translation
+    rng = np.random.default_rng(0)
+    touching = hand + rng.uniform(-0.02, 0.02, size=(50, 3))  # on the hand: left out
+    wall = 0.5 * (a + b) + rng.uniform(-0.06, 0.06, size=(400, 3))  # across the straight line
+    grid = OccupancyGrid(np.zeros((2, 2, 2)), np.zeros(3), 0.02)
+    controller = VampReplanController()
+    controller.setup(task)
+    controller.reset(q, np.random.default_rng(0))
+    controller.update(Observation(0.0, grid, 0, points=np.vstack([touching, wall])))
+    qd = controller.step(0.0, q, None, task.goal)
+    assert qd.shape == q.shape and np.any(qd != 0)
+    module, env = controller.robot.module, controller.env
+    assert module.validate(q.astype(np.float32), env)  # the points on the hand were left out
+    assert not module.validate_motion(q.astype(np.float32), np.asarray(task.goal.q, dtype=np.float32), env, False)
+    path = controller.path
+    assert path is not None and np.array_equal(path[0], q) and np.array_equal(path[-1], task.goal.q)
+    assert all(
+        module.validate_motion(x, y, env, False)
+        for x, y in zip(path[:-1].astype(np.float32), path[1:].astype(np.float32), strict=True)
+    )
+    assert controller.info()["plans"] == 1 and controller.info()["failed_plans"] == 0
