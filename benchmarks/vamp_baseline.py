@@ -4,7 +4,7 @@ with what VAMP claimed beside what planbench's certified check accepted.
 Usage::
 
     planbench bench --planners vamp-rrtc,ompl-rrtconnect --problems "mbm:*" --jobs 1 --out mbm.db
-    python benchmarks/vamp_baseline.py mbm.db [--baseline ompl-rrtconnect] [--by family]
+    python benchmarks/vamp_baseline.py mbm.db [--baseline ompl-rrtconnect] [--by family] [--model-check]
 
 Printed, as a Markdown table, per planner (and family with ``--by family``): runs; validated
 successes (planbench's verdict); claimed successes (the planner's own status); *refused*: claimed
@@ -14,6 +14,11 @@ VAMP's own check of the returned path calls free (``info["vamp_verdict"]``); the
 time over validated successes and its ratio to the baseline's median from the same file; the
 median of the per-problem ratios where both solved; the median joint path length and minimum
 clearance over validated successes. Needs pandas (``planbench[data]``).
+
+``--model-check`` (needs the VAMP extra): for every refused VAMP path with a collision, VAMP's own
+configuration check at the configuration where planbench found the contact (the segment and
+fraction the results file holds): free there means VAMP's robot model misses the contact, not the
+spacing of its motion checks.
 """
 
 from __future__ import annotations
@@ -107,14 +112,47 @@ def markdown(rows: list[dict[str, Any]], baseline: str, by: str) -> str:
     return "\n".join(lines)
 
 
+def model_check(df: Any) -> dict[bool, int]:
+    """VAMP's configuration check at each refused VAMP path's contact: {free: count}."""
+    import planbench
+    from planbench_plugins.vamp_planners import environment, vamp_robot
+
+    hit = df[
+        df.planner.str.startswith("vamp")
+        & (df.status == "success")
+        & ~df.success
+        & (df.collision_pair.fillna("") != "")
+    ]
+    counts = {True: 0, False: 0}
+    for _, r in hit.iterrows():
+        problem = planbench.load_problems(r.problem)[0]
+        robot = vamp_robot(problem.robot)
+        env, _ = environment(
+            problem.scene, robot, **{k: v for k, v in r.planner_config.items() if k in ("cylinders", "mesh_spacing")}
+        )
+        k, f = int(r.collision_segment), float(r.collision_fraction)
+        q = r.path[k] + f * (r.path[k + 1] - r.path[k])
+        counts[bool(robot.module.validate(q.astype(np.float32), env))] += 1
+    return counts
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", help="a results file of planbench bench")
     parser.add_argument("--baseline", default="ompl-rrtconnect", help="the planner the times are divided by")
     parser.add_argument("--by", default="planner", choices=["planner", "family"])
+    parser.add_argument(
+        "--model-check", action="store_true", help="VAMP's own check where planbench found each contact"
+    )
     args = parser.parse_args()
-    df = results.load(args.results, paths=False)
+    df = results.load(args.results, paths=args.model_check)
     print(markdown(summary(df, args.baseline, args.by), args.baseline, args.by))
+    if args.model_check:
+        counts = model_check(df)
+        print(
+            f"\nrefused VAMP paths with a collision: VAMP's model is free at the contact in {counts[True]}, "
+            f"in collision in {counts[False]}"
+        )
 
 
 if __name__ == "__main__":
