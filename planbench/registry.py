@@ -57,6 +57,7 @@ INSTALL_HINTS = {
     "osqp": "pip install osqp",
     "coal": "pip install coal",
     "pinocchio": "pip install pin",
+    "vamp": 'pip install "planbench[vamp]" (builds vamp-planner from source; docs/planners.md, "VAMP")',
 }
 
 

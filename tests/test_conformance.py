@@ -1,3 +1,4 @@
+import importlib.util
 import time
 
 import numpy as np
@@ -11,10 +12,17 @@ from planbench_plugins.straight_line import StraightLinePlanner
 # OMPL's PRM* grows its roadmap while a second thread searches it: same seed, possibly another path
 # (documented in docs/planners.md). Nothing else may be wrong with it.
 NOT_REPRODUCIBLE = {"ompl-prmstar"}
+# vamp-rrtc hands back VAMP's own path uncertified, so that a benchmark counts the VAMP paths that
+# planbench refuses (docs/planners.md, "VAMP"): a false success is what it is there to show.
+UNCERTIFIED = {"vamp-rrtc"}
+# planners of an optional extra: the module each needs (not installed: the test is skipped, saying so)
+OPTIONAL = {"vamp-rrtc": "vamp"}
 
 
 @pytest.mark.parametrize("name", planbench.REGISTRY.names())
 def test_every_registered_planner_conforms(name):
+    if name in OPTIONAL and importlib.util.find_spec(OPTIONAL[name]) is None:
+        pytest.skip(f"{name} needs the optional module {OPTIONAL[name]!r}, not installed (planbench[vamp])")
     if planbench.REGISTRY.spec(name).distribution != "planbench":
         # an installed third-party plugin: checked in a process of its own, so that one that
         # crashes the interpreter fails its own check, not this test session
@@ -26,6 +34,8 @@ def test_every_registered_planner_conforms(name):
     problems = check_planner(name)
     if name in NOT_REPRODUCIBLE:
         problems = [p for p in problems if p.check != "non-deterministic"]
+    if name in UNCERTIFIED:
+        problems = [p for p in problems if p.check != "false-success"]
     assert problems == []
 
 

@@ -217,6 +217,26 @@ def _result_of(record: dict[str, Any]) -> PlanResult:
     )
 
 
+def _check_robots(name: str, planner: Any, refs: Sequence[Any]) -> None:
+    """A named error before any run when ``planner`` declares the robots it plans for (its
+    ``robots``) and a problem is for another (the first problem of each set is read: a set holds
+    one robot)."""
+    robots = getattr(planner, "robots", None)
+    if not robots:
+        return
+    seen: set[str] = set()
+    for ref in refs:
+        group = ref.ref.rsplit("/", 1)[0] if ":" in ref.ref else ref.ref
+        if group in seen:
+            continue
+        seen.add(group)
+        robot = planbench.load_problems(ref.ref)[0].robot.name
+        if robot not in robots:
+            raise PlanbenchError(
+                f"planner {name!r} plans for robots {', '.join(robots)}; problem {ref.id} is for robot {robot!r}"
+            )
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
     from planbench.bench.suite import check_seconds, check_seed, expand_problems
 
@@ -228,6 +248,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if out:
             check_output(out)
     planner = setup.build()
+    _check_robots(args.planner, planner, refs)
     _numpy_while_cold(planner)
     if args.replay and len(refs) != 1:
         raise PlanbenchError("--replay needs one problem")
