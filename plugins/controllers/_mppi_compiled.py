@@ -22,7 +22,7 @@ INF = 1e20
 
 # indices into the weights array ``w`` of :func:`rollout_costs` (kept in step with mppi.WEIGHTS)
 W_POS, W_ROT, W_TERM_POS, W_TERM_ROT, W_OBS, OBS_MARGIN, W_COLL = 0, 1, 2, 3, 4, 5, 6
-W_SELF, SELF_MARGIN, W_LIMIT, W_SMOOTH = 7, 8, 9, 10
+W_SELF, SELF_MARGIN, W_LIMIT, W_SMOOTH, GOAL_FADE, FADE_FLOOR = 7, 8, 9, 10, 11, 12
 
 
 @nb.njit(cache=True)
@@ -100,6 +100,7 @@ def rollout_costs(  # type: ignore[no-untyped-def]
     cp_joint,
     cp_local,
     cp_radius,
+    n_move,
     ee_joint,
     ee_R,
     ee_t,
@@ -115,9 +116,10 @@ def rollout_costs(  # type: ignore[no-untyped-def]
     hit,
 ):
     """Roll every velocity sequence ``V[k]`` (K, T, n) out from ``q0`` (``q += dt V[k, s]``,
-    clamped to ``[lo, hi]``) and score it into ``cost[k]``; ``hit[k]``: the first step at which a
-    control point's sphere is inside an observed obstacle or two spheres of ``pairs`` overlap
-    (``T`` when none). An empty ``dist`` (shape 0) is a scene with no obstacle observed."""
+        clamped to ``[lo, hi]``) and score it into ``cost[k]``; ``hit[k]``: the first step at which a
+        control point's sphere is inside an observed obstacle or two spheres of ``pairs`` overlap
+        (``T`` when none). Only the first ``n_move`` points are checked against the field (the
+    others are on the fixed base, for ``pairs``). An empty ``dist`` (shape 0) is a scene with no obstacle observed."""
     K, T, n = V.shape
     nj = parent.shape[0]
     P = cp_joint.shape[0]
@@ -167,14 +169,18 @@ def rollout_costs(  # type: ignore[no-untyped-def]
             collided = False
             if have_field:
                 om = w[OBS_MARGIN]
-                for i in range(P):
+                # near the goal the arm must come close to what is there: the clearance cost fades
+                fade = 1.0
+                if w[GOAL_FADE] > 0.0 and pos < w[GOAL_FADE]:
+                    fade = max(pos / w[GOAL_FADE], w[FADE_FLOOR])
+                for i in range(n_move):
                     gap = field_at(dist, forigin, fres, pts[i, 0], pts[i, 1], pts[i, 2]) - cp_radius[i]
                     if gap < 0.0:
                         collided = True
                         c += w[W_COLL]
                     elif gap < om:
                         u = 1.0 - gap / om
-                        c += w[W_OBS] * u * u
+                        c += fade * w[W_OBS] * u * u
             # the arm itself: pairs of spheres on links that may touch
             sm = w[SELF_MARGIN]
             for p in range(pairs.shape[0]):
@@ -295,3 +301,26 @@ def distance_block(occupied, res, cap, out):  # type: ignore[no-untyped-def]
                 x = d[k]
                 r = 0.0 if x <= 0.0 else (math.sqrt(x) - 0.5) * res if x < INF else cap
                 out[i, j, k] = min(r, cap)
+
+
+@nb.njit(cache=True)
+def grow_into(cells, radius, out):  # type: ignore[no-untyped-def]
+    """Set ``out`` (bool, ``cells``' shape) in every cell whose centre lies within ``radius`` cells
+    of a ``True`` cell of ``cells`` (a ball of cells around each)."""
+    nx, ny, nz = cells.shape
+    r = int(math.floor(radius))
+    r2 = radius * radius
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not cells[i, j, k]:
+                    continue
+                for a in range(max(i - r, 0), min(i + r + 1, nx)):
+                    da = (a - i) * (a - i)
+                    for b in range(max(j - r, 0), min(j + r + 1, ny)):
+                        db = da + (b - j) * (b - j)
+                        if db > r2:
+                            continue
+                        for cc in range(max(k - r, 0), min(k + r + 1, nz)):
+                            if db + (cc - k) * (cc - k) <= r2:
+                                out[a, b, cc] = True

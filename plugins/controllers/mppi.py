@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from planbench.errors import InvalidConfigError
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Goal
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.robot import link_of
@@ -90,8 +91,19 @@ class MPPIConfig(UnknownSettings):
     """The goal costs at the last step are counted this many more times."""
     obstacle_weight: float = 1.0
     """Cost of a sphere touching ``obstacle_margin``'s edge ... its surface (quadratic), per sphere and step."""
-    obstacle_margin: float = 0.03
+    obstacle_margin: float = 0.10
     """[m] clearance of a sphere below which the obstacle cost starts."""
+    goal_fade: float = 0.15
+    """[m] within this distance of the goal position the end effector's rollout step counts the
+    obstacle clearance cost times ``distance / goal_fade`` (at least ``fade_floor``): at the goal the
+    arm must come close to what is there (a collision still costs ``collision_cost``). 0: off."""
+    fade_floor: float = 0.1
+    """Smallest factor of the clearance cost near the goal, in [0, 1]."""
+    moving_window: float = 0.5
+    """[s] a cell occupied now that a frame saw free within this long is a moving obstacle's."""
+    moving_inflation: float = 0.10
+    """[m] a moving obstacle's cells are grown by this in the distance field (the obstacles'
+    motion over the horizon is not predicted otherwise): its rollouts keep that much more clear."""
     collision_cost: float = 1000.0
     """Cost of a sphere inside an obstacle or another link, per sphere and step."""
     self_weight: float = 2.0
@@ -127,6 +139,8 @@ class MPPIConfig(UnknownSettings):
             raise InvalidConfigError(
                 f"speed_scale must be in (0, 1] (of the velocity limits), got {self.speed_scale!r}"
             )
+        if self.fade_floor > 1:
+            raise InvalidConfigError(f"fade_floor must be in [0, 1], got {self.fade_floor!r}")
         if self.noise_smoothing >= 1:
             raise InvalidConfigError(f"noise_smoothing must be in [0, 1), got {self.noise_smoothing!r}")
         self.validate_unknown()
@@ -186,6 +200,40 @@ class ChainModel:
         return self.R, self.t
 
 
+def base_points(robot: Any, spacing: float) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Spheres on the links fixed to the base (joint 0), for the self-collision pairs (the IK loop's
+    control points leave them out: no joint moves them): each link's collision geometries bounded
+    by one box in the base frame, points along its long axis at most ``spacing`` apart, the radius
+    half the larger cross-section, as :func:`~planbench_plugins.ik_loop.place_control_points` does.
+    Positions (N, 3) [m], radii (N,) [m], link names."""
+    corners01 = np.array(list(np.ndindex(2, 2, 2)), dtype=float)
+    per_link: dict[str, list[np.ndarray]] = {}
+    for g in robot.collision_model.geometryObjects:
+        if g.parentJoint != 0:
+            continue
+        geom = g.geometry
+        geom.computeLocalAABB()
+        lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
+        corners = lo + corners01 * (hi - lo)
+        per_link.setdefault(link_of(g.name), []).append(corners @ g.placement.rotation.T + g.placement.translation)
+    local, radius, links = [], [], []
+    for name, items in per_link.items():
+        pts = np.concatenate(items)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        ext, centre = hi - lo, 0.5 * (lo + hi)
+        a = int(np.argmax(ext))
+        r = 0.5 * float(max(ext[b] for b in range(3) if b != a))
+        half = max(0.5 * float(ext[a]) - r, 0.0)
+        n = int(math.ceil(2 * half / spacing - 1e-9)) + 1 if 2 * half > 0.1 * spacing else 1
+        for s in np.linspace(-half, half, n) if n > 1 else np.zeros(1):
+            p = centre.copy()
+            p[a] += s
+            local.append(p)
+            radius.append(r)
+            links.append(name)
+    return np.array(local, dtype=float).reshape(-1, 3), np.array(radius, dtype=float), tuple(links)
+
+
 class MPPIController(Controller):
     """A sampling model-predictive controller (module docstring). Settings: :class:`MPPIConfig`."""
 
@@ -215,9 +263,14 @@ class MPPIController(Controller):
         self.ee_R = np.ascontiguousarray(frame.placement.rotation)
         self.ee_t = np.ascontiguousarray(frame.placement.translation)
         points = place_control_points(robot, c.control_point_spacing)
-        self.cp_joint = np.ascontiguousarray(points.joint, dtype=np.int64)
-        self.cp_local = np.ascontiguousarray(points.local, dtype=float)
-        self.cp_radius = np.ascontiguousarray(points.radius, dtype=float)
+        self.n_move = len(points)
+        base = base_points(robot, c.control_point_spacing)
+        self.cp_joint = np.ascontiguousarray(
+            np.concatenate((points.joint, np.zeros(len(base[0]), dtype=int))), dtype=np.int64
+        )
+        self.cp_local = np.ascontiguousarray(np.concatenate((points.local, base[0])).reshape(-1, 3), dtype=float)
+        self.cp_radius = np.ascontiguousarray(np.concatenate((points.radius, base[1])), dtype=float)
+        self.cp_link = tuple(points.link) + base[2]
         self.lo = np.asarray(robot.lower, dtype=float).copy()
         self.hi = np.asarray(robot.upper, dtype=float).copy()
         self.vmax = c.speed_scale * np.asarray(robot.velocity_limit, dtype=float)
@@ -232,9 +285,7 @@ class MPPIController(Controller):
                     and np.allclose(t[j], data.oMi[j].translation, atol=1e-9)
                 ):
                     raise RuntimeError(f"mppi: compiled kinematics disagree with pinocchio at joint {model.names[j]}")
-        self.pairs = self._self_pairs(
-            robot, points, [task.start, robot.home] + ([] if task.goal.q is None else [task.goal.q])
-        )
+        self.pairs = self._self_pairs(robot, [task.start, robot.home] + ([] if task.goal.q is None else [task.goal.q]))
         self.weights = np.array(
             [
                 c.position_weight,
@@ -248,6 +299,8 @@ class MPPIController(Controller):
                 c.self_margin,
                 c.limit_weight,
                 c.smoothness_weight,
+                c.goal_fade,
+                c.fade_floor,
             ]
         )
         K, T = c.samples, c.horizon_steps
@@ -260,9 +313,11 @@ class MPPIController(Controller):
         self.sigma = c.noise * self.vmax
         self.shift = float(task.period) / c.horizon_dt
         self._no_field = np.zeros((0, 0, 0), dtype=np.float32)
+        # distances beyond the clearance costs' reach are not needed: the transform stops there
+        self.field_cap = c.obstacle_margin + float(self.cp_radius[: self.n_move].max(initial=0.0)) + 0.05
         self._reset_state(np.asarray(task.start, dtype=float))
 
-    def _self_pairs(self, robot: Any, points: Any, valid: list[Any]) -> np.ndarray:
+    def _self_pairs(self, robot: Any, valid: list[Any]) -> np.ndarray:
         """Pairs of control points on links that the collision model lets touch, less those whose
         spheres overlap at a configuration known to be free of self-collision (the start, home,
         the goal configuration): the spheres are coarser than the links there."""
@@ -273,11 +328,12 @@ class MPPIController(Controller):
             b = link_of(gm.geometryObjects[pair.second].name)
             links.add((a, b))
             links.add((b, a))
+        link, joint = self.cp_link, self.cp_joint
         cand = [
             (i, j)
-            for i in range(len(points))
-            for j in range(i + 1, len(points))
-            if (points.link[i], points.link[j]) in links and points.joint[i] != points.joint[j]
+            for i in range(len(link))
+            for j in range(i + 1, len(link))
+            if (link[i], link[j]) in links and joint[i] != joint[j]
         ]
         keep = []
         r = self.cp_radius
@@ -300,7 +356,8 @@ class MPPIController(Controller):
         self.forigin = np.zeros(3)
         self.fres = 1.0
         self._counted: np.ndarray | None = None
-        self._stats = {"steps": 0, "frames": 0, "fallbacks": 0, "best_hits": 0, "unknown_cells": 0}
+        self._seen_free: np.ndarray | None = None
+        self._stats = {"steps": 0, "frames": 0, "fallbacks": 0, "best_hits": 0, "unknown_cells": 0, "moving_cells": 0}
         self._field_cells = 0
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
@@ -323,14 +380,16 @@ class MPPIController(Controller):
         self._require()
         c = self.config
         grid = observation.grid
-        pts = self._points(self.q)
+        pts = self._move_points()
         unknown = None
         if c.unknown == "occupied" and grid.known is not None:
-            unknown = near_unknown(grid, [(pts, self.cp_radius)], c.unknown_reach, c.unknown_self_margin, self._counted)
+            unknown = near_unknown(
+                grid, [(pts, self.cp_radius[: self.n_move])], c.unknown_reach, c.unknown_self_margin, self._counted
+            )
             self._counted = unknown
             self._stats["unknown_cells"] = 0 if unknown is None else int(np.count_nonzero(unknown))
         self._stats["frames"] += 1
-        grow = c.field_reach + c.obstacle_margin + float(self.cp_radius.max(initial=0.0))
+        grow = c.field_reach + c.obstacle_margin + float(self.cp_radius[: self.n_move].max(initial=0.0))
         lo_idx = np.floor((pts.min(axis=0) - grow - grid.origin) / grid.resolution).astype(int)
         hi_idx = np.ceil((pts.max(axis=0) + grow - grid.origin) / grid.resolution).astype(int)
         lo_idx = np.clip(lo_idx, 0, grid.shape)
@@ -340,18 +399,37 @@ class MPPIController(Controller):
             return
         sl = tuple(slice(a, b) for a, b in zip(lo_idx, hi_idx, strict=True))
         occupied = np.asarray(grid.data[sl]) >= 0.5
+        moving = self._moving(grid, sl, occupied, observation.time)
         if unknown is not None:
             occupied |= unknown[sl]
+        if moving is not None:
+            self._stats["moving_cells"] = int(np.count_nonzero(moving))
+            self.kc.grow_into(moving, c.moving_inflation / grid.resolution, occupied)
         if not occupied.any():
             self.dist = self._no_field
             self._field_cells = 0
             return
         dist = np.empty(occupied.shape, dtype=np.float32)
-        self.kc.distance_block(occupied, grid.resolution, 10.0, dist)
+        self.kc.distance_block(occupied, grid.resolution, self.field_cap, dist)
         self.dist = dist
         self.forigin = grid.origin + lo_idx * grid.resolution
         self.fres = float(grid.resolution)
         self._field_cells = int(dist.size)
+
+    def _moving(self, grid: OccupancyGrid, sl: tuple[slice, ...], occupied: np.ndarray, t: float) -> np.ndarray | None:
+        """The cells of the block ``sl`` occupied now that a frame saw free (known, not occupied)
+        within ``moving_window`` s; None when there are none or the setting is off. The time each
+        cell of the block was last seen free is kept (only the block's cells are visited)."""
+        c = self.config
+        if c.moving_inflation <= 0 or c.moving_window <= 0:
+            return None
+        if self._seen_free is None or self._seen_free.shape != grid.shape:
+            self._seen_free = np.full(grid.shape, -np.inf, dtype=np.float32)
+        seen = self._seen_free[sl]
+        free = ~occupied if grid.known is None else np.asarray(grid.known[sl]) & ~occupied
+        moving = occupied & (seen >= t - c.moving_window)
+        seen[free] = t
+        return moving if moving.any() else None
 
     def _goal_velocity(self, q: np.ndarray, goal: Goal) -> np.ndarray:
         """Damped least squares straight at the goal pose from ``q`` (held over the horizon)."""
@@ -445,6 +523,7 @@ class MPPIController(Controller):
             self.cp_joint,
             self.cp_local,
             self.cp_radius,
+            self.n_move,
             self.ee_joint,
             self.ee_R,
             self.ee_t,
@@ -459,6 +538,9 @@ class MPPIController(Controller):
             cost,
             hit,
         )
+
+    def _move_points(self) -> np.ndarray:
+        return self._points(self.q)[: self.n_move]
 
     def info(self) -> dict[str, Any]:
         """Ticks and frames of the run; ``fallbacks``: ticks whose mean was replaced by the best
