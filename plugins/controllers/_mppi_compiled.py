@@ -148,7 +148,7 @@ def rollout_costs(  # type: ignore[no-untyped-def]
                 c += w[W_SMOOTH] * dv * dv
             forward(q, parent, kind, axis, Rp, tp, iq, R, t)
             place_points(R, t, cp_joint, cp_local, pts)
-            # the goal: position distance [m] and rotation error (1 - cos of the angle, in [0, 2])
+            # the goal: position distance [m] and the angle of the rotation error [rad]
             ej = ee_joint
             ex = t[ej, 0] + R[ej, 0, 0] * ee_t[0] + R[ej, 0, 1] * ee_t[1] + R[ej, 0, 2] * ee_t[2] - pg[0]
             ey = t[ej, 1] + R[ej, 1, 0] * ee_t[0] + R[ej, 1, 1] * ee_t[1] + R[ej, 1, 2] * ee_t[2] - pg[1]
@@ -161,7 +161,7 @@ def rollout_costs(  # type: ignore[no-untyped-def]
                     for kk in range(3):
                         m += R[ej, r, kk] * ee_R[kk, cc]
                     tr += Rg[r, cc] * m
-            rot = 0.5 * (3.0 - tr)
+            rot = math.acos(min(max(0.5 * (tr - 1.0), -1.0), 1.0))  # the rotation's angle [rad]
             c += w[W_POS] * pos + w[W_ROT] * rot
             if s == T - 1:
                 c += w[W_TERM_POS] * pos + w[W_TERM_ROT] * rot

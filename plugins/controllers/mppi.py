@@ -7,8 +7,8 @@ fields and the replanners.
 noise of ``noise`` times each joint's velocity limit, correlated in time by ``noise_smoothing``),
 clips every velocity to the limits the controller uses (``speed_scale`` times the robot's), rolls
 each sequence out from the arm's configuration (``q += dt qd``, clamped to the joint limits) and
-scores it: the end effector's distance to the goal pose (position [m] and ``1 - cos`` of the
-rotation angle) at every step and more at the last one, the control points' spheres near or inside
+scores it: the end effector's distance to the goal pose (position [m] and the rotation's angle
+[rad]) at every step and more at the last one, the control points' spheres near or inside
 observed obstacles (the distance field below), pairs of spheres of links that may touch each other
 (the robot's collision pairs, SRDF exclusions removed), velocity commanded into a joint limit,
 and the change of velocity from step to step. The new mean is the average of the samples weighted
@@ -86,7 +86,7 @@ class MPPIConfig(UnknownSettings):
     position_weight: float = 5.0
     """Cost per metre of end-effector distance to the goal, every step."""
     orientation_weight: float = 1.0
-    """Cost per unit of ``1 - cos(angle)`` of the end effector's rotation error, every step."""
+    """Cost per radian of the end effector's rotation error (the angle), every step."""
     terminal_weight: float = 10.0
     """The goal costs at the last step are counted this many more times."""
     obstacle_weight: float = 1.0
@@ -114,14 +114,14 @@ class MPPIConfig(UnknownSettings):
     """Cost per (rad/s)^2 of velocity a joint limit cuts off in a rollout (commanded into the limit)."""
     smoothness_weight: float = 0.01
     """Cost per (rad/s)^2 of velocity change between rollout steps (and from the last command)."""
-    field_reach: float = 0.4
+    field_reach: float = 0.3
     """[m] the distance field covers the control points grown by this (and the margin, a radius)."""
     control_point_spacing: float = 0.12
     """[m] largest gap between control points of one link (the IK loop's placement)."""
 
     def validate(self) -> None:
         """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
-        ints = {"samples": 4, "horizon_steps": 1}
+        ints = {"samples": 5, "horizon_steps": 1}
         for name, low in ints.items():
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
@@ -432,7 +432,8 @@ class MPPIController(Controller):
         return moving if moving.any() else None
 
     def _goal_velocity(self, q: np.ndarray, goal: Goal) -> np.ndarray:
-        """Damped least squares straight at the goal pose from ``q`` (held over the horizon)."""
+        """Damped least squares straight at the goal pose from ``q`` (``goal_gain`` times the pose
+        error; joints at a limit that it would push into are left out), within the velocity limits."""
         import pinocchio as pin
 
         R, t = self.chain.forward(q)
@@ -451,8 +452,16 @@ class MPPIController(Controller):
                 J[:3, col] = np.cross(w, pee - t[k])
                 J[3:, col] = w
             k = int(self.chain.parent[k])
-        damped = J @ J.T + 0.05**2 * np.eye(6)
-        qd = J.T @ np.linalg.solve(damped, self.config.goal_gain * err)
+        target = self.config.goal_gain * err
+        free = np.ones(self.n, dtype=bool)
+        for _ in range(2):  # joints at a limit that the answer pushes into are left out, once
+            Jf = J * free
+            qd = Jf.T @ np.linalg.solve(Jf @ Jf.T + 0.05**2 * np.eye(6), target)
+            into = ((q <= self.lo + 1e-6) & (qd < 0)) | ((q >= self.hi - 1e-6) & (qd > 0))
+            if not into.any():
+                break
+            free &= ~into
+        qd *= free
         scale = np.max(np.abs(qd) / self.vmax)
         return qd / scale if scale > 1 else qd
 
@@ -472,7 +481,13 @@ class MPPIController(Controller):
         V += U
         V[0] = U
         V[1] = 0.0
-        V[2] = self._goal_velocity(q, goal)
+        # the straight samples slow down as the first-order law they start would: exp(-gain t)
+        decay = np.exp(-c.goal_gain * c.horizon_dt * np.arange(T))[:, None]
+        V[2] = decay * self._goal_velocity(q, goal)
+        if goal.q is not None:  # straight at the goal configuration, in joint space
+            qd_goal = c.goal_gain * (np.asarray(goal.q, dtype=float) - q)
+            scale = np.max(np.abs(qd_goal) / vmax)
+            V[3] = decay * (qd_goal / scale if scale > 1 else qd_goal)
         np.clip(V, -vmax, vmax, out=V)
         pg = np.asarray(goal.pose.position, dtype=float)
         Rg = np.ascontiguousarray(goal.pose.rotation, dtype=float)
