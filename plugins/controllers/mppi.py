@@ -119,6 +119,9 @@ class MPPIConfig(UnknownSettings):
     control_point_spacing: float = 0.12
     """[m] largest gap between control points of one link (the IK loop's placement)."""
 
+    def __post_init__(self) -> None:
+        self.validate()
+
     def validate(self) -> None:
         """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
         ints = {"samples": 5, "horizon_steps": 1}
