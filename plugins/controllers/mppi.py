@@ -58,7 +58,7 @@ from planbench.problem import Goal
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.robot import link_of
 from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown
-from planbench_plugins.ik_loop.control_points import place_control_points
+from planbench_plugins.ik_loop import place_control_points
 
 __all__ = ["MPPIController", "MPPIConfig", "ChainModel"]
 
@@ -315,7 +315,7 @@ class MPPIController(Controller):
         self._one_hit = np.zeros(1, dtype=np.int64)
         self.sigma = c.noise * self.vmax
         self.shift = float(task.period) / c.horizon_dt
-        self._no_field = np.zeros((0, 0, 0), dtype=np.float32)
+        self._no_field: np.ndarray = np.zeros((0, 0, 0), dtype=np.float32)
         # distances beyond the clearance costs' reach are not needed: the transform stops there
         self.field_cap = c.obstacle_margin + float(self.cp_radius[: self.n_move].max(initial=0.0)) + 0.05
         self._reset_state(np.asarray(task.start, dtype=float))
@@ -412,7 +412,7 @@ class MPPIController(Controller):
             self.dist = self._no_field
             self._field_cells = 0
             return
-        dist = np.empty(occupied.shape, dtype=np.float32)
+        dist: np.ndarray = np.empty(occupied.shape, dtype=np.float32)
         self.kc.distance_block(occupied, grid.resolution, self.field_cap, dist)
         self.dist = dist
         self.forigin = grid.origin + lo_idx * grid.resolution
