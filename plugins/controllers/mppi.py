@@ -412,10 +412,19 @@ class MPPIController(Controller):
             self.dist = self._no_field
             self._field_cells = 0
             return
+        # only the occupied cells' box grown by the cap is transformed: beyond it every distance
+        # is the cap, which a rollout point outside the field reads anyway (the same costs)
+        grow_cells = int(math.ceil(self.field_cap / grid.resolution)) + 1
+        columns = occupied.any(axis=2)
+        xs, ys = np.flatnonzero(columns.any(axis=1)), np.flatnonzero(columns.any(axis=0))
+        zs = np.flatnonzero(occupied[xs[0] : xs[-1] + 1, ys[0] : ys[-1] + 1].any(axis=(0, 1)))
+        lo_occ = np.maximum(np.array([xs[0], ys[0], zs[0]]) - grow_cells, 0)
+        hi_occ = np.minimum(np.array([xs[-1], ys[-1], zs[-1]]) + 1 + grow_cells, occupied.shape)
+        occupied = np.ascontiguousarray(occupied[lo_occ[0] : hi_occ[0], lo_occ[1] : hi_occ[1], lo_occ[2] : hi_occ[2]])
         dist: np.ndarray = np.empty(occupied.shape, dtype=np.float32)
         self.kc.distance_block(occupied, grid.resolution, self.field_cap, dist)
         self.dist = dist
-        self.forigin = grid.origin + lo_idx * grid.resolution
+        self.forigin = grid.origin + (lo_idx + lo_occ) * grid.resolution
         self.fres = float(grid.resolution)
         self._field_cells = int(dist.size)
 
