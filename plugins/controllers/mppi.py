@@ -15,27 +15,35 @@ and the change of velocity from step to step. The new mean is the average of the
 by ``exp(-(cost - min cost) / temperature)``; its first velocity is the command, and the sequence,
 shifted by one control period, is the next tick's mean (warm start). Three samples are not random:
 the mean itself, standing still, and the damped-least-squares velocity straight at the goal pose
-(held over the horizon), so that the controller reaches a goal in free space as precisely as a
-resolved-rate law and can always choose to stop.
+(joints at a limit it would push into left out); a fourth goes straight at the goal configuration
+in joint space when the task gives one. Both decay over the horizon as the first-order law they
+start would (``exp(-goal_gain t)``), so that the controller reaches a goal in free space as
+precisely as a resolved-rate law, and it can always choose to stop. Within ``goal_fade`` of the
+goal the clearance cost fades with the end effector's distance to it (a grasp comes close to what
+is there); a collision costs the same everywhere.
 
 **The command is checked** against the arm itself and the observed scene: when the new mean's
 rollout has a sphere in an obstacle or in another link earlier than the best sample's, the best
-sample is commanded (and becomes the mean) instead (``info()["fallbacks"]``).
+sample is commanded (and becomes the mean) instead (``info()["fallbacks"]``). The command is
+cut so that the arm stays within its joint limits over the control period.
 
 **Kinematics** in the rollouts: a compiled forward kinematics from the model's joint placements
 (revolute and prismatic joints; checked against pinocchio in ``setup``), the IK loop's control
 points (:func:`~planbench_plugins.ik_loop.place_control_points`: spheres along each moving link).
-Pinocchio called per rollout step from Python costs about 10 us a call, 7.7 ms for the default
-64 x 12 rollout steps, more than a 10 ms tick can spare with the costs; a Jacobian linearised at
-the current configuration is wrong by centimetres over half a second of motion. The compiled
-kinematics cost about 1 us per rollout step.
+Pinocchio's forward kinematics per rollout step from Python, with the joint placements read back
+through the bindings, cost 6.5 ms for the default 64 x 12 rollout steps before any cost; a Jacobian
+linearised at the current configuration is wrong by centimetres over half a second of motion. All
+rollouts and their costs are one compiled call (docs/reactive.md, "mppi").
 
 **The distance field** (``update``, per frame): the exact Euclidean distance transform
 (:func:`._mppi_compiled.distance_block`) of the observed grid's occupied cells in a block around
 the arm: the control points where the arm is, grown by ``field_reach`` (how far a rollout can
 take them) plus ``obstacle_margin`` and the largest link radius. A rollout point beyond the block
-reads "no obstacle". Computing it on the whole grid (142^3 cells for the Panda) would cost tens of
-milliseconds a frame; the block costs a few (docs/reactive.md, "mppi").
+reads "no obstacle"; only the occupied cells' box grown by the distances the costs use is
+transformed. On the whole grid (142^3 cells for the Panda) scipy's transform costs hundreds of
+milliseconds a frame; the block a few (docs/reactive.md, "mppi"). A cell occupied now that a frame
+saw free within ``moving_window`` is a moving obstacle's: such cells are grown by
+``moving_inflation`` first (motion is not predicted otherwise).
 
 **Unknown cells** (``unknown``, :class:`.unknown.UnknownSettings`): with ``"occupied"`` the unknown
 cells near the arm (:func:`.unknown.near_unknown`, where the last step left it) are occupied in
