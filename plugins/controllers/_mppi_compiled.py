@@ -324,3 +324,33 @@ def grow_into(cells, radius, out):  # type: ignore[no-untyped-def]
                         for cc in range(max(k - r, 0), min(k + r + 1, nz)):
                             if db + (cc - k) * (cc - k) <= r2:
                                 out[a, b, cc] = True
+
+
+@nb.njit(cache=True)
+def moving_cells(occupied, known, free_since, last_free, marked, t, window, min_free, out):  # type: ignore[no-untyped-def]
+    """Mark in ``out`` the cells occupied now that count as a moving obstacle's, and update what
+    is kept per cell (views of the whole grid's arrays, float32): ``free_since``, when the cell's
+    current run of frames seeing it free began (``inf``: not free now); ``last_free``, the last
+    frame that saw it free; ``marked``, when it last became occupied after a run of at least
+    ``min_free`` s free that ended within ``window`` s. A cell counts while occupied and marked
+    within ``window`` s. ``known``: which cells this frame saw (an unseen cell keeps its state).
+    Returns how many count."""
+    nx, ny, nz = occupied.shape
+    count = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if occupied[i, j, k]:
+                    fs = free_since[i, j, k]
+                    lf = last_free[i, j, k]
+                    if fs < INF and lf - fs >= min_free and t - lf <= window:
+                        marked[i, j, k] = t
+                    free_since[i, j, k] = np.inf
+                    if t - marked[i, j, k] <= window:
+                        out[i, j, k] = True
+                        count += 1
+                elif known[i, j, k]:
+                    if free_since[i, j, k] == np.inf:
+                        free_since[i, j, k] = t
+                    last_free[i, j, k] = t
+    return count

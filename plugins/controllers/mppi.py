@@ -41,9 +41,10 @@ the arm: the control points where the arm is, grown by ``field_reach`` (how far 
 take them) plus ``obstacle_margin`` and the largest link radius. A rollout point beyond the block
 reads "no obstacle"; only the occupied cells' box grown by the distances the costs use is
 transformed. On the whole grid (142^3 cells for the Panda) scipy's transform costs hundreds of
-milliseconds a frame; the block a few (docs/reactive.md, "mppi"). A cell occupied now that a frame
-saw free within ``moving_window`` is a moving obstacle's: such cells are grown by
-``moving_inflation`` first (motion is not predicted otherwise).
+milliseconds a frame; the block a few (docs/reactive.md, "mppi"). A cell occupied after frames saw
+it free for ``moving_free_time`` without a break (within ``moving_window``) is a moving obstacle's
+for ``moving_window``: such cells are grown by ``moving_inflation`` first (motion is not predicted
+otherwise).
 
 **Unknown cells** (``unknown``, :class:`.unknown.UnknownSettings`): with ``"occupied"`` the unknown
 cells near the arm (:func:`.unknown.near_unknown`, where the last step left it) are occupied in
@@ -108,7 +109,11 @@ class MPPIConfig(UnknownSettings):
     fade_floor: float = 0.1
     """Smallest factor of the clearance cost near the goal, in [0, 1]."""
     moving_window: float = 0.5
-    """[s] a cell occupied now that a frame saw free within this long is a moving obstacle's."""
+    """[s] a cell occupied after a run of frames that saw it free, ended within this long, is a
+    moving obstacle's, and stays one this long."""
+    moving_free_time: float = 0.2
+    """[s] a cell counts as a moving obstacle's only when frames saw it free this long without a
+    break before it was occupied (the noisy cells at a still surface flicker between the two)."""
     moving_inflation: float = 0.10
     """[m] a moving obstacle's cells are grown by this in the distance field (the obstacles'
     motion over the horizon is not predicted otherwise): its rollouts keep that much more clear."""
@@ -367,7 +372,7 @@ class MPPIController(Controller):
         self.forigin = np.zeros(3)
         self.fres = 1.0
         self._counted: np.ndarray | None = None
-        self._seen_free: np.ndarray | None = None
+        self._cell_state: np.ndarray | None = None  # per cell: free since, last seen free, marked
         self._stats = {"steps": 0, "frames": 0, "fallbacks": 0, "best_hits": 0, "unknown_cells": 0, "moving_cells": 0}
         self._field_cells = 0
 
@@ -411,6 +416,7 @@ class MPPIController(Controller):
         sl = tuple(slice(a, b) for a, b in zip(lo_idx, hi_idx, strict=True))
         occupied = np.asarray(grid.data[sl]) >= 0.5
         moving = self._moving(grid, sl, occupied, observation.time)
+        self._stats["moving_cells"] = 0
         if unknown is not None:
             occupied |= unknown[sl]
         if moving is not None:
@@ -437,19 +443,33 @@ class MPPIController(Controller):
         self._field_cells = int(dist.size)
 
     def _moving(self, grid: OccupancyGrid, sl: tuple[slice, ...], occupied: np.ndarray, t: float) -> np.ndarray | None:
-        """The cells of the block ``sl`` occupied now that a frame saw free (known, not occupied)
-        within ``moving_window`` s; None when there are none or the setting is off. The time each
-        cell of the block was last seen free is kept (only the block's cells are visited)."""
+        """The cells of the block ``sl`` occupied now that count as a moving obstacle's: occupied
+        after frames saw them free (known, not occupied) for ``moving_free_time`` s without a
+        break, that run ending within ``moving_window`` s, and for ``moving_window`` s after that
+        (:func:`._mppi_compiled.moving_cells`); None when none or the setting is off. The state is
+        kept per cell of the grid; only the block's cells are visited."""
         c = self.config
         if c.moving_inflation <= 0 or c.moving_window <= 0:
             return None
-        if self._seen_free is None or self._seen_free.shape != grid.shape:
-            self._seen_free = np.full(grid.shape, -np.inf, dtype=np.float32)
-        seen = self._seen_free[sl]
-        free = ~occupied if grid.known is None else np.asarray(grid.known[sl]) & ~occupied
-        moving = occupied & (seen >= t - c.moving_window)
-        seen[free] = t
-        return moving if moving.any() else None
+        if self._cell_state is None or self._cell_state.shape[1:] != grid.shape:
+            self._cell_state = np.empty((3, *grid.shape), dtype=np.float32)
+            self._cell_state[0] = np.inf  # free since: not free
+            self._cell_state[1:] = -np.inf  # last seen free, marked: never
+        state = self._cell_state
+        known = np.ones_like(occupied) if grid.known is None else np.asarray(grid.known[sl])
+        moving = np.zeros_like(occupied)
+        count = self.kc.moving_cells(
+            occupied,
+            known,
+            state[0][sl],
+            state[1][sl],
+            state[2][sl],
+            float(t),
+            c.moving_window,
+            c.moving_free_time,
+            moving,
+        )
+        return moving if count else None
 
     def _goal_velocity(self, q: np.ndarray, goal: Goal) -> np.ndarray:
         """Damped least squares straight at the goal pose from ``q`` (``goal_gain`` times the pose
