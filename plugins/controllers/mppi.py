@@ -429,7 +429,7 @@ class MPPIController(Controller):
         # only the occupied cells' box grown by the cap is transformed: beyond it every distance
         # is the cap, which a rollout point outside the field reads anyway (the same costs)
         grow_cells = int(math.ceil(self.field_cap / grid.resolution)) + 1
-        columns = occupied.any(axis=2)
+        columns = np.asarray(occupied.any(axis=2))  # an array: occupied is 3D
         xs, ys = np.flatnonzero(columns.any(axis=1)), np.flatnonzero(columns.any(axis=0))
         zs = np.flatnonzero(occupied[xs[0] : xs[-1] + 1, ys[0] : ys[-1] + 1].any(axis=(0, 1)))
         lo_occ = np.maximum(np.array([xs[0], ys[0], zs[0]]) - grow_cells, 0)
