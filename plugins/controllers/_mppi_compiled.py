@@ -354,3 +354,28 @@ def moving_cells(occupied, known, free_since, last_free, marked, t, window, min_
                         free_since[i, j, k] = t
                     last_free[i, j, k] = t
     return count
+
+
+@nb.njit(cache=True)
+def drop_near(cells, origin, res, centres, radii, margin):  # type: ignore[no-untyped-def]
+    """Clear the ``True`` cells of ``cells`` (a block, its corner at ``origin`` [m]) whose centre
+    lies within ``radii[i] + margin`` [m] of a sphere's centre ``centres[i]``; how many are left."""
+    nx, ny, nz = cells.shape
+    left = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not cells[i, j, k]:
+                    continue
+                x = origin[0] + (i + 0.5) * res
+                y = origin[1] + (j + 0.5) * res
+                z = origin[2] + (k + 0.5) * res
+                for p in range(centres.shape[0]):
+                    dx, dy, dz = x - centres[p, 0], y - centres[p, 1], z - centres[p, 2]
+                    r = radii[p] + margin
+                    if dx * dx + dy * dy + dz * dz <= r * r:
+                        cells[i, j, k] = False
+                        break
+                if cells[i, j, k]:
+                    left += 1
+    return left

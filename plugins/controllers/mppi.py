@@ -114,6 +114,9 @@ class MPPIConfig(UnknownSettings):
     moving_free_time: float = 0.2
     """[s] a cell counts as a moving obstacle's only when frames saw it free this long without a
     break before it was occupied (the noisy cells at a still surface flicker between the two)."""
+    moving_self_margin: float = 0.05
+    """[m] cells within a link's radius plus this of a control point never count as moving: the
+    arm's own surface, where the sensor's robot filter (0.03 m) lets a noisy point through."""
     moving_inflation: float = 0.10
     """[m] a moving obstacle's cells are grown by this in the distance field (the obstacles'
     motion over the horizon is not predicted otherwise): its rollouts keep that much more clear."""
@@ -417,6 +420,11 @@ class MPPIController(Controller):
         occupied = np.asarray(grid.data[sl]) >= 0.5
         moving = self._moving(grid, sl, occupied, observation.time)
         self._stats["moving_cells"] = 0
+        if moving is not None:  # the arm's own cells (the sensor's filter misses some) do not move in
+            block_origin = grid.origin + lo_idx * grid.resolution
+            radii = self.cp_radius[: self.n_move]
+            if not self.kc.drop_near(moving, block_origin, grid.resolution, pts, radii, c.moving_self_margin):
+                moving = None
         if unknown is not None:
             occupied |= unknown[sl]
         if moving is not None:
