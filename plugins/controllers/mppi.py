@@ -77,7 +77,8 @@ class MPPIConfig(UnknownSettings):
     """Settings of ``mppi`` (module docstring). Costs are per rollout step, added over the horizon."""
 
     samples: int = 64
-    """Rollouts per tick (three of them the mean, standing still and the straight-at-the-goal one)."""
+    """Rollouts per tick (three or four of them not random: the mean, standing still, straight at the
+    goal pose, straight at the goal configuration when the task gives one)."""
     horizon_steps: int = 12
     """Steps of a rollout."""
     horizon_dt: float = 0.04
@@ -99,7 +100,8 @@ class MPPIConfig(UnknownSettings):
     terminal_weight: float = 10.0
     """The goal costs at the last step are counted this many more times."""
     obstacle_weight: float = 1.0
-    """Cost of a sphere touching ``obstacle_margin``'s edge ... its surface (quadratic), per sphere and step."""
+    """Cost of a sphere touching an obstacle's surface, falling quadratically to 0 at
+    ``obstacle_margin`` from it, per sphere and step."""
     obstacle_margin: float = 0.10
     """[m] clearance of a sphere below which the obstacle cost starts."""
     goal_fade: float = 0.15
