@@ -2,6 +2,7 @@
 
     python benchmarks/controller_tick.py                 # 2 s of control at 1 kHz, 30 Hz depth frames
     python benchmarks/controller_tick.py --seconds 4 --sensing truth
+    python benchmarks/controller_tick.py --controllers mppi --rate 100 --clock cpu   # mppi at 100 Hz
 
 A 128^3 grid (2 cm cells, a 2.56 m cube around the base) is observed at 30 Hz from the scenario
 ``dynamic:panda_swinging_fast_<sensing>/0001`` (a forearm swinging across the Panda's path at
@@ -37,7 +38,7 @@ CELLS, RESOLUTION = 128, 0.02
 RATE, FRAME_RATE = 1000.0, 30.0
 
 
-def frames_of(scenario, seconds: float) -> tuple[list, np.ndarray]:
+def frames_of(scenario, seconds: float, rate: float = RATE) -> tuple[list, np.ndarray]:
     """Sensor frames at 30 Hz over ``seconds`` along a closed-loop run of matrix-field (the arm's
     configuration at each frame), on the 128^3 grid; and the run's configurations per 1 ms tick."""
     half = CELLS * RESOLUTION / 2
@@ -49,41 +50,43 @@ def frames_of(scenario, seconds: float) -> tuple[list, np.ndarray]:
         == (CELLS,) * 3
     )
     run = run_scenario(
-        replace(scenario, control_rate=RATE, horizon=seconds),
+        replace(scenario, control_rate=rate, horizon=seconds),
         make_controller("matrix-field"),
         settings=RunSettings(timing="ideal", check_collisions=False),
     )
-    ticks = np.linspace(0.0, seconds, int(seconds * RATE), endpoint=False)
+    ticks = np.linspace(0.0, seconds, int(seconds * rate), endpoint=False)
     qs = np.array([run.path[min(np.searchsorted(run.times, t), len(run.path) - 1)] for t in ticks])
     rng = np.random.default_rng(0)
     frames = []
     for j in range(int(seconds * FRAME_RATE)):
         t = j / FRAME_RATE
-        q = qs[min(int(t * RATE), len(qs) - 1)]
+        q = qs[min(int(t * rate), len(qs) - 1)]
         frames.append(sensor.capture(scenario.scene_at(t), q, t, j, rng))
     return frames, qs
 
 
-def tick_times(name: str, scenario, frames: list, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(tick times, update times) [s] of controller ``name`` stepped at 1 kHz along ``qs``."""
+def tick_times(
+    name: str, scenario, frames: list, qs: np.ndarray, rate: float = RATE, clock=time.perf_counter
+) -> tuple[np.ndarray, np.ndarray]:
+    """(tick times, update times) [s] of controller ``name`` stepped at ``rate`` [Hz] along ``qs``."""
     p = scenario.problem
     c = make_controller(name)
-    c.setup(ControlTask(p.robot, p.start, p.goal, p.tolerances, 1.0 / RATE, scenario.name))
+    c.setup(ControlTask(p.robot, p.start, p.goal, p.tolerances, 1.0 / rate, scenario.name))
     c.reset(np.array(p.start), np.random.default_rng(0))
     c.update(frames[0])
     c.step(0.0, qs[0].copy(), frames[0], p.goal)  # warm-up: compiled code, first buffers
     ticks, updates = [], []
-    frame_every = RATE / FRAME_RATE
+    frame_every = rate / FRAME_RATE
     latest = frames[0]
     for k, q in enumerate(qs):
         j = int(k / frame_every)
-        t0 = time.perf_counter()
+        t0 = clock()
         if j < len(frames) and frames[j] is not latest:
             latest = frames[j]
             c.update(latest)
-            updates.append(time.perf_counter() - t0)
-        c.step(k / RATE, q.copy(), latest, p.goal)
-        ticks.append(time.perf_counter() - t0)
+            updates.append(clock() - t0)
+        c.step(k / rate, q.copy(), latest, p.goal)
+        ticks.append(clock() - t0)
     return np.array(ticks), np.array(updates)
 
 
@@ -91,22 +94,32 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="control time simulated [s]")
     parser.add_argument("--sensing", choices=("depth", "truth"), default="depth")
+    parser.add_argument("--controllers", default="matrix-field,edt-field", help="comma-separated names")
+    parser.add_argument("--rate", type=float, default=RATE, help="control rate [Hz]")
+    parser.add_argument(
+        "--clock", choices=("wall", "cpu"), default="wall", help="cpu: this process's CPU time (a loaded machine)"
+    )
     args = parser.parse_args()
     scenario = planbench.load_scenarios(f"dynamic:panda_swinging_fast_{args.sensing}/0001")[0]
-    frames, qs = frames_of(scenario, args.seconds)
+    frames, qs = frames_of(scenario, args.seconds, args.rate)
+    period = 1.0 / args.rate
     print(
-        f"{scenario.name}: {len(qs)} ticks at {RATE:g} Hz, {len(frames)} frames of a {CELLS}^3 grid "
+        f"{scenario.name}: {len(qs)} ticks at {args.rate:g} Hz, {len(frames)} frames of a {CELLS}^3 grid "
         f"({RESOLUTION} m cells), one core"
     )
-    print(f"{'controller':<14} {'tick median':>12} {'tick p99':>10} {'> 1 ms':>8} {'update/frame':>13}")
+    over = f"> {period * 1e3:g} ms"
+    print(f"{'controller':<14} {'tick median':>12} {'tick p99':>10} {over:>9} {'update/frame':>13}")
     updates = {}
-    for name in ("matrix-field", "edt-field"):
-        ticks, upd = tick_times(name, scenario, frames, qs)
+    for name in args.controllers.split(","):
+        clock = time.process_time if args.clock == "cpu" else time.perf_counter
+        ticks, upd = tick_times(name, scenario, frames, qs, args.rate, clock)
         updates[name] = upd
         print(
             f"{name:<14} {np.median(ticks) * 1e3:>9.3f} ms {np.percentile(ticks, 99) * 1e3:>7.3f} ms "
-            f"{np.mean(ticks > 1e-3):>7.1%} {np.median(upd) * 1e3:>10.3f} ms"
+            f"{np.mean(ticks > period):>8.1%} {np.median(upd) * 1e3:>10.3f} ms"
         )
+    if "matrix-field" not in updates or "edt-field" not in updates:
+        return
     n = min(len(updates["matrix-field"]), len(updates["edt-field"]))
     ratio = updates["edt-field"][:n] / updates["matrix-field"][:n]
     print(

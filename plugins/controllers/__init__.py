@@ -6,7 +6,9 @@ Modules: ``adapter`` (:class:`IKLoopController`: an IK-loop planner's step as a 
 its occupied cells), ``cells`` (occupied cells as box obstacles), ``observed`` (what a planning
 controller leaves out where the arm touches obstacles), and one module per controller:
 ``matrix_field``, ``matrix_field_qp``, ``edt_field``, ``distance_field``, ``ompl_replan``,
-``matrix_field_guided`` (the last two import OMPL: their entry points name their modules);
+``matrix_field_guided`` (the last two import OMPL: their entry points name their modules),
+``mppi`` (a sampling model-predictive controller, its kernels in ``_mppi_compiled``; its entry
+point names its module);
 ``unknown`` (which unknown cells a controller reads as occupied, the ``unknown`` setting of every one).
 """
 
