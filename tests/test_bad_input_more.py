@@ -491,6 +491,10 @@ class _Server:
         self.sock.close()
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 _SERVER_SCRIPT = """
 import socket, sys
 answer = bytes.fromhex(sys.argv[1])
@@ -613,6 +617,9 @@ def test_ctrl_c_ends_a_connect_at_once(server, tmp_path):
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
+            # Ctrl-C as at a terminal: a test run in a background job (`cmd &` in a script) passes
+            # SIGINT on ignored, and Python then installs no KeyboardInterrupt for it
+            preexec_fn=_default_sigint,
         )
         # into the wait: the command connects once its imports are done (about 2 s on a quiet
         # machine, several times that beside load), then Ray's client waits on the gRPC port; the
