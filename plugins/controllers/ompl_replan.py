@@ -465,8 +465,7 @@ class OMPLReplanController(Controller):
         if getattr(self.planner, "use_checker", None) is None:
             return
         assert self.path is not None and self.times is not None and self.occupied is not None
-        allowed, body = self.allowed, self.body
-        if not any(body.in_unknown(x, allowed) for _, x in self._samples(0.0, float(self.times[-1]))):
+        if not self._enters_unknown(0.0):
             return
         known = self._cells_checker(self._known_space_obstacles(), q)
         goal_q = self.task.goal.q
@@ -500,9 +499,7 @@ class OMPLReplanController(Controller):
             return
         self.known_query = None
         assert query.path is not None and self.times is not None and self.allowed is not None
-        if self.body is None or not any(
-            self.body.in_unknown(x, self.allowed) for _, x in self._samples(self.tau, float(self.times[-1]))
-        ):
+        if self.body is None or not self._enters_unknown(self.tau):
             self.stats["known_unneeded"] += 1
             return
         here, known = q, query.path
@@ -516,6 +513,11 @@ class OMPLReplanController(Controller):
         self._take(path)
         self.known_path = True
         self.stats["known_plans"] += 1
+
+    def _enters_unknown(self, tau: float) -> bool:
+        """Safe mode: the path from ``tau`` [s] along it to its end fills a cell the arm may not enter."""
+        assert self.body is not None and self.allowed is not None and self.times is not None
+        return any(self.body.in_unknown(x, self.allowed) for _, x in self._samples(tau, float(self.times[-1])))
 
     def _known_space_obstacles(self) -> np.ndarray:
         """Safe mode: flat indices of the obstacles of a plan in known space: the occupied cells
