@@ -56,8 +56,9 @@ class Observation:
     ``grid``: the observed occupancy grid (robot base frame; ``grid.known``: the cells the frame
     observed, None when all were, docs/sensing.md); ``time``: when the frame was captured
     [s] (delivered ``latency`` later); ``points``: the (N, 3) point cloud it was built from
-    (``depth`` sensing; None for ``truth``); ``scene``: the exact geometry at capture time
-    (``truth`` sensing only, for controllers that measure distances to geometry; None otherwise).
+    (``depth`` sensing, float32 as depth drivers deliver it; None for ``truth``); ``scene``: the
+    exact geometry at capture time (``truth`` sensing only, for controllers that measure distances
+    to geometry; None otherwise).
     ``frame``: the frame's number, counting from 0.
     """
 
