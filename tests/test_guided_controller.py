@@ -199,20 +199,13 @@ def test_planning_is_spread_over_ticks_with_at_most_one_slice_each(task, monkeyp
     hand = task.robot.frame_pose(0.5 * (np.asarray(task.start) + np.asarray(task.goal.q)), task.goal.pose.frame)
     board = Scene((Obstacle("board", "box", tuple(hand.translation), size=(0.3, 0.3, 0.02)),))
     counted = {"n": 0}
-    in_collision, first_hit = CollisionChecker.in_collision, SegmentChecker.first_hit
+    in_collision = CollisionChecker.in_collision
 
-    def count_state(self, q):
+    def count_state(self, q):  # states and, configuration by configuration, motions (no batch pool)
         counted["n"] += 1
         return in_collision(self, q)
 
-    def count_motion(self, states):
-        before = self.n_checks
-        out = first_hit(self, states)
-        counted["n"] += self.n_checks - before
-        return out
-
     monkeypatch.setattr(CollisionChecker, "in_collision", count_state)
-    monkeypatch.setattr(SegmentChecker, "first_hit", count_motion)
     d = Driver(task)
     per_tick, slices = [], []
     while d.c.reference is None and d.k < 2000:

@@ -80,6 +80,7 @@ def test_motion_checks_agree_with_the_harness_on_every_segment():
     robot = problem.robot
     checker = CollisionChecker(robot, problem.scene)
     segments = SegmentChecker(checker, 0.01)
+    one_by_one = SegmentChecker(checker, 0.01, pooled=False)  # the control loops' kind: no batch pool
     rng = np.random.default_rng(2)
     free = [q for q in rng.uniform(robot.lower, robot.upper, size=(200, 7)) if not checker.in_collision(q)]
     answers, early_stops = [], 0
@@ -87,9 +88,11 @@ def test_motion_checks_agree_with_the_harness_on_every_segment():
         b = np.clip(a + rng.normal(0.0, 0.4, size=7), robot.lower, robot.upper)
         dense, _ = densify(np.array([a, b]), 0.01)
         reference = not any(checker.in_collision(q) for q in dense[1:])
-        before = segments.n_checks
+        before, before_one = segments.n_checks, one_by_one.n_checks
         assert segments.motion_free(a, b) == reference
+        assert one_by_one.motion_free(a, b) == reference
         checked = segments.n_checks - before
+        assert one_by_one.n_checks - before_one == checked  # stops at the same configuration
         assert checked == len(dense) - 1 if reference else 1 <= checked <= len(dense) - 1
         early_stops += checked < len(dense) - 1
         answers.append(reference)

@@ -26,6 +26,11 @@ a median 2,022 checks; one motion of overrun (the default) 22/24, 950 checks, at
 slice; no bound 22/24, 744 checks, up to 318 in a slice. Either way it is deterministic: which
 checks a slice makes depends on the seed and the check counts only, never on the clock.
 
+**No batch pool.** Motions are checked a configuration at a time on the checker's own broadphase
+(:class:`~.motion.SegmentChecker` with ``pooled=False``): the batch check's pool copies every
+obstacle when it is built, 6-12 ms in one piece with a depth frame's octrees, which alone missed a
+100 Hz tick at each plan's start (``matrix-field-guided`` on ``dynamic-test``).
+
 **Shortening.** Once found, the path is shortened in slices too (:meth:`advance` goes on with it):
 greedily, from each kept waypoint the farthest later one that a free straight motion reaches
 replaces those between (each motion checked at ``resolution``, the checks counted as the search's).
@@ -75,7 +80,7 @@ class SlicedRRTConnect:
         self.start = np.array(start, dtype=float)
         self.goal = np.array(goal, dtype=float)
         self.shorten = shorten
-        self.segments = SegmentChecker(checker, resolution)
+        self.segments = SegmentChecker(checker, resolution, pooled=False)  # no 6-12 ms pool in one tick
         motion = math.ceil(extension / resolution - 1e-12)  # the most checks of one motion
         self.overrun = None if overrun_motions is None else math.ceil(overrun_motions * motion)
         """Checks past its bound after which a slice refuses states and motions (None: never)."""
