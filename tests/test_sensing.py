@@ -305,6 +305,27 @@ def test_the_known_mask_crosses_to_the_controller_unchanged(panda):
     assert view.read(ring.write(truth)).grid.known is None
 
 
+def test_known_at_reads_the_bits_of_some_cells_as_the_whole_mask_gives_them():
+    from planbench.reactive.controller import Observation
+    from planbench.reactive.remote import GridRing, GridView
+
+    rng = np.random.default_rng(0)
+    shape = (13, 17, 19)  # 4199 cells: not a multiple of 8
+    known = rng.random(shape) < 0.6
+    grid = OccupancyGrid((rng.random(shape) < 0.1).astype(float), np.zeros(3), 0.02, known=known)
+    ring, view = GridRing(), GridView()
+    ring.prepared(shape)
+    view.prepare(shape)
+    delivered = view.read(ring.write(Observation(time=0.0, grid=grid))).grid
+    cells = np.concatenate([rng.integers(0, known.size, 500), [0, known.size - 1]])
+    assert np.array_equal(grid.known_at(cells), known.reshape(-1)[cells])
+    assert np.array_equal(delivered.known_at(cells), known.reshape(-1)[cells])  # from the packed bits
+    assert "_known" not in delivered.__dict__  # no bool per cell was made
+    assert np.array_equal(delivered.known, known)
+    assert np.array_equal(delivered.known_at(cells), known.reshape(-1)[cells])  # from the unpacked mask
+    assert OccupancyGrid(np.zeros(shape), np.zeros(3), 0.02).known_at(cells).all()  # no mask: every cell known
+
+
 def test_a_known_mask_of_another_shape_or_type_is_refused():
     with pytest.raises(ValueError, match="known must be a bool array"):
         OccupancyGrid(np.zeros((2, 2, 2)), np.zeros(3), 0.1, known=np.ones((2, 2, 3), bool))

@@ -125,6 +125,15 @@ class OccupancyGrid:
             return self.known
         return np.broadcast_to(np.True_, self.data.shape)
 
+    def known_at(self, cells: np.ndarray) -> np.ndarray:
+        """Whether each of ``cells`` (flat indices, C order) was observed (bool, one per cell): what
+        ``known_mask.reshape(-1)[cells]`` gives, without unpacking a mask that arrived packed (a
+        controller's frame: :mod:`planbench.reactive.remote`)."""
+        cells = np.asarray(cells, dtype=np.intp)
+        if self.known is None:
+            return np.ones(cells.shape, dtype=bool)
+        return self.known.reshape(-1)[cells]
+
     @property
     def shape(self) -> tuple[int, int, int]:
         return self.data.shape  # type: ignore[return-value]

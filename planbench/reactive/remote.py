@@ -324,17 +324,31 @@ class _DeliveredGrid(OccupancyGrid):
     and is unpacked when first read: a controller that never reads it is charged only for
     receiving its bytes."""
 
+    def _bits(self) -> np.ndarray:
+        """The mask's bits, a bit per cell (C order, most significant bit first), inflated once."""
+        bits = self.__dict__.get("_unpacked_bits")
+        if bits is None:
+            cells = int(np.prod(self.data.shape))
+            packed = lz4.block.decompress(self.__dict__["_packed"], uncompressed_size=(cells + 7) // 8)
+            bits = self.__dict__["_unpacked_bits"] = np.frombuffer(packed, dtype=np.uint8)
+        return bits
+
     @property  # type: ignore[override]
     def known(self) -> np.ndarray | None:
         cached = self.__dict__.get("_known")
         if cached is None:
             cells = int(np.prod(self.data.shape))
-            packed = lz4.block.decompress(self.__dict__["_packed"], uncompressed_size=(cells + 7) // 8)
-            bits = np.frombuffer(packed, dtype=np.uint8)
-            cached = np.unpackbits(bits, count=cells).view(bool).reshape(self.data.shape)
+            cached = np.unpackbits(self._bits(), count=cells).view(bool).reshape(self.data.shape)
             cached.flags.writeable = False
             self.__dict__["_known"] = cached
         return cached
+
+    def known_at(self, cells: np.ndarray) -> np.ndarray:
+        """Bits of ``cells`` read from the packed mask: no bool per cell of the grid is made."""
+        if self.__dict__.get("_known") is not None:
+            return super().known_at(cells)
+        cells = np.asarray(cells, dtype=np.intp)
+        return ((self._bits()[cells >> 3] >> (7 - (cells & 7))) & 1).astype(bool)
 
     @known.setter
     def known(self, value: np.ndarray | None) -> None:  # dataclasses.replace sets it

@@ -80,7 +80,12 @@ Work = Generator[None, None, None]
 """A job cut into slices: each ``next`` runs one slice."""
 
 SCAN_PARTS = 2
-"""Slices in which a depth grid's occupied cells are found (each a part of the grid's cells)."""
+"""Slices in which a depth grid's occupied cells are found (each a part of the grid's cells), at
+:data:`SLICE_PERIOD`."""
+
+SLICE_PERIOD = 0.01
+"""[s] The control period for which the slice sizes are given (``plan_checks_per_tick``,
+``octree_cells``, :data:`SCAN_PARTS`); with ``scale_slices`` they scale with the task's period."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +98,11 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
     plan_checks_per_tick: int = 50
     """Collision checks of one planning or path-check slice; one slice per tick (about 2-3 ms with
     depth sensing; docs/reactive.md has the measurement)."""
+    scale_slices: bool = True
+    """Size the slices for the task's control period: ``plan_checks_per_tick`` and ``octree_cells``
+    are a 10 ms tick's, multiplied by ``period / 10 ms`` (at least 1 check, 100 cells), and a grid's
+    scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 5 checks, 400 cells, 20 parts, so a tick
+    stays near a tenth of the work; at 100 Hz nothing changes. False: the numbers as given."""
     plan_check_budget: int = 20000
     """Checks one RRT-Connect query may spend without a path before it starts again from the held
     configuration on the latest frame."""
@@ -165,8 +175,9 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
         check_number(self, "velocity_scale", lambda v: v <= 1, "in (0, 1]")
         check_number(self, "goal_fade", lambda v: v >= 0, "finite and >= 0")
         check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0")
-        if not isinstance(self.shorten, bool):
-            raise InvalidConfigError(f"shorten must be true or false, got {self.shorten!r}")
+        for name in ("shorten", "scale_slices"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         self.validate_field()
         self.validate_unknown()
 
@@ -210,6 +221,13 @@ class MatrixFieldGuidedController(Controller):
         self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
+        scale = task.period / SLICE_PERIOD if c.scale_slices else 1.0
+        self.slice_checks = max(1, round(c.plan_checks_per_tick * scale))
+        """Collision checks of a planning or path-check slice (``scale_slices``)."""
+        self.slice_cells = max(100, round(c.octree_cells * scale)) if c.scale_slices else c.octree_cells
+        """Most occupied cells in one octree built in a slice."""
+        self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
+        """Slices in which a grid's occupied cells are found."""
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""
@@ -336,7 +354,7 @@ class MatrixFieldGuidedController(Controller):
         yield
         while True:
             before = query.checks
-            done = query.advance(c.plan_checks_per_tick)
+            done = query.advance(self.slice_checks)
             self._count(query.checks - before)
             if done:
                 break
@@ -356,7 +374,7 @@ class MatrixFieldGuidedController(Controller):
     def _planning_checker(self, start: np.ndarray) -> Generator[None, None, CollisionChecker]:
         """The checker a plan from ``start`` uses, built over slices (module docstring). No frame's
         arrays are held across a slice: a frame's stay as delivered for three more frames only."""
-        robot, c = self.task.robot, self.config
+        robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:  # truth: the scene less what the arm at the start touches
             _, checker, dropped = scene_without_touched(robot, scene, start)
@@ -375,9 +393,9 @@ class MatrixFieldGuidedController(Controller):
             kept = self._without_touched(kept, close, start, None)
             yield
         pieces = []
-        for k in range(0, len(kept), c.octree_cells):
+        for k in range(0, len(kept), self.slice_cells):
             assert self.grid is not None  # the latest frame's: every frame has the same cells
-            pieces.append(cells_octree(self.grid, kept[k : k + c.octree_cells], f"cells-{k}"))
+            pieces.append(cells_octree(self.grid, kept[k : k + self.slice_cells], f"cells-{k}"))
             yield
         checker = pieces_checker(robot, pieces)
         yield
@@ -385,11 +403,11 @@ class MatrixFieldGuidedController(Controller):
 
     def _occupied(self) -> Generator[None, None, np.ndarray]:
         """Depth: the flat indices of the occupied cells of the latest grid, found in
-        :data:`SCAN_PARTS` slices (a pass over a 142^3 grid costs 2-4 ms; a part is read from the
+        :attr:`scan_parts` slices (a pass over a 142^3 grid costs 2-4 ms; a part is read from the
         grid latest when its slice runs)."""
         assert self.grid is not None
         self.cells.fit(self.grid)
-        bounds = np.linspace(0, self.cells.size, SCAN_PARTS + 1).astype(np.intp)
+        bounds = np.linspace(0, self.cells.size, self.scan_parts + 1).astype(np.intp)
         found = []
         for k, (a, b) in enumerate(itertools.pairwise(bounds)):
             if k:
@@ -431,9 +449,8 @@ class MatrixFieldGuidedController(Controller):
             self.blocked_since = np.full(len(near), np.nan)
         assert self.static_goal is not None and self.blocked_since is not None
         occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
-        if not self.first_seen.all():  # reading ``known`` costs a frame's unpacking: only while needed
-            known = grid.known
-            new = (np.ones(len(near), dtype=bool) if known is None else known.reshape(-1)[near]) & ~self.first_seen
+        if not self.first_seen.all():  # the mask's bits of these cells only: no bool per cell of the grid
+            new = grid.known_at(near) & ~self.first_seen
             self.static_goal[new] = occupied[new]
             self.first_seen |= new
         blocker = occupied & self.first_seen & ~self.static_goal
@@ -446,7 +463,7 @@ class MatrixFieldGuidedController(Controller):
         """The rest of the path against the latest frame, a slice per ``yield``; drops the path at
         the first configuration in collision (``blocked`` when that is the goal, else
         ``invalidated``)."""
-        robot, c = self.task.robot, self.config
+        robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:
             _, checker, dropped = scene_without_touched(robot, scene, q)
@@ -473,7 +490,7 @@ class MatrixFieldGuidedController(Controller):
                     checker = pieces_checker(robot, [cells_octree(self.grid, kept)])
         yield
         rest = self._rest()
-        per = c.plan_checks_per_tick
+        per = self.slice_checks
         for k in range(0, len(rest), per):
             chunk = rest[k : k + per]
             self._count(len(chunk))
