@@ -158,3 +158,55 @@ def test_frames_reach_the_controller_exactly_and_arrays_kept_past_their_slot_are
             view.read(message)
         kept.clear()
         assert np.array_equal(view.read(message).grid.data, frames[0].grid.data)
+
+
+class _SleepsOnce:
+    """Sleeps (computes nothing) through its first step, then answers at once."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def update(self, observation):  # pragma: no cover - not called
+        pass
+
+    def step(self, t, q, observation, goal):
+        import time
+
+        self.calls += 1
+        if self.calls == 1:
+            time.sleep(1.0)
+        return np.zeros(len(q))
+
+    def info(self):
+        return {"calls": self.calls}
+
+
+def _serve_sleeper(sock) -> None:
+    from planbench.reactive.remote import serve_controller
+
+    serve_controller(sock, _SleepsOnce(), 7, None)
+
+
+def test_after_an_abandoned_call_the_controller_is_asked_nothing_more(monkeypatch):
+    """A late answer is never matched with a later call: once a call is abandoned (here: the
+    controller computed nothing for IDLE_WAIT), further calls are a fault and ``info`` is not asked."""
+    import multiprocessing as mp
+
+    from planbench.reactive import remote
+
+    monkeypatch.setattr(remote, "IDLE_WAIT", 0.2)
+    monkeypatch.setattr(remote, "POLL", 0.02)
+    ours, theirs = remote.socket_pair()
+    proc = mp.get_context("fork").Process(target=_serve_sleeper, args=(theirs,), daemon=True)
+    proc.start()
+    theirs.close()
+    try:
+        port = remote.RemoteController(ours, proc.pid, 7)
+        with pytest.raises(remote.Overrun, match="computed nothing"):
+            port.step(0.0, np.zeros(7), None, None)
+        with pytest.raises(remote.RemoteFault, match="asked nothing more"):
+            port.step(0.01, np.zeros(7), None, None)  # the first step's answer arrives meanwhile: never read
+        assert "not asked: a call was abandoned" in port.info()["info_error"]
+    finally:
+        proc.kill()
+        proc.join(5)

@@ -451,6 +451,9 @@ class RemoteController:
         self.budget = math.inf
         """[s] CPU time a call may consume before it is abandoned (the simulation sets it to what
         is left of the horizon)."""
+        self.abandoned: str | None = None
+        """Why a call was abandoned (:class:`Overrun`), once one was: its answer is never read, so
+        the connection holds nothing the next message could be matched with."""
 
     def prepare(self, shape: tuple[int, ...]) -> None:
         """Have the controller's process allocate its grids of ``shape`` before the run, uncharged
@@ -484,7 +487,10 @@ class RemoteController:
             raise RemoteFault(str(bad)) from None
 
     def info(self) -> dict[str, Any]:
-        """The controller's diagnostics (JSON data as sent; the benchmark cleans them)."""
+        """The controller's diagnostics (JSON data as sent; the benchmark cleans them). Not asked
+        after an abandoned call: the answer read would be that call's, late."""
+        if self.abandoned is not None:
+            return {"info_error": f"not asked: a call was abandoned ({self.abandoned})"}
         self.budget = 5.0  # info() is not timed, but may not run forever
         try:
             kind, answer, _ = self._call(b"E", b"")
@@ -502,6 +508,11 @@ class RemoteController:
                 pass
 
     def _call(self, kind: bytes, payload: bytes) -> tuple[bytes, bytearray, float]:
+        if self.abandoned is not None:
+            raise RemoteFault(
+                f"a call was abandoned earlier ({self.abandoned}): its answer would be read as this "
+                "call's, so the controller is asked nothing more"
+            )
         t0 = time.perf_counter()
         try:
             _send(self.sock, kind, payload)
@@ -541,11 +552,13 @@ class RemoteController:
                 return  # the read that follows meets the closed connection
             now = time.perf_counter()
             if (cpu - self._cpu) * 1e-9 > self.budget:
-                raise Overrun((cpu - self._cpu) * 1e-9, "the call consumed more CPU time than was left of the horizon")
+                self.abandoned = "the call consumed more CPU time than was left of the horizon"
+                raise Overrun((cpu - self._cpu) * 1e-9, self.abandoned)
             if cpu != cpu_seen:
                 idle_since, cpu_seen = now, cpu
             elif now - idle_since > IDLE_WAIT:
-                raise Overrun((cpu - self._cpu) * 1e-9, f"the controller computed nothing for {IDLE_WAIT:g} s")
+                self.abandoned = f"the controller computed nothing for {IDLE_WAIT:g} s"
+                raise Overrun((cpu - self._cpu) * 1e-9, self.abandoned)
 
 
 def socket_pair() -> tuple[socket.socket, socket.socket]:

@@ -290,8 +290,8 @@ def simulate(
             missed = max(0, math.ceil(c / T - _EPS) - 1)
             rec.deadline_misses += missed
             free_at = k + missed + 1
-            if qd is None:  # abandoned: its command never comes
-                pass
+            if qd is None:  # abandoned: its command never comes, and the controller is called no more
+                free_at = n_ticks
             elif missed == 0:
                 held = qd
             else:
