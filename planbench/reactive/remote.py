@@ -343,16 +343,16 @@ class _DeliveredGrid(OccupancyGrid):
             self.__dict__["_known"] = cached
         return cached
 
+    @known.setter
+    def known(self, value: np.ndarray | None) -> None:  # dataclasses.replace sets it
+        self.__dict__["_known"] = value
+
     def known_at(self, cells: np.ndarray) -> np.ndarray:
         """Bits of ``cells`` read from the packed mask: no bool per cell of the grid is made."""
         if self.__dict__.get("_known") is not None:
             return super().known_at(cells)
         cells = np.asarray(cells, dtype=np.intp)
         return ((self._bits()[cells >> 3] >> (7 - (cells & 7))) & 1).astype(bool)
-
-    @known.setter
-    def known(self, value: np.ndarray | None) -> None:  # dataclasses.replace sets it
-        self.__dict__["_known"] = value
 
 
 def _grid_as_checked(
