@@ -376,9 +376,48 @@ def test_distances_are_to_the_scene_when_observed_else_to_the_grids_cells(box, n
     controller.update(box.obstacles)
     assert controller.info()[key] == "scene"
     controller.update(dataclasses.replace(box.obstacles, scene=None))
-    assert controller.info()[key] == "grid cells"
+    assert controller.info()[key] == "near cells"  # the default: the cells near the arm, one octree
     q = np.array(box.task.start, dtype=float)
     assert np.isfinite(controller.step(0.0, q, None, box.task.goal)).all()
+    boxes = make_controller(name, observed_geometry="boxes")
+    boxes.setup(box.task)
+    boxes.reset(q.copy(), np.random.default_rng(0))
+    boxes.update(dataclasses.replace(box.obstacles, scene=None))
+    assert boxes.info()[key] == "grid cells"
+
+
+def test_near_cells_are_those_within_reach_as_one_octree_measured_exactly():
+    import coal
+
+    from planbench_plugins.controllers.cells import near_cells_scene
+
+    res, origin = 0.02, np.array([0.31, -0.2, 0.1])  # a corner off the multiples of the resolution
+    data = np.zeros((30, 30, 30))
+    near_cell, far_cell = (10, 10, 10), (10, 10, 25)  # 0 and 0.30 m from the point below
+    data[near_cell] = data[far_cell] = 1.0
+    data[12, 10, 10] = 0.3  # below the threshold: free
+    grid = OccupancyGrid(data, origin, res)
+    p = origin + (np.array(near_cell) + 0.5) * res + np.array([0.0, 0.0, 0.05])
+    scene = near_cells_scene(grid, p[None], reach=0.1)
+    (octree,) = scene.obstacles
+    lo, hi = octree.aabb()
+    np.testing.assert_allclose(lo, origin + np.array(near_cell) * res, atol=1e-12)  # the near cell alone
+    np.testing.assert_allclose(hi, origin + (np.array(near_cell) + 1) * res, atol=1e-12)
+    for query in (p, origin + (np.array(far_cell) + 0.5) * res + np.array([0.0, 0.0, 0.05])):
+        sphere, placed = coal.Sphere(0.01), coal.Transform3s(np.eye(3), query)
+        result = coal.DistanceResult()
+        M = octree.placement()
+        d = coal.distance(
+            octree.collision_geometry(),
+            coal.Transform3s(M.rotation, M.translation),
+            sphere,
+            placed,
+            coal.DistanceRequest(),
+            result,
+        )
+        gap = np.maximum(lo - query, 0) + np.maximum(query - hi, 0)  # to the near cell's cube
+        assert d == pytest.approx(np.linalg.norm(gap) - 0.01, abs=1e-6)
+    assert len(near_cells_scene(grid, p[None] + 1.0, reach=0.1)) == 0  # nothing within reach
 
 
 def test_the_controller_steers_to_the_goal_it_is_given_each_tick(box):
@@ -483,3 +522,22 @@ def test_the_guides_controller_conforms_and_reaches_a_goal(tmp_path, monkeypatch
     path = drive(registry.make("resolved-rate"), box.task, box.obstacles, ticks=600)
     err_p, err_r = pose_error(box.task.robot, path[-1], box.task.goal.pose)
     assert err_p <= box.task.tolerances.position and err_r <= box.task.tolerances.orientation
+
+
+@pytest.mark.parametrize("shape", ["box", "sphere"])
+def test_witnesses_of_a_distance_to_an_octree_point_from_the_first_body(shape):
+    """coal reports a shape's distance to an OcTree given second as if the octree came first
+    (3.0.3); ``witnesses`` gives the first body's point and the normal towards the second."""
+    import coal
+
+    from planbench.checking.collision import witnesses
+
+    octree = coal.makeOctree(np.array([[0.51, 0.01, 0.01]]), 0.02)  # the cell [0.5, 0.52] x ...
+    geometry = coal.Box(0.1, 0.1, 0.1) if shape == "box" else coal.Sphere(0.05)
+    result = coal.DistanceResult()
+    beside = coal.Transform3s(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    d = coal.distance(geometry, beside, octree, coal.Transform3s(), coal.DistanceRequest(), result)
+    p1, p2, n = witnesses(result, octree_second=True)
+    assert d == pytest.approx(0.15, abs=1e-9)
+    assert p1[0] == pytest.approx(0.35, abs=1e-9) and p2[0] == pytest.approx(0.5, abs=1e-9)
+    np.testing.assert_allclose(n, [1.0, 0.0, 0.0], atol=1e-9)  # from the shape towards the cell

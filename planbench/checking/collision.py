@@ -15,6 +15,7 @@ checking every pair, about 5x faster on the MotionBenchMaker scenes (~20 us inst
 
 from __future__ import annotations
 
+import functools
 import warnings
 import weakref
 from typing import Any
@@ -26,9 +27,32 @@ import pinocchio as pin
 from planbench.robot import Robot, link_of
 from planbench.scene import Scene
 
-__all__ = ["CollisionChecker", "fresh_geometry_data"]
+__all__ = ["CollisionChecker", "fresh_geometry_data", "octree_distance_swapped", "witnesses"]
 
 _CHECKERS: weakref.WeakKeyDictionary[Any, CollisionChecker] = weakref.WeakKeyDictionary()
+
+
+@functools.cache
+def octree_distance_swapped() -> bool:
+    """Whether coal reports a shape's distance to a ``coal.OcTree`` given second as if the octree
+    came first: nearest points swapped and the normal reversed (coal 3.0.3 does, for boxes,
+    spheres and convex hulls alike). Probed once, on a box 0.15 m beside one cell, so that a
+    release that fixes it is followed."""
+    octree = coal.makeOctree(np.array([[0.51, 0.01, 0.01]]), 0.02)
+    result = coal.DistanceResult()
+    beside = coal.Transform3s(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    coal.distance(coal.Box(0.1, 0.1, 0.1), beside, octree, coal.Transform3s(), coal.DistanceRequest(), result)
+    return bool(result.normal[0] < 0)  # from the box (first) towards the cell is +x
+
+
+def witnesses(result: Any, octree_second: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest point on the first body, on the second, and the unit normal from the first
+    towards the second, of a coal distance ``result``; ``octree_second``: the second body is a
+    ``coal.OcTree`` (:func:`octree_distance_swapped` corrected)."""
+    p1, p2, n = np.array(result.getNearestPoint1()), np.array(result.getNearestPoint2()), np.array(result.normal)
+    if octree_second and octree_distance_swapped():
+        return p2, p1, -n
+    return p1, p2, n
 
 
 def fresh_geometry_data(geometry_model: Any) -> Any:

@@ -8,7 +8,8 @@ constraints too. Per frame (``update``):
 - the field as ``matrix-field``'s controller builds it (:class:`~.matrix_field.GridField`; lazy by
   default, same measurements);
 - the distances of the collision constraints to the observed geometry: the observation's exact
-  ``scene`` with truth sensing, else the grid's occupied cells merged into boxes (:mod:`.cells`).
+  ``scene`` with truth sensing, else the grid's occupied cells near the arm as one octree
+  (``observed_geometry``, :mod:`.cells`).
   The robot's own pairs stay constrained whatever is observed.
 
 A step the QP cannot solve (the constraints conflict with the joint limits) gives zero velocity
@@ -25,7 +26,7 @@ import numpy as np
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.scene import Scene
 from planbench_plugins.controllers.adapter import IKLoopController
-from planbench_plugins.controllers.cells import observed_scene
+from planbench_plugins.controllers.cells import GeometrySettings, observed_scene
 from planbench_plugins.controllers.matrix_field import GridField
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import DistanceModel, IKLoopPlanner, Repulsion
@@ -35,7 +36,7 @@ __all__ = ["MatrixFieldQPController", "MatrixFieldQPControllerConfig"]
 
 
 @dataclass(frozen=True)
-class MatrixFieldQPControllerConfig(MatrixFieldQPConfig, UnknownSettings):
+class MatrixFieldQPControllerConfig(MatrixFieldQPConfig, UnknownSettings, GeometrySettings):
     """The planner's settings (:class:`~planbench_plugins.matrix_field_qp.MatrixFieldQPConfig`)
     with the lazy field, as :class:`~.matrix_field.MatrixFieldControllerConfig` (same reasons).
     ``unknown = "occupied"`` (:class:`~.unknown.UnknownSettings`) adds the unknown cells near the
@@ -48,6 +49,7 @@ class MatrixFieldQPControllerConfig(MatrixFieldQPConfig, UnknownSettings):
     def validate(self) -> None:
         super().validate()
         self.validate_unknown()
+        self.validate_geometry()
 
 
 class MatrixFieldQPController(IKLoopController):
@@ -62,7 +64,7 @@ class MatrixFieldQPController(IKLoopController):
         super().__init__(config, **settings)
         self.field = GridField(self.config)
         self.geometry = "none"
-        """What the collision constraints measure against: ``"scene"``, ``"grid cells"``, or
+        """What the collision constraints measure against: ``"scene"``, ``"near cells"``, ``"grid cells"``, or
         ``"none"`` (no frame yet, or ``collision_constraints`` off)."""
         self._own_pairs: DistanceModel | None = None  # the robot's own pairs only (no obstacle known)
 
@@ -84,7 +86,9 @@ class MatrixFieldQPController(IKLoopController):
     def make_source(self, observation: Observation) -> Repulsion | None:
         if self.config.collision_constraints:
             assert self.task is not None
-            scene, where = observed_scene(observation)
+            c = self.config
+            assert self.stepper is not None
+            scene, where = observed_scene(observation, c.observed_geometry, self.stepper.kin.points, c.geometry_reach)
             model = DistanceModel(self.task.robot, scene, self.config.collision_influence) if len(scene) else None
             self._use(model if model is not None else self._own_pairs, where)
         return self.field.repulsion(observation.grid)

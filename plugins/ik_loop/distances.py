@@ -31,7 +31,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.checking.collision import fresh_geometry_data
+from planbench.checking.collision import fresh_geometry_data, witnesses
 
 __all__ = ["DistanceModel", "PairDistances"]
 
@@ -131,6 +131,7 @@ class DistanceModel:
         self.n_robot = n_robot = len(robot_geoms)
         moving = [g.parentJoint != 0 for g in robot_geoms]
         lows, highs, names = [], [], [g.name for g in robot_geoms]
+        octrees = [False] * len(robot_geoms)  # bodies whose coal witnesses need correcting (an OcTree)
         for obstacle in scene.obstacles if obstacle_pairs else ():
             gid = gm.addGeometryObject(
                 pin.GeometryObject(
@@ -141,6 +142,7 @@ class DistanceModel:
             lows.append(lo)
             highs.append(hi)
             names.append(f"obstacle:{obstacle.name}")
+            octrees.append(isinstance(obstacle.collision_geometry(), coal.OcTree))
             for rid in range(n_robot):
                 if moving[rid]:
                     gm.addCollisionPair(pin.CollisionPair(rid, gid))
@@ -151,6 +153,7 @@ class DistanceModel:
                 if joint[a] != joint[b]:
                     gm.addCollisionPair(pin.CollisionPair(a, b))
         self.n_obstacles = len(lows)
+        self._octree = np.array(octrees, dtype=bool)
         n_bodies = n_robot + self.n_obstacles
         self.body_names = tuple(names)
         support = np.zeros((n_bodies, model.nv))
@@ -217,9 +220,7 @@ class DistanceModel:
             if d < self.influence:
                 keep[i] = True
                 dist[i] = d
-                point[i] = res.getNearestPoint1()
-                other[i] = res.getNearestPoint2()
-                normal[i] = res.normal
+                point[i], other[i], normal[i] = witnesses(res, bool(self._octree[second[k]]))
         self.n_pairs_checked = m
         pair = candidates[keep]
         return PairDistances(

@@ -29,7 +29,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from planbench.checking.collision import fresh_geometry_data
+from planbench.checking.collision import fresh_geometry_data, witnesses
 from planbench.problem import Problem
 from planbench.robot import link_of
 from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
@@ -49,6 +49,11 @@ def _support_row(model: Any, joint: int) -> np.ndarray:
     return row
 
 
+_HULLS: dict[tuple[int, str], tuple[Any, Any]] = {}
+"""Convex hulls made, by the robot (its id; the entry keeps it) and geometry name: a controller
+builds a repulsion per sensor frame from the same robot's meshes."""
+
+
 def _hull(geometry: Any) -> Any:
     """The convex hull of a mesh (a copy; the robot's own geometry is left untouched), else the
     primitive itself."""
@@ -58,6 +63,15 @@ def _hull(geometry: Any) -> Any:
         mesh.buildConvexRepresentation(False)
         return mesh.convex
     return geometry
+
+
+def _robot_hull(robot: Any, g: Any) -> Any:
+    """:func:`_hull` of the robot's geometry object ``g``, made once per robot and geometry."""
+    key = (id(robot), str(g.name))
+    made = _HULLS.get(key)
+    if made is None or made[0] is not robot:
+        made = _HULLS[key] = (robot, _hull(g.geometry))
+    return made[1]
 
 
 class DistanceFieldRepulsion:
@@ -78,7 +92,7 @@ class DistanceFieldRepulsion:
         links: list[str] = []
         link_of_geom, centres, radii = [], [], []
         for g in robot_geoms:
-            geom = _hull(g.geometry)
+            geom = _robot_hull(robot, g)
             geom.computeLocalAABB()
             lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
             centres.append(0.5 * (lo + hi))
@@ -98,7 +112,7 @@ class DistanceFieldRepulsion:
         # one joint per link (a link's geometries are rigidly attached to it)
         self.joint = np.array([geom_joint[self._link_of_geom == i][0] for i in range(len(links))], dtype=np.intp)
         self.support = np.array([_support_row(model, int(j)) for j in self.joint]).reshape(len(links), model.nv)
-        lo_obs, hi_obs = [], []
+        lo_obs, hi_obs, octree = [], [], []
         for obstacle in scene.obstacles:
             gid = gm.addGeometryObject(
                 pin.GeometryObject(
@@ -108,9 +122,11 @@ class DistanceFieldRepulsion:
             lo, hi = obstacle.aabb()
             lo_obs.append(lo)
             hi_obs.append(hi)
+            octree.append(isinstance(obstacle.collision_geometry(), coal.OcTree))
             for rid in range(self.n_robot):
                 gm.addCollisionPair(pin.CollisionPair(rid, gid))
         self.n_obstacles = len(lo_obs)
+        self._octree = np.array(octree, dtype=bool)  # coal's witnesses of these need correcting
         self._obs_lo = np.array(lo_obs).reshape(-1, 3)
         self._obs_hi = np.array(hi_obs).reshape(-1, 3)
         # pair index of (robot geometry r, obstacle o), as pinocchio stored it
@@ -158,8 +174,7 @@ class DistanceFieldRepulsion:
             d = res.min_distance
             if d < best[link]:
                 best[link] = d
-                points[link] = res.getNearestPoint1()
-                normals[link] = res.normal
+                points[link], _, normals[link] = witnesses(res, bool(self._octree[o]))
                 first[link] = False
         self.n_pairs_checked = checked
         for link in np.flatnonzero(first):
