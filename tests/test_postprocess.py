@@ -79,6 +79,11 @@ def test_the_same_seed_gives_the_same_path():
     assert np.array_equal(one.path, two.path) and one.shortcuts == two.shortcuts
     other = shortcut(path, _free, PostprocessSettings(method="shortcut", attempts=3), 4)
     assert not np.array_equal(other.path, one.path)
+    # fewer attempts make the first tries of more: the trace says what each count gives
+    few = shortcut(path, _free, PostprocessSettings(method="shortcut", attempts=10), 3)
+    assert len(one.trace) == one.attempts == SHORTCUT.attempts and len(few.trace) == 10
+    assert [x for _, x in few.trace] == [x for _, x in one.trace[:10]] == sorted([x for _, x in few.trace])[::-1]
+    assert _length(few.path) == pytest.approx(few.trace[-1][1])
 
 
 @pytest.fixture

@@ -94,6 +94,9 @@ class ShortcutResult:
     shortcuts: int  # shortcuts taken
     checks: int  # segments handed to the checker
     out_of_time: bool  # stopped by the time budget before all attempts
+    trace: tuple[tuple[float, float], ...] = ()
+    """(time since the start [s], joint path length [rad]) after each try: what fewer attempts
+    would have given (the tries are the same, as the draws are)."""
 
 
 SegmentFree = Callable[[np.ndarray, np.ndarray], bool]
@@ -105,31 +108,41 @@ def shortcut(path: np.ndarray, segment_free: SegmentFree, settings: PostprocessS
     never longer than ``path``."""
     path = _without_repeats(np.asarray(path, dtype=float))
     rng = np.random.default_rng(seed)
-    deadline = time.perf_counter() + settings.time_budget
-    tries = taken = checks = 0
+    t0 = time.perf_counter()
+    taken = checks = 0
     out_of_time = False
-    for _ in range(settings.attempts):
-        if len(path) < 3:
-            break
-        if time.perf_counter() > deadline:
+    trace: list[tuple[float, float]] = []
+    while len(trace) < settings.attempts and len(path) >= 3:
+        if time.perf_counter() - t0 > settings.time_budget:
             out_of_time = True
             break
-        tries += 1
-        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
-        total = cum[-1]
-        s0, s1 = np.sort(rng.uniform(0.0, total, 2))
-        a0, _, q0 = _point(path, cum, s0, settings.snap * total)
-        _, b1, q1 = _point(path, cum, s1, settings.snap * total)
-        if b1 - a0 < 2:
-            continue  # no waypoint between the two points: the path is straight there already
-        shorter = _without_repeats(np.vstack([path[: a0 + 1], q0, q1, path[b1:]]))
-        if total - _length(shorter) <= settings.min_gain:  # also: float round-off never lengthens a path
-            continue
-        checks += 1
-        if segment_free(q0, q1):
-            path = shorter
-            taken += 1
-    return ShortcutResult(path, tries, taken, checks, out_of_time)
+        candidate = _candidate(path, rng, settings)
+        if candidate is not None:
+            checks += 1
+            shorter, q0, q1 = candidate
+            if segment_free(q0, q1):
+                path = shorter
+                taken += 1
+        trace.append((time.perf_counter() - t0, _length(path)))
+    return ShortcutResult(path, len(trace), taken, checks, out_of_time, tuple(trace))
+
+
+def _candidate(
+    path: np.ndarray, rng: np.random.Generator, settings: PostprocessSettings
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One try's shortcut (the shorter path and its new segment's ends), or None when the two
+    points drawn leave nothing worth checking."""
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    total = cum[-1]
+    s0, s1 = np.sort(rng.uniform(0.0, total, 2))
+    a0, _, q0 = _point(path, cum, s0, settings.snap * total)
+    _, b1, q1 = _point(path, cum, s1, settings.snap * total)
+    if b1 - a0 < 2:
+        return None  # no waypoint between the two points: the path is straight there already
+    shorter = _without_repeats(np.vstack([path[: a0 + 1], q0, q1, path[b1:]]))
+    if total - _length(shorter) <= settings.min_gain:  # also: float round-off never lengthens a path
+        return None
+    return shorter, q0, q1
 
 
 def _point(path: np.ndarray, cum: np.ndarray, s: float, snap: float) -> tuple[int, int, np.ndarray]:
