@@ -11,6 +11,7 @@ from conftest import midpoint_wall
 from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
+from planbench.bench.export import experiments, ompl_log, write_runs_csv
 from planbench.bench.postprocess import PostprocessSettingError, PostprocessSettings, apply, shortcut
 from planbench.bench.report import PROCESSED_METRICS, metrics_for, summarize, to_markdown
 from planbench.bench.suite import SuiteFileError, parse_suite
@@ -192,6 +193,10 @@ def test_processed_columns_are_stored_shown_and_read_from_older_files(tmp_path):
     assert metrics_for([row])[-len(PROCESSED_METRICS) :] == PROCESSED_METRICS
     table = to_markdown(summarize([row]), metrics=metrics_for([row]))
     assert "| joint path length [rad] |" in table and "| processed joint path length [rad] |" in table
+    (log,) = [ompl_log(exp) for exp in experiments([row])]
+    assert "processed solution length REAL" in log and f"{row['processed_joint_path_length']!r}; " in log
+    write_runs_csv([row], tmp_path / "runs.csv")
+    assert "processed_joint_path_length,processed_ee_path_length" in (tmp_path / "runs.csv").read_text()
     # a results file from before the stage: its rows read without the columns, no processed table
     with ResultsDB(tmp_path / "r.db") as db, db.conn:
         for m in ("processed_n_waypoints", "processed_joint_path_length", "postprocess_time", "postprocess_note"):
