@@ -11,7 +11,7 @@ planner solved (paired), and the median planning and post-processing times. A fi
 ``postprocess = "shortcut"`` holds both stages of every run (raw: ``none``; processed: ``shortcut``).
 
 ``sweep``: the runs' stored raw paths shortcut again, here, once with the largest ``attempts``
-count (the seed of each run, the certified checker with default validation settings); its trace
+count (the seed of each run, the stage's checker with default validation settings); its trace
 gives what each smaller count would have (the same draws): the median processed length and
 shortcutting time per planner and count, to choose the default on a tuning part.
 Only the shortcut is redone (its segments are certified by construction), not the re-validation.
@@ -20,15 +20,13 @@ Only the shortcut is redone (its segments are certified by construction), not th
 from __future__ import annotations
 
 import argparse
-import functools
 import math
 import statistics
 from collections.abc import Sequence
 from typing import Any
 
 from planbench.bench.db import ResultsDB
-from planbench.bench.postprocess import PostprocessSettings, shortcut
-from planbench.checking.certified import CertifiedChecker
+from planbench.bench.postprocess import PostprocessSettings, segment_checker, shortcut
 from planbench.problems.datasets import load_problem
 from planbench.validate import ValidationSettings
 
@@ -76,19 +74,14 @@ def table(path: str, suite: str | None, baseline: str) -> None:
         )
 
 
-def _free(checker: CertifiedChecker, a: Any, b: Any) -> bool:
-    return checker.check_segment(a, b).free
-
-
-def sweep(path: str, suite: str | None, attempts: Sequence[int]) -> None:
+def sweep(path: str, suite: str | None, attempts: Sequence[int], stage: dict[str, Any]) -> None:
     rows = [r for r in _rows(path, suite, arrays=True) if r["success"] and r["path"] is not None]
-    certification = ValidationSettings().certification(measure_clearance=False)
+    validation = ValidationSettings()
     out: dict[tuple[str, int], list[tuple[float, float]]] = {}
     for r in rows:
         problem = load_problem(r["problem"])
-        checker = CertifiedChecker.for_problem(problem, certification)
-        settings = PostprocessSettings(method="shortcut", attempts=max(attempts), time_budget=1e6)
-        done = shortcut(r["path"], functools.partial(_free, checker), settings, int(r["seed"]))
+        settings = PostprocessSettings(method="shortcut", attempts=max(attempts), time_budget=1e6, **stage)
+        done = shortcut(r["path"], segment_checker(problem, validation, settings), settings, int(r["seed"]))
         raw = (0.0, float(sum(math.dist(a, b) for a, b in zip(r["path"][:-1], r["path"][1:], strict=True))))
         for n in attempts:  # the first n tries are those of a run with n attempts
             spent, length = done.trace[min(n, len(done.trace)) - 1] if n and done.trace else raw
@@ -111,11 +104,13 @@ def main() -> None:
     s.add_argument("db")
     s.add_argument("--suite")
     s.add_argument("--attempts", default="0,50,100,200,400")
+    s.add_argument("--precheck-resolution", type=float, default=PostprocessSettings.precheck_resolution)
     args = parser.parse_args()
     if args.command == "table":
         table(args.db, args.suite, args.baseline)
     else:
-        sweep(args.db, args.suite, [int(x) for x in args.attempts.split(",")])
+        stage = {"precheck_resolution": args.precheck_resolution}
+        sweep(args.db, args.suite, [int(x) for x in args.attempts.split(",")], stage)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ from planbench import PlanResult, PlanStatus, Problem, Scene, evaluate
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
 from planbench.bench.export import experiments, ompl_log, write_runs_csv
-from planbench.bench.postprocess import PostprocessSettingError, PostprocessSettings, apply, shortcut
+from planbench.bench.postprocess import PostprocessSettingError, PostprocessSettings, apply, segment_checker, shortcut
 from planbench.bench.report import PROCESSED_METRICS, metrics_for, summarize, to_markdown
 from planbench.bench.suite import SuiteFileError, parse_suite
 from planbench.checking.certified import CertifiedChecker
@@ -107,6 +107,9 @@ def test_the_stage_shortens_a_certified_path_and_the_result_is_certified_again(w
     validation = ValidationSettings()
     checker = CertifiedChecker.for_problem(problem, validation.certification(measure_clearance=False))
     assert not checker.check_segment(problem.start, problem.goal.q).free  # the straight line is refused
+    for resolution in (0.05, 0.0):  # by the stage too, with its sampled pre-check and without
+        free = segment_checker(problem, validation, PostprocessSettings("shortcut", precheck_resolution=resolution))
+        assert not free(problem.start, problem.goal.q) and free(result.path[0], result.path[1])
     raw = evaluate(problem, result, validation)
     done = apply(problem, result, raw, validation, SHORTCUT, seed=0)
     assert done.postprocess_note == "" and done.postprocess_shortcuts > 0 and done.postprocess_time >= 0

@@ -12,11 +12,12 @@ to the same stage here, on the harness's side (the validator process, where no p
   waypoint) are joined by a straight segment when that is shorter than the path between them by
   more than ``min_gain`` *and* the harness's certified checker proves the segment free
   (:meth:`planbench.checking.certified.CertifiedChecker.check_segment`, the validation's own
-  settings). ``attempts`` draws from ``numpy.random.default_rng(seed)`` with the run's seed, so the
-  same path and seed give the same result; ``time_budget`` only caps a pathological case (a run
-  that meets it says so). Every point kept lies on the validated path and every new segment is
-  certified, and the processed path is validated again as a whole (:func:`planbench.validate.evaluate`),
-  so it is never trusted either.
+  settings; a sampled coal check first refuses, cheaply, the segments that plainly collide).
+  ``attempts`` draws from ``numpy.random.default_rng(seed)`` with the run's seed, so the same path
+  and seed give the same result; ``time_budget`` only caps a pathological case (a run that meets it
+  says so). Every point kept lies on the validated path and every new segment is certified, and the
+  processed path is validated again as a whole (:func:`planbench.validate.evaluate`), so it is
+  never trusted either.
 
 Then every processed path gets the same time parameterisation the raw metrics use: ``duration``
 (straight segments at the velocity limits) and ``duration_limited`` (toppra under velocity and
@@ -37,7 +38,15 @@ import numpy as np
 
 from planbench.errors import InvalidConfigError
 
-__all__ = ["METHODS", "PostprocessSettingError", "PostprocessSettings", "ShortcutResult", "apply", "shortcut"]
+__all__ = [
+    "METHODS",
+    "PostprocessSettingError",
+    "PostprocessSettings",
+    "ShortcutResult",
+    "apply",
+    "segment_checker",
+    "shortcut",
+]
 
 METHODS = ("none", "shortcut")
 """The post-processing stages a suite may choose (``none``: raw paths only, the default)."""
@@ -63,6 +72,13 @@ class PostprocessSettings:
     snap: float = 0.005
     """A drawn point within this fraction of the path's length of a waypoint is that waypoint
     (OMPL's ``shortcutPath`` uses the same 0.005), so shortcuts remove waypoints rather than add them."""
+    precheck_resolution: float = 0.05
+    """[rad] Before the certified check, the segment's configurations this far apart (largest joint
+    motion) are tested for collision with coal (:class:`planbench.checking.collision.CollisionChecker`);
+    one in collision refuses the shortcut at once. A refusal only ever loses a shortcut, never admits
+    one: only the certified checker accepts. 0: no pre-check. On the tuning part most tries that are
+    refused collide outright, and this made the stage several times faster with the same paths
+    (docs/benchmarking.md#post-processing)."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -71,7 +87,7 @@ class PostprocessSettings:
             )
         if isinstance(self.attempts, bool) or not isinstance(self.attempts, int) or self.attempts < 0:
             raise PostprocessSettingError(f"postprocess attempts must be an integer >= 0, got {self.attempts!r}")
-        for name in ("time_budget", "min_gain", "snap"):
+        for name in ("time_budget", "min_gain", "snap", "precheck_resolution"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise PostprocessSettingError(f"postprocess {name} must be a finite number >= 0, got {v!r}")
@@ -169,6 +185,27 @@ def _without_repeats(path: np.ndarray) -> np.ndarray:
     return path[keep].copy()
 
 
+def segment_checker(problem: Any, validation: Any, settings: PostprocessSettings) -> SegmentFree:
+    """Whether a straight segment of ``problem`` is free: the harness's certified checker with the
+    ``validation`` settings (:class:`planbench.ValidationSettings`) decides, after a sampled coal
+    pre-check every ``settings.precheck_resolution`` rad that can only refuse."""
+    from planbench.checking.certified import CertifiedChecker
+    from planbench.checking.collision import CollisionChecker
+    from planbench.metrics import densify
+
+    certified = CertifiedChecker.for_problem(problem, validation.certification(measure_clearance=False))
+    sampled = CollisionChecker.for_problem(problem) if settings.precheck_resolution > 0 else None
+
+    def free(a: np.ndarray, b: np.ndarray) -> bool:
+        if sampled is not None:
+            dense, _ = densify(np.stack([a, b]), settings.precheck_resolution)
+            if any(sampled.in_collision(q) for q in dense[1:-1]):
+                return False
+        return bool(certified.check_segment(a, b).free)
+
+    return free
+
+
 def apply(problem: Any, result: Any, evaluation: Any, validation: Any, settings: PostprocessSettings, seed: int) -> Any:
     """``evaluation`` (of ``result``, a :class:`planbench.PlanResult`, validated with ``validation``,
     :class:`planbench.ValidationSettings`) with its ``processed_*`` metrics filled in: a successful
@@ -178,13 +215,11 @@ def apply(problem: Any, result: Any, evaluation: Any, validation: Any, settings:
     ``postprocess_note``."""
     if not settings.active or not evaluation.success or result.path is None:
         return evaluation
-    from planbench.checking.certified import CertifiedChecker
     from planbench.planner import PlanResult, PlanStatus
     from planbench.validate import evaluate
 
-    checker = CertifiedChecker.for_problem(problem, validation.certification(measure_clearance=False))
     t0 = time.perf_counter()
-    done = shortcut(result.path, lambda a, b: checker.check_segment(a, b).free, settings, seed)
+    done = shortcut(result.path, segment_checker(problem, validation, settings), settings, seed)
     spent = time.perf_counter() - t0
     processed = evaluate(problem, PlanResult(PlanStatus.SUCCESS, path=done.path, target=result.target), validation)
     common = {"postprocess_time": spent, "postprocess_shortcuts": done.shortcuts}
