@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/postprocess.py table RESULTS.db [--suite NAME] [--baseline ompl-rrtconnect]
     python benchmarks/postprocess.py sweep RESULTS.db [--suite NAME] [--attempts 0,50,100,200,400]
+    python benchmarks/postprocess.py precheck RESULTS.db [--suite NAME] [--resolutions 0,0.05]
 
 ``table``: per planner, validated successes, the median joint path length raw and processed, each
 as a ratio to the baseline's median with the same stage, the medians over the problems every
@@ -15,6 +16,9 @@ count (the seed of each run, the stage's checker with default validation setting
 gives what each smaller count would have (the same draws): the median processed length and
 shortcutting time per planner and count, to choose the default on a tuning part.
 Only the shortcut is redone (its segments are certified by construction), not the re-validation.
+
+``precheck``: the same paths shortcut with and without the sampled pre-check (``--resolutions``,
+[rad], 0: none), interleaved: the time ratio, and whether the processed paths are identical.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -93,6 +98,35 @@ def sweep(path: str, suite: str | None, attempts: Sequence[int], stage: dict[str
         print(f"| {planner} | {n} | {len(values)} | {_median(lengths):.3f} | {1e3 * _median(times):.0f} |")
 
 
+def precheck(path: str, suite: str | None, resolutions: Sequence[float]) -> None:
+    """Each stored path shortcut with every pre-check resolution in turn (the order rotated from
+    path to path, so that a busy machine slows all alike): the time ratio against the first, and
+    whether the processed paths are the same."""
+    rows = [r for r in _rows(path, suite, arrays=True) if r["success"] and r["path"] is not None]
+    validation = ValidationSettings()
+    times: dict[float, list[float]] = {x: [] for x in resolutions}
+    same = 0
+    for k, r in enumerate(rows):
+        problem = load_problem(r["problem"])
+        paths = {}
+        order = list(resolutions[k % len(resolutions) :]) + list(resolutions[: k % len(resolutions)])
+        for x in order:
+            settings = PostprocessSettings(method="shortcut", precheck_resolution=x, time_budget=1e6)
+            t0 = time.perf_counter()
+            done = shortcut(r["path"], segment_checker(problem, validation, settings), settings, int(r["seed"]))
+            times[x].append(time.perf_counter() - t0)
+            paths[x] = done.path
+        first = paths[resolutions[0]]
+        same += all(p.shape == first.shape and bool((p == first).all()) for p in paths.values())
+    base = times[resolutions[0]]
+    print(f"{len(rows)} paths; the same processed path with every resolution: {same}")
+    print("| precheck_resolution [rad] | total shortcut time [s] | median [ms] | median ratio to the first |")
+    print("|---|---|---|---|")
+    for x in resolutions:
+        ratio = _median([a / b for a, b in zip(times[x], base, strict=True) if b > 0])
+        print(f"| {x:g} | {sum(times[x]):.1f} | {1e3 * _median(times[x]):.0f} | {ratio:.2f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -105,9 +139,15 @@ def main() -> None:
     s.add_argument("--suite")
     s.add_argument("--attempts", default="0,50,100,200,400")
     s.add_argument("--precheck-resolution", type=float, default=PostprocessSettings.precheck_resolution)
+    c = sub.add_parser("precheck")
+    c.add_argument("db")
+    c.add_argument("--suite")
+    c.add_argument("--resolutions", default="0,0.05")
     args = parser.parse_args()
     if args.command == "table":
         table(args.db, args.suite, args.baseline)
+    elif args.command == "precheck":
+        precheck(args.db, args.suite, [float(x) for x in args.resolutions.split(",")])
     else:
         stage = {"precheck_resolution": args.precheck_resolution}
         sweep(args.db, args.suite, [int(x) for x in args.attempts.split(",")], stage)
