@@ -211,3 +211,29 @@ def test_processed_columns_are_stored_shown_and_read_from_older_files(tmp_path):
     assert PROCESSED_METRICS[0] not in metrics_for([old])
     with ResultsDB(tmp_path / "r.db") as db:  # opened for writing: the columns are added back
         assert "processed_joint_path_length" in db.columns
+
+
+def test_the_stage_never_costs_a_run_its_verdict(walled, monkeypatch):
+    from planbench.bench import validator
+
+    problem, result = walled
+    fields = {
+        "status": "success",
+        "path": result.path,
+        "times": None,
+        "target": "configuration",
+        "message": "",
+        "info": {},
+        "planning_time": 0.1,
+        "setup_time": 0.0,
+    }
+    done = validator.validate_fields(problem, fields, {}, {"method": "shortcut", "attempts": 20}, seed=1)
+    assert done["success"] and done["processed_joint_path_length"] < done["joint_path_length"]
+
+    def broken(*args, **kwargs):
+        raise MemoryError("no room")
+
+    monkeypatch.setattr(validator, "apply_postprocess", broken)
+    kept = validator.validate_fields(problem, fields, {}, {"method": "shortcut"}, seed=1)
+    assert kept["success"] and kept["joint_path_length"] == done["joint_path_length"]
+    assert math.isnan(kept["processed_joint_path_length"]) and "MemoryError: no room" in kept["postprocess_note"]

@@ -29,6 +29,7 @@ Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import resource
 import signal
@@ -88,8 +89,7 @@ def validate_fields(
     try:
         with _address_space_limit(size + limit if limit > 0 else 0.0):
             evaluation = evaluate(problem, result, settings)
-            stage = PostprocessSettings(**(postprocess or {}))
-            return apply_postprocess(problem, result, evaluation, settings, stage, seed).as_dict()
+            return _postprocessed(problem, result, evaluation, settings, postprocess or {}, seed).as_dict()
     except MemoryError:
         CertifiedChecker.forget(problem)  # its buffers may be half-built
         where = (
@@ -99,6 +99,25 @@ def validate_fields(
             else "(no memory limit was set)"
         )
         return not_validated(result, f"not validated: validation ran out of memory, {where}").as_dict()
+
+
+def _postprocessed(
+    problem: Any,
+    result: PlanResult,
+    evaluation: Evaluation,
+    settings: ValidationSettings,
+    stage: dict[str, Any],
+    seed: int,
+) -> Evaluation:
+    """``evaluation`` with the suite's post-processing stage applied; the stage never costs a run
+    its verdict: where it raises (out of memory included), the run keeps its raw metrics, the
+    reason in ``postprocess_note``."""
+    try:
+        return apply_postprocess(problem, result, evaluation, settings, PostprocessSettings(**stage), seed)
+    except Exception as exc:
+        if isinstance(exc, MemoryError):
+            CertifiedChecker.forget(problem)  # its buffers may be half-built
+        return dataclasses.replace(evaluation, postprocess_note=f"post-processing raised {type(exc).__name__}: {exc}")
 
 
 # -- bounded validation: the validator's address space during one validation -----------------------
