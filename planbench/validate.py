@@ -153,6 +153,17 @@ class Evaluation:
     collision_pair: str = ""  # "<robot link> / <link or obstacle:name>"
     penetration_depth: float = math.nan  # [m] deepest found for that pair (0: too close, not provably free)
     checks: dict[str, bool] = field(default_factory=dict)
+    # the suite's post-processing stage (planbench.bench.postprocess; NaN / None where it did not run):
+    # the validated path shortened on the harness's side, validated again, the same metrics
+    processed_n_waypoints: int | None = None
+    processed_joint_path_length: float = math.nan  # [rad]
+    processed_ee_path_length: float = math.nan  # [m]
+    processed_min_clearance: float = math.nan  # [m] smallest robot-obstacle distance found
+    processed_duration: float = math.nan  # [s] at the velocity limits, as duration
+    processed_duration_limited: float = math.nan  # [s] toppra, as duration_limited
+    postprocess_time: float = math.nan  # [s] the shortcutting itself (not the planner's time, not its re-validation)
+    postprocess_shortcuts: int | None = None  # shortcuts taken
+    postprocess_note: str = ""  # why the stage kept no processed path, or that its time budget cut it short
     # closed-loop runs only (planbench.reactive.runner.RunMetrics; NaN / None for a static plan)
     time_to_goal: float = math.nan  # [s] when the goal tolerance was met
     tick_time_median: float = math.nan  # [s] the controller's compute time per control tick

@@ -223,6 +223,7 @@ def prepare(
             validation_timeout=float(suite.validation_timeout),
             memory_limit=float(suite.memory_limit),
             validation=suite.validation,
+            postprocess=suite.postprocess,
             fresh_process=entry.fresh_process,
             run_settings=run_settings,
             kind=suite.kind,

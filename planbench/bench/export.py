@@ -98,6 +98,12 @@ RUN_PROPERTIES: tuple[tuple[str, str, Any], ...] = (
     ("validation checks", "INTEGER", lambda r: r["validation_checks"]),
     ("wall time", "REAL", lambda r: r["wall_time"]),
     ("seed", "INTEGER", lambda r: r["seed"]),
+    # the suite's post-processing stage (planbench.bench.postprocess; empty where it did not run)
+    ("processed solution length", "REAL", lambda r: r.get("processed_joint_path_length")),
+    ("processed ee path length", "REAL", lambda r: r.get("processed_ee_path_length")),
+    ("processed clearance", "REAL", lambda r: r.get("processed_min_clearance")),
+    ("processed duration", "REAL", lambda r: r.get("processed_duration_limited")),
+    ("postprocess time", "REAL", lambda r: r.get("postprocess_time")),
 )
 
 

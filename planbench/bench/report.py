@@ -35,6 +35,7 @@ __all__ = [
     "summary_headers",
     "DYNAMIC_METRICS",
     "METRICS",
+    "PROCESSED_METRICS",
     "Metric",
     "metrics_for",
     "summarize",
@@ -67,6 +68,17 @@ METRICS: tuple[Metric, ...] = (
     Metric("duration_limited", "duration at velocity and acceleration limits [s]", 1.0, "timed [s]"),
 )
 TERMINAL_METRICS = tuple(m for m in METRICS if m.name != "setup_time")
+PROCESSED_METRICS: tuple[Metric, ...] = (
+    Metric("processed_joint_path_length", "processed joint path length [rad]", 1.0, "pp joint len [rad]"),
+    Metric("processed_ee_path_length", "processed EE path length [m]", 1.0, "pp EE len [m]"),
+    Metric("processed_min_clearance", "processed min clearance [mm]", 1e3, "pp clearance [mm]", lower_is_better=False),
+    Metric(
+        "processed_duration_limited", "processed duration at velocity and acceleration limits [s]", 1.0, "pp timed [s]"
+    ),
+    Metric("postprocess_time", "post-processing time [ms]", 1e3, "pp time [ms]"),
+)
+"""The columns of the post-processing stage (planbench.bench.postprocess), beside the raw ones, in a
+table of runs of which any has a processed path."""
 DYNAMIC_METRICS: tuple[Metric, ...] = (
     Metric("time_to_goal", "time to goal [s]", 1.0, "to goal [s]"),
     Metric("min_clearance", "min clearance [mm]", 1e3, "clearance [mm]", lower_is_better=False),
@@ -127,10 +139,18 @@ def certificate_rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def metrics_for(rows: Sequence[dict[str, Any]], terminal: bool = False) -> tuple[Metric, ...]:
-    """:data:`DYNAMIC_METRICS` for closed-loop runs, else the static ones (terminal: no setup time)."""
+    """:data:`DYNAMIC_METRICS` for closed-loop runs, else the static ones (terminal: no setup time),
+    followed by :data:`PROCESSED_METRICS` where any run has a processed path."""
     if rows and all(r.get("deadline_misses") is not None for r in rows):
         return DYNAMIC_METRICS
-    return TERMINAL_METRICS if terminal else METRICS
+    raw = TERMINAL_METRICS if terminal else METRICS
+    if any(_finite(r.get("processed_joint_path_length")) for r in rows):
+        return raw + PROCESSED_METRICS
+    return raw
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 FAILURE_STATUSES = ("error", "timeout", "crash")

@@ -672,7 +672,15 @@ class Runner:
         slot.fields = fields
         self._enter(slot, "validate", self._woke)
         result = {k: v for k, v in fields.items() if k not in ("path", "times")}
-        request = {"snapshot": self._snapshot_of(slot.task), "validation": slot.task.validation, "result": result}
+        task = slot.task
+        assert task is not None
+        request = {
+            "snapshot": self._snapshot_of(task),
+            "validation": task.validation,
+            "postprocess": task.postprocess,
+            "seed": task.seed,
+            "result": result,
+        }
         self._ask_validator(slot, request, {"path": fields["path"], "times": fields["times"]})
         return None
 

@@ -12,9 +12,13 @@ A suite is a small TOML file (``planbench-suite/1``)::
     setup_timeout = 60.0              # [s] hard limit on loading the problem and planner setup
     grace = 2.0                       # [s] slack past time_limit before a planning run is killed
     validation_timeout = 100.0        # [s] hard limit on validating one path
+    postprocess = "none"              # every valid path post-processed alike: "none" or "shortcut"
 
     [validation]                      # optional: planbench.ValidationSettings fields
     required_clearance = 0.0          # [m] smallest distance allowed along a path
+
+    [postprocess]                     # optional: planbench.bench.postprocess.PostprocessSettings fields
+    attempts = 200                    # shortcut tries per path
 
     [[planners]]
     label = "mf-default"              # unique in the suite; defaults to the planner name
@@ -71,6 +75,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from planbench.bench.postprocess import PostprocessSettingError, PostprocessSettings
 from planbench.errors import DuplicateProblemError, InvalidConfigError, PlanbenchError, UnknownNameError
 from planbench.files.inputs import InputFileError, read_text
 from planbench.problem import Problem
@@ -183,6 +188,9 @@ class Suite:
     grace: float = DEFAULT_GRACE
     validation_timeout: float = DEFAULT_VALIDATION_TIMEOUT
     validation: dict[str, Any] = field(default_factory=dict)
+    postprocess: dict[str, Any] = field(default_factory=dict)
+    """The post-processing stage (:class:`planbench.bench.postprocess.PostprocessSettings` fields; empty:
+    ``none``), applied by the harness to every planner's valid path alike."""
     description: str = ""
     source: str = "<python>"
     kind: str = "static"
@@ -226,6 +234,21 @@ class Suite:
         except (TypeError, ValueError) as exc:
             known = [f.name for f in dataclasses.fields(ValidationSettings)]
             raise bad(f"[validation]: {exc} (fields: {', '.join(known)})") from exc
+        if not isinstance(self.postprocess, dict):
+            raise bad("[postprocess] must be a table")
+        try:
+            PostprocessSettings(**self.postprocess)
+        except TypeError as exc:
+            known = [f.name for f in dataclasses.fields(PostprocessSettings)]
+            raise bad(f"[postprocess]: {exc} (fields: {', '.join(known)})") from exc
+        except PostprocessSettingError as exc:
+            raise bad(str(exc)) from exc
+        if self.kind == "dynamic" and PostprocessSettings(**self.postprocess).active:
+            raise bad("postprocess is for static suites (problems and [[planners]]), not closed-loop ones")
+
+    @property
+    def postprocess_settings(self) -> PostprocessSettings:
+        return PostprocessSettings(**self.postprocess)
 
     def with_changes(self, **changes: Any) -> Suite:
         return dataclasses.replace(self, **changes)
@@ -239,10 +262,13 @@ class Suite:
         return d
 
     def settings_json(self) -> str:
-        """The settings that change results (limits, validation and the validator's version), as
-        canonical JSON."""
+        """The settings that change results (limits, validation and the validator's version, the
+        post-processing stage when there is one), as canonical JSON."""
         keys = ("time_limit", "memory_limit", "setup_timeout", "grace", "validation_timeout", "validation")
-        more = {"kind": self.kind, "timing": self.timing} if self.kind == "dynamic" else {}
+        more: dict[str, Any] = {"kind": self.kind, "timing": self.timing} if self.kind == "dynamic" else {}
+        stage = self.postprocess_settings
+        if stage.active:  # absent for "none", so results written before the stage existed still resume
+            more["postprocess"] = dataclasses.asdict(stage)
         return json.dumps({"validator": VALIDATOR, **{k: getattr(self, k) for k in keys}, **more}, sort_keys=True)
 
     def entry(self, label: str) -> PlannerEntry:
@@ -265,6 +291,7 @@ _SUITE_KEYS = {
     "format",
     "scenarios",
     "timing",
+    "postprocess",
 }
 _PLANNER_KEYS = {"label", "planner", "settings", "optional", "fresh_process"}
 KINDS = ("static", "dynamic")
@@ -306,11 +333,12 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
         data = tomllib.loads(content)
     except tomllib.TOMLDecodeError as exc:
         raise SuiteFileError(source, f"not valid TOML: {exc}") from exc
-    unknown_tables = set(data) - {"suite", "planners", "controllers", "validation"}
+    unknown_tables = set(data) - {"suite", "planners", "controllers", "validation", "postprocess"}
     if unknown_tables:
         raise SuiteFileError(
             source,
-            f"unknown table(s) {sorted(unknown_tables)}; use [suite], [[planners]] (or [[controllers]]), [validation]",
+            f"unknown table(s) {sorted(unknown_tables)}; use [suite], [[planners]] (or [[controllers]]), "
+            "[validation], [postprocess]",
         )
     head = data.get("suite")
     if not isinstance(head, dict):
@@ -365,6 +393,18 @@ def parse_suite(content: str, source: str = "<string>") -> Suite:
     if not isinstance(validation, dict):
         raise SuiteFileError(source, "[validation] must be a table")
     kwargs = {k: head[k] for k in ("time_limit", "setup_timeout", "grace", "validation_timeout") if k in head}
+    stage = data.get("postprocess", {})
+    if not isinstance(stage, dict):
+        raise SuiteFileError(source, "[postprocess] must be a table (its method is [suite] postprocess)")
+    if "method" in stage:
+        raise SuiteFileError(source, '[postprocess] method: give it as [suite] postprocess = "shortcut"')
+    if "postprocess" in head:
+        if not isinstance(head["postprocess"], str):
+            raise SuiteFileError(
+                source, f'[suite] postprocess must be "none" or "shortcut", got {head["postprocess"]!r}'
+            )
+        stage = {**stage, "method": head["postprocess"]}
+    kwargs["postprocess"] = dict(stage)
     if dynamic:
         kwargs.update(kind="dynamic", timing=head.get("timing", "measured"))
         kwargs.setdefault("time_limit", DEFAULT_DYNAMIC_TIME_LIMIT)

@@ -32,7 +32,7 @@ __all__ = ["RunTask"]
 @dataclass(frozen=True)
 class RunTask:
     """One run: ``planner`` with ``settings`` on problem ``problem_ref`` with ``seed``, under the
-    suite's limits [s, MiB] (``memory_limit`` 0: none) and ``validation`` settings.
+    suite's limits [s, MiB] (``memory_limit`` 0: none), ``validation`` settings and ``postprocess`` stage.
 
     ``settings`` are already parsed to their fields' types (JSON data). ``run_settings`` are the
     suite's result-changing settings as stored with every row (:meth:`Suite.settings_json`).
@@ -53,6 +53,9 @@ class RunTask:
     validation_timeout: float = DEFAULT_VALIDATION_TIMEOUT
     memory_limit: float = DEFAULT_MEMORY_LIMIT
     validation: dict[str, Any] = field(default_factory=dict)
+    postprocess: dict[str, Any] = field(default_factory=dict)
+    """The suite's post-processing stage (:class:`planbench.bench.postprocess.PostprocessSettings` fields;
+    empty: none), run by the validator on a valid path."""
     fresh_process: bool = False
     run_settings: dict[str, Any] = field(default_factory=dict)
     kind: str = "static"

@@ -17,10 +17,10 @@ points to (robot, meshes, clouds) are checked against their hashes from then.
 Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
 - in: ``{"type": "validate", "run": id, "kind": "static", "snapshot": ..., "validation":
-  {...}, "result": {...}}`` with the result's ``path`` and ``times`` arrays, already checked by
-  the parent; or ``{"type": "validate", "run": id, "kind": "dynamic", "snapshot": ...,
-  "seed": n, "timing": ..., "pid": the controller's, "cpu": core or null}`` followed by the
-  socket (``SCM_RIGHTS``);
+  {...}, "postprocess": {...}, "seed": n, "result": {...}}`` with the result's ``path`` and
+  ``times`` arrays, already checked by the parent; or ``{"type": "validate", "run": id, "kind":
+  "dynamic", "snapshot": ..., "seed": n, "timing": ..., "pid": the controller's, "cpu": core or
+  null}`` followed by the socket (``SCM_RIGHTS``);
 - out: ``{"type": "ready"}`` once imports are done, then per run
   ``{"type": "verdict", "run": id, "evaluation": {...}, "validation_time": s}`` (with the run's
   ``result`` fields and its ``path`` and ``times`` arrays for a closed-loop run), or ``"error"``
@@ -29,6 +29,7 @@ Messages, all data-only (:mod:`planbench.bench.wire`), never pickles:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import resource
 import signal
@@ -41,6 +42,8 @@ from multiprocessing.reduction import recv_handle
 from typing import Any
 
 from planbench.bench.kinds import kind_of
+from planbench.bench.postprocess import PostprocessSettings
+from planbench.bench.postprocess import apply as apply_postprocess
 from planbench.bench.procs import OutputFile, detach, limit_threads, watch_parent
 from planbench.bench.snapshot import SnapshotChanged, restore
 from planbench.bench.wire import clean_info, clean_result, decode, encode
@@ -57,9 +60,17 @@ def _problem(ref: str) -> Any:
     return load_problem(ref)
 
 
-def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, Any]) -> dict[str, Any]:
+def validate_fields(
+    problem: Any,
+    fields: dict[str, Any],
+    validation: dict[str, Any],
+    postprocess: dict[str, Any] | None = None,
+    seed: int = 0,
+) -> dict[str, Any]:
     """``planbench.evaluate`` of a static run's checked raw result (see
-    :func:`planbench.bench.wire.clean_result`); ``problem`` is a problem or its reference."""
+    :func:`planbench.bench.wire.clean_result`); ``problem`` is a problem or its reference. With a
+    ``postprocess`` stage (:class:`planbench.bench.postprocess.PostprocessSettings` fields), a valid path
+    is then post-processed here, with the run's ``seed``, and its processed metrics added."""
     if isinstance(problem, str):
         problem = _problem(problem)
     result = PlanResult(
@@ -77,7 +88,8 @@ def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, 
     size = _address_space_mib()
     try:
         with _address_space_limit(size + limit if limit > 0 else 0.0):
-            return evaluate(problem, result, settings).as_dict()
+            evaluation = evaluate(problem, result, settings)
+            return _postprocessed(problem, result, evaluation, settings, postprocess or {}, seed).as_dict()
     except MemoryError:
         CertifiedChecker.forget(problem)  # its buffers may be half-built
         where = (
@@ -87,6 +99,25 @@ def validate_fields(problem: Any, fields: dict[str, Any], validation: dict[str, 
             else "(no memory limit was set)"
         )
         return not_validated(result, f"not validated: validation ran out of memory, {where}").as_dict()
+
+
+def _postprocessed(
+    problem: Any,
+    result: PlanResult,
+    evaluation: Evaluation,
+    settings: ValidationSettings,
+    stage: dict[str, Any],
+    seed: int,
+) -> Evaluation:
+    """``evaluation`` with the suite's post-processing stage applied; the stage never costs a run
+    its verdict: where it raises (out of memory included), the run keeps its raw metrics, the
+    reason in ``postprocess_note``."""
+    try:
+        return apply_postprocess(problem, result, evaluation, settings, PostprocessSettings(**stage), seed)
+    except Exception as exc:
+        if isinstance(exc, MemoryError):
+            CertifiedChecker.forget(problem)  # its buffers may be half-built
+        return dataclasses.replace(evaluation, postprocess_note=f"post-processing raised {type(exc).__name__}: {exc}")
 
 
 # -- bounded validation: the validator's address space during one validation -----------------------
@@ -177,7 +208,8 @@ def _static_judge(request: dict[str, Any], arrays: dict[str, Any], channel: sock
     except SnapshotChanged as exc:  # the run's problem is not the one the benchmark read: no verdict
         failure = f"error: {exc}; no verdict"
         return None, Evaluation(False, failure, "error", fields["planning_time"], fields["setup_time"]).as_dict()
-    return None, validate_fields(problem, fields, request["validation"])
+    stage, seed = request.get("postprocess") or {}, int(request.get("seed", 0))
+    return None, validate_fields(problem, fields, request["validation"], stage, seed)
 
 
 def _dynamic_judge(request: dict[str, Any], arrays: dict[str, Any], channel: socket.socket | None) -> Judgement:

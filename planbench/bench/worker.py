@@ -219,7 +219,7 @@ def run_one(task: RunTask) -> dict[str, Any]:
     evaluation, validation_time = None, math.nan
     if fields["prepared"]:
         t0 = time.perf_counter()
-        evaluation = validate_fields(task.problem_ref, fields, task.validation)
+        evaluation = validate_fields(task.problem_ref, fields, task.validation, task.postprocess, task.seed)
         validation_time = time.perf_counter() - t0
     return record_from(fields, evaluation, validation_time)
 

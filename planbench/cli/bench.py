@@ -104,6 +104,12 @@ def add_commands(subparsers: Any) -> None:
         help="address space per worker process [MiB], or 'none' (default: the suite's memory_limit, "
         f"{DEFAULT_MEMORY_LIMIT:g} MiB unless it sets one)",
     )
+    p.add_argument(
+        "--postprocess",
+        metavar="STAGE",
+        help="post-process every planner's valid path alike, on the harness's side: 'none' or 'shortcut' "
+        "(certified shortcutting; default: the suite's postprocess, 'none' unless it sets one)",
+    )
     p.add_argument("--out", default="results.db", help="results database (SQLite), default results.db")
     p.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
     p.add_argument("--overwrite", action="store_true", help="delete this suite's runs in --out first")
@@ -171,6 +177,7 @@ def _by(choice: str) -> tuple[str, ...]:
 def _bench_suite(args: argparse.Namespace) -> Any:
     """The suite the ``bench`` options ask for; every option is checked before any file is touched."""
     from planbench.bench.benchmark import select
+    from planbench.bench.postprocess import PostprocessSettingError, PostprocessSettings
     from planbench.bench.suite import check_seconds, parse_memory_limit
 
     if args.jobs < 0:
@@ -185,6 +192,13 @@ def _bench_suite(args: argparse.Namespace) -> Any:
     suite = select(args.suite, args.planners, args.problems, args.seeds, args.time_limit, text_settings=text)
     if args.memory_limit is not None:
         suite = suite.with_changes(memory_limit=parse_memory_limit(args.memory_limit))
+    if args.postprocess is not None:
+        stage = {**suite.postprocess, "method": args.postprocess}
+        try:
+            PostprocessSettings(**stage)
+        except PostprocessSettingError as exc:
+            raise PostprocessSettingError(f"--postprocess: {exc}") from None
+        suite = suite.with_changes(postprocess=stage)
     return suite
 
 
