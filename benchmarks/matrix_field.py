@@ -11,7 +11,9 @@ solve, integration and the loop's bookkeeping), next to the bare pinocchio calls
 (``computeJointJacobians`` and ``updateFramePlacement``) and their ratio, each the median of 5
 rounds. The breakdown times each part alone, on the query's own objects: the rest of the
 kinematics (control points and the goal frame's Jacobian, one compiled call), field sampling
-(``FieldRepulsion.forces``), the compiled step (all task terms, manipulability gradient,
+(``FieldRepulsion.forces``), the self-collision push (``SelfCollisionPush``: field sampling and
+push timed over the round's own path, in order, so that the push's ask schedule and its coal
+queries near the arm's own links count as in the loop), the compiled step (all task terms, manipulability gradient,
 repulsion mapping, DLS with null space, limits), the integration; glue is the rest (the Python
 loop and its bookkeeping). The numpy reference step (the task functions composed in Python) is
 timed alone too.
@@ -37,6 +39,7 @@ from _bench import run_suite
 
 import planbench
 from planbench_plugins.ik_loop import fast
+from planbench_plugins.ik_loop.self_collision import SelfCollisionPush
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
 
 
@@ -45,6 +48,27 @@ def _per_call_us(fn: Any, reps: int = 2000) -> float:
     for _ in range(reps):
         fn()
     return (time.perf_counter() - t0) / reps * 1e6
+
+
+def _along_path(path: np.ndarray, kin: Any, push: SelfCollisionPush) -> tuple[float, float]:
+    """Per-step time [us] of the field's repulsion (``push.inner``) and of the self-collision
+    push on top of it, over the configurations of ``path`` in order (the push's ask schedule as
+    in the loop): the kinematics alone, with the field, with field and push, each timed over the
+    whole path and subtracted."""
+    inner = push.inner
+
+    def over(fn: Any) -> float:
+        push.restart()
+        t0 = time.perf_counter()
+        for q in path:
+            kin.update(q)
+            fn(kin)
+        return (time.perf_counter() - t0) / len(path) * 1e6
+
+    base = over(lambda k: None)
+    field = over(inner.forces)
+    both = over(push.forces)
+    return field - base, both - field
 
 
 def bench_step(
@@ -73,6 +97,7 @@ def bench_step(
     # the query's own objects, as the loop uses them (prepared by setup), at a configuration near the start
     stepper = planner.stepper
     kin, inputs, repulsion = stepper.kin, stepper.inputs, stepper.repulsion
+    push = repulsion if isinstance(repulsion, SelfCollisionPush) else None
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)
     points, F, support, joint = repulsion.forces(kin)
@@ -124,7 +149,10 @@ def bench_step(
         row["ratio"] = row["step"] / row["pinocchio"]
         pin3 = _per_call_us(pin_calls_frame_jacobian)
         row["kinematics (rest)"] = _per_call_us(lambda: kin.update(q)) - row["pinocchio"]
-        row["field sampling"] = _per_call_us(lambda: repulsion.forces(kin))
+        if push is None:
+            row["field sampling"] = _per_call_us(lambda: repulsion.forces(kin))
+        else:  # along the round's own path: the push asks coal only where the arm comes near itself
+            row["field sampling"], row["self-collision push"] = _along_path(np.asarray(r.path), kin, push)
         row["solve (compiled step)"] = _per_call_us(lambda: step(points, F, support, tool))
         row["integrate"] = _per_call_us(lambda: advance(1))
         row["glue (rest)"] = row["step"] - sum(v for k, v in row.items() if k not in ("step", "ratio"))

@@ -349,3 +349,24 @@ def advance(q, qd, dt, lower, upper, path, k):  # type: ignore[no-untyped-def]
             val = upper[j]
         q[j] = val
         path[k, j] = val
+
+
+@nb.njit(cache=True)
+def spheres_within(Rs, ts, body_joint, body_centre, radius, first, second, limit, centre, out):  # type: ignore[no-untyped-def]
+    """The pairs whose bounding spheres lie closer than ``limit`` [m] (a lower bound of the
+    bodies' distance, ``|c_a - c_b| - r_a - r_b``): their indices into ``out``, their number
+    returned. ``centre[b] = Rs[body_joint[b]] @ body_centre[b] + ts[body_joint[b]]`` (the sphere's
+    centre given in its joint's frame) is written on the way."""
+    for b in range(body_joint.shape[0]):
+        j = body_joint[b]
+        c0, c1, c2 = body_centre[b, 0], body_centre[b, 1], body_centre[b, 2]
+        for a in range(3):
+            centre[b, a] = Rs[j, a, 0] * c0 + Rs[j, a, 1] * c1 + Rs[j, a, 2] * c2 + ts[j, a]
+    m = 0
+    for k in range(first.shape[0]):
+        i, j = first[k], second[k]
+        d0, d1, d2 = centre[i, 0] - centre[j, 0], centre[i, 1] - centre[j, 1], centre[i, 2] - centre[j, 2]
+        if math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - radius[i] - radius[j] < limit:
+            out[m] = k
+            m += 1
+    return m

@@ -168,12 +168,18 @@ class DistanceModel:
         # culling: a sphere per robot geometry (local centre, radius), a box per obstacle
         self._centre_local = np.array(centres).reshape(-1, 3)
         self._radius = np.array(radii)
+        # the same spheres in their joints' frames, for culling straight from the joint placements
+        self.body_joint = np.array([int(g.parentJoint) for g in robot_geoms], dtype=np.intp)
+        self.body_centre = np.array(
+            [g.placement.rotation @ c + g.placement.translation for g, c in zip(robot_geoms, centres, strict=True)]
+        ).reshape(-1, 3)
         self._obs_lo = np.array(lows).reshape(-1, 3)
         self._obs_hi = np.array(highs).reshape(-1, 3)
         self._is_self = second < n_robot
         self.geometry_model = gm
         self.geometry_data = gd = fresh_geometry_data(gm)  # the same answer whatever was queried before
         self._oMg = [gd.oMg[i] for i in range(n_robot)]
+        self._results = [gd.distanceResults[k] for k in range(self.n_pairs)]  # references, fetched once
         self._rotation = np.tile(np.eye(3), (n_bodies, 1, 1))
         self._translation = np.zeros((n_bodies, 3))
         self._model = model
@@ -181,21 +187,11 @@ class DistanceModel:
         self.n_pairs_checked = 0
         """Pairs handed to coal by the last :meth:`near` (after culling)."""
 
-    def near_at(self, q: np.ndarray) -> PairDistances:
-        """:meth:`near` at configuration ``q`` (forward kinematics on this object's own data)."""
-        pin.forwardKinematics(self._model, self._data, q)
-        return self.near(self._model, self._data)
-
-    def near(self, model: Any, data: Any) -> PairDistances:
-        """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
-        placements ``data.oMi`` up to date: after ``kin.update(q)``)."""
-        gm, gd = self.geometry_model, self.geometry_data
-        pin.updateGeometryPlacements(model, data, gm, gd)
+    def _cull(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Pairs whose lower bound (spheres against spheres or obstacle boxes) is below the
+        influence distance, the robot geometries placed at ``rotation``, ``translation``."""
         n_robot = self.n_robot
-        rotation, translation = self._rotation.copy(), self._translation.copy()
-        rotation[:n_robot] = [M.rotation for M in self._oMg]
-        translation[:n_robot] = [M.translation for M in self._oMg]
-        centre = np.einsum("gij,gj->gi", rotation[:n_robot], self._centre_local) + translation[:n_robot]
+        centre = np.einsum("gij,gj->gi", rotation, self._centre_local) + translation
         first, second = self._first, self._second
         bound = np.empty(self.n_pairs)
         c = centre[first]
@@ -205,30 +201,102 @@ class DistanceModel:
         bound[obstacle] = np.sqrt(np.einsum("ka,ka->k", gap, gap)) - self._radius[first[obstacle]]
         s = self._is_self
         bound[s] = np.linalg.norm(c[s] - centre[second[s]], axis=1) - self._radius[first[s]] - self._radius[second[s]]
-        candidates = np.flatnonzero(bound < self.influence)
-        m = len(candidates)
-        dist, point, other, normal = np.empty(m), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
-        keep = np.zeros(m, dtype=bool)
-        results = gd.distanceResults
-        for i, k in enumerate(candidates.tolist()):
+        return np.flatnonzero(bound < self.influence)
+
+    def measure(
+        self,
+        model: Any,
+        data: Any,
+        candidates: np.ndarray,
+        pair: np.ndarray,
+        distance: np.ndarray,
+        point: np.ndarray,
+        other_point: np.ndarray,
+        normal: np.ndarray,
+    ) -> int:
+        """:meth:`near` for the pairs ``candidates`` into the caller's buffers (of at least
+        ``len(candidates)`` rows): the ``k`` pairs within the influence distance, in the order of
+        ``candidates``, in the first ``k`` rows; ``k`` returned. No arrays are made: the per-step
+        path of the self-collision push."""
+        pin.updateGeometryPlacements(model, data, self.geometry_model, self.geometry_data)
+        return self._measure(candidates, pair, distance, point, other_point, normal)
+
+    def _measure(self, candidates, pair, dist, point, other, normal) -> int:  # type: ignore[no-untyped-def]
+        """coal's distance for each of ``candidates`` (geometry placements up to date), the pairs
+        within the influence distance kept in the buffers' first rows; their number returned."""
+        gm, gd, results, compute = self.geometry_model, self.geometry_data, self._results, pin.computeDistance
+        influence = self.influence
+        m = 0
+        for k in candidates.tolist():
             results[k].clear()
-            res = pin.computeDistance(gm, gd, k)
+            res = compute(gm, gd, k)
             d = res.min_distance
-            if d < self.influence:
-                keep[i] = True
-                dist[i] = d
-                point[i] = res.getNearestPoint1()
-                other[i] = res.getNearestPoint2()
-                normal[i] = res.normal
-        self.n_pairs_checked = m
-        pair = candidates[keep]
+            if d < influence:
+                pair[m], dist[m] = k, d
+                point[m] = res.getNearestPoint1()
+                other[m] = res.getNearestPoint2()
+                normal[m] = res.normal
+                m += 1
+        self.n_pairs_checked = len(candidates)
+        return m
+
+    @property
+    def body_support(self) -> np.ndarray:
+        """(B, n): 1.0 where joint ``k`` moves body ``b`` (all 0 for an obstacle or the fixed base)."""
+        return self._support
+
+    def near_at(self, q: np.ndarray) -> PairDistances:
+        """:meth:`near` at configuration ``q`` (forward kinematics on this object's own data)."""
+        pin.forwardKinematics(self._model, self._data, q)
+        return self.near(self._model, self._data)
+
+    @property
+    def radius(self) -> np.ndarray:
+        """Radius of each robot geometry's bounding sphere [m] (its local box's half diagonal)."""
+        return self._radius
+
+    @property
+    def pair_bodies(self) -> tuple[np.ndarray, np.ndarray]:
+        """The first and second body of every pair (P,), geometry indices."""
+        return self._first, self._second
+
+    def self_candidates(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Indices of the pairs whose bounding spheres lie closer than :attr:`influence`, the
+        joints placed at ``rotation`` (J, 3, 3) and ``translation`` (J, 3) [m] (pinocchio's
+        ``data.oMi``); only for a model of self pairs (``obstacle_pairs=False``). What
+        :meth:`near` culls to, in numpy (the compiled twin is ``_compiled.spheres_within``)."""
+        if self.n_obstacles:
+            raise ValueError("self_candidates culls self pairs only: build the model with obstacle_pairs=False")
+        j = self.body_joint
+        centre = np.einsum("bij,bj->bi", rotation[j], self.body_centre) + translation[j]
+        first, second = self._first, self._second
+        bound = np.linalg.norm(centre[first] - centre[second], axis=1) - self._radius[first] - self._radius[second]
+        return np.flatnonzero(bound < self.influence)
+
+    def near(self, model: Any, data: Any, candidates: np.ndarray | None = None) -> PairDistances:
+        """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
+        placements ``data.oMi`` up to date: after ``kin.update(q)``). ``candidates``: the pairs
+        that the bounding spheres leave (:meth:`self_candidates`) when the caller culled already."""
+        gm, gd = self.geometry_model, self.geometry_data
+        pin.updateGeometryPlacements(model, data, gm, gd)
+        n_robot = self.n_robot
+        rotation, translation = self._rotation.copy(), self._translation.copy()
+        rotation[:n_robot] = [M.rotation for M in self._oMg]
+        translation[:n_robot] = [M.translation for M in self._oMg]
+        first, second = self._first, self._second
+        if candidates is None:
+            candidates = self._cull(rotation[:n_robot], translation[:n_robot])
+        m = len(candidates)
+        pair, dist, point, other, normal = np.empty(m, dtype=np.intp), np.empty(m), *np.empty((3, m, 3))
+        k = self._measure(candidates, pair, dist, point, other, normal)
+        pair, dist, point, other, normal = pair[:k], dist[:k], point[:k], other[:k], normal[:k]
         return PairDistances(
             self.n_pairs,
             pair=pair,
-            distance=dist[keep],
-            point=point[keep],
-            other_point=other[keep],
-            normal=normal[keep],
+            distance=dist,
+            point=point,
+            other_point=other,
+            normal=normal,
             first=first[pair],
             second=second[pair],
             support=self._support[first[pair]],
