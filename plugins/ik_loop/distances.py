@@ -94,6 +94,43 @@ def _hull(geometry: Any) -> Any:
     return geometry
 
 
+def _vertices(geometry: Any) -> np.ndarray:
+    """Points (V, 3) whose convex hull contains ``geometry`` (in its own frame): a convex hull's
+    vertices, else its local bounding box's eight corners."""
+    if isinstance(geometry, coal.ConvexBase) and geometry.num_points:
+        return np.asarray(geometry.points(), dtype=float).reshape(-1, 3)
+    geometry.computeLocalAABB()
+    lo, hi = np.array(geometry.aabb_local.min_), np.array(geometry.aabb_local.max_)
+    return np.array([[(lo, hi)[i >> a & 1][a] for a in range(3)] for i in range(8)])
+
+
+def _point_segment(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances [m] of ``points`` (V, 3) to the segment from ``a`` to ``b``."""
+    d = b - a
+    dd = float(d @ d)
+    t = np.clip((points - a) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(points))
+    return np.linalg.norm(points - (a + t[:, None] * d), axis=1)
+
+
+def bounding_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule containing ``points`` (V, 3), hence their convex hull: the segment's ends (3,),
+    (3,) and its radius [m]. The segment runs along the points' principal axis, shortened at each
+    end by the largest distance off the axis (a long link gets a long thin capsule, a round one a
+    sphere); the radius is the largest distance of a point to it (a millionth of a millimetre added
+    for rounding), so the capsule holds every point whatever the fit."""
+    c = points.mean(axis=0)
+    centred = points - c
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    axis = vecs[:, -1]
+    t = centred @ axis
+    off = float(np.max(np.linalg.norm(centred - t[:, None] * axis, axis=1)))
+    lo, hi = float(t.min()) + off, float(t.max()) - off
+    if lo > hi:
+        lo = hi = 0.5 * (float(t.min()) + float(t.max()))
+    a, b = c + lo * axis, c + hi * axis
+    return a, b, float(np.max(_point_segment(points, a, b))) + 1e-9
+
+
 def _support_row(model: Any, joint: int) -> np.ndarray:
     """1.0 at every velocity index of ``joint`` and its ancestors (the joints that move it)."""
     row = np.zeros(model.nv)
@@ -120,9 +157,12 @@ class DistanceModel:
         model = robot.model
         gm = pin.GeometryModel()
         robot_geoms = list(robot.collision_model.geometryObjects)
-        centres, radii = [], []
+        centres, radii, capsules = [], [], []
         for g in robot_geoms:
             geom = _hull(g.geometry)
+            a, b, r = bounding_capsule(_vertices(geom))
+            M = g.placement
+            capsules.append((M.rotation @ a + M.translation, M.rotation @ b + M.translation, r))
             geom.computeLocalAABB()
             lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
             centres.append(0.5 * (lo + hi))
@@ -173,6 +213,10 @@ class DistanceModel:
         self.body_centre = np.array(
             [g.placement.rotation @ c + g.placement.translation for g, c in zip(robot_geoms, centres, strict=True)]
         ).reshape(-1, 3)
+        self.body_segment = np.array([(a, b) for a, b, _ in capsules]).reshape(-1, 2, 3)
+        """(B_robot, 2, 3): each robot geometry's bounding capsule, its segment's ends in its joint's frame [m]."""
+        self.body_capsule_radius = np.array([r for _, _, r in capsules])
+        """(B_robot,): the capsules' radii [m]."""
         self._obs_lo = np.array(lows).reshape(-1, 3)
         self._obs_hi = np.array(highs).reshape(-1, 3)
         self._is_self = second < n_robot
@@ -264,7 +308,8 @@ class DistanceModel:
         """Indices of the pairs whose bounding spheres lie closer than :attr:`influence`, the
         joints placed at ``rotation`` (J, 3, 3) and ``translation`` (J, 3) [m] (pinocchio's
         ``data.oMi``); only for a model of self pairs (``obstacle_pairs=False``). What
-        :meth:`near` culls to, in numpy (the compiled twin is ``_compiled.spheres_within``)."""
+        :meth:`near` culls to, in numpy (the compiled push culls tighter, with capsules:
+        :attr:`body_segment`, ``_compiled.capsules_within``)."""
         if self.n_obstacles:
             raise ValueError("self_candidates culls self pairs only: build the model with obstacle_pairs=False")
         j = self.body_joint
@@ -276,7 +321,7 @@ class DistanceModel:
     def near(self, model: Any, data: Any, candidates: np.ndarray | None = None) -> PairDistances:
         """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
         placements ``data.oMi`` up to date: after ``kin.update(q)``). ``candidates``: the pairs
-        that the bounding spheres leave (:meth:`self_candidates`) when the caller culled already."""
+        that a bounding volume leaves (:meth:`self_candidates`) when the caller culled already."""
         gm, gd = self.geometry_model, self.geometry_data
         pin.updateGeometryPlacements(model, data, gm, gd)
         n_robot = self.n_robot

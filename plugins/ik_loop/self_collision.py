@@ -15,11 +15,13 @@ field's (a speed [m/s]):
 so the push is C1 at the influence distance and reaches ``gain`` times the cruising speed at
 contact. While no pair is within ``influence``, the distances are asked only every ``every``
 steps (in ``every`` steps a link moves a few millimetres, well inside the influence distance);
-once a pair is near, every step. Asking starts with the bounding spheres (one compiled pass over
-the pairs, straight from the joint placements the step's kinematics already hold: well under a
-microsecond); only the pairs whose spheres come within ``influence`` go to coal (a few
-microseconds each, plus pinocchio's geometry placements). Far from itself, the arm costs the step
-the spheres' pass and nothing else.
+once a pair is near, every step. Asking starts with bounding capsules, one per geometry (one
+compiled pass over the pairs, straight from the joint placements the step's kinematics already
+hold: well under a microsecond); only the pairs whose capsules come within ``influence`` go to
+coal (a few microseconds each, plus pinocchio's geometry placements). Far from itself, the arm
+costs the step the capsules' pass and nothing else. Without numba, bounding spheres (looser, in
+numpy) cull instead; either way coal measures every pair that may lie within ``influence``, so
+the pushes are the same.
 The pushes go through the same hierarchy as the field's (null space, or priority rows: with the
 default gain of 3 a pair at contact is a fully active row). Their points carry joint id ``-1``,
 so they never count as the tool's.
@@ -42,8 +44,9 @@ __all__ = ["SelfCollisionPush"]
 class SelfCollisionPush:
     """``inner``'s repulsion plus the self-collision pushes of the module docstring.
 
-    ``compiled``: cull with the numba kernel (``_compiled.spheres_within``); default: when numba
-    is installed. Both cull to the same pairs as :meth:`DistanceModel.near`.
+    ``compiled``: cull with bounding capsules in the numba kernel (``_compiled.capsules_within``),
+    else with :meth:`DistanceModel.self_candidates` (spheres, numpy); default: when numba is
+    installed. Either keeps every pair within the influence distance: the same pushes.
     """
 
     def __init__(
@@ -68,11 +71,11 @@ class SelfCollisionPush:
         self.pairs_near = 0
         """Pairs within the influence distance at the last ask."""
         self.pairs_culled = 0
-        """Pairs whose bounding spheres came within the influence distance at the last ask (the
+        """Pairs whose bounding volumes came within the influence distance at the last ask (the
         ones handed to coal)."""
         first, second = dm.pair_bodies
-        self._cull_args = (dm.body_joint, dm.body_centre, dm.radius, first, second, dm.influence)
-        self._centre = np.empty((dm.n_robot, 3))
+        self._cull_args = (dm.body_joint, dm.body_segment, dm.body_capsule_radius, first, second, dm.influence)
+        self._segment = np.empty((dm.n_robot, 2, 3))
         self._candidates = np.empty(dm.n_pairs, dtype=np.intp)
         self._bound: tuple[Any, Callable[[], int]] | None = None  # (kinematics, its bound cull)
         P = dm.n_pairs  # what coal measured at the last ask: pair, distance, two witness points, normal
@@ -88,7 +91,7 @@ class SelfCollisionPush:
         return self.distances.n_pairs
 
     def candidates(self, kin: Any) -> np.ndarray:
-        """The pairs (indices) whose bounding spheres lie within the influence distance at
+        """The pairs (indices) whose bounding capsules (spheres without numba) lie within the influence distance at
         ``kin``'s configuration (a view of a reused buffer)."""
         Rs, ts = kin.joint_placements
         if not self.compiled:
@@ -96,8 +99,8 @@ class SelfCollisionPush:
             self._candidates[: len(found)] = found
             return self._candidates[: len(found)]
         if self._bound is None or self._bound[0] is not kin:
-            args = (Rs, ts, *self._cull_args, self._centre, self._candidates)
-            self._bound = (kin, functools.partial(fast.bind(fast.compiled().spheres_within, *args), *args))
+            args = (Rs, ts, *self._cull_args, self._segment, self._candidates)
+            self._bound = (kin, functools.partial(fast.bind(fast.compiled().capsules_within, *args), *args))
         return self._candidates[: self._bound[1]()]
 
     def forces(self, kin: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
