@@ -160,9 +160,9 @@ class DistanceModel:
         centres, radii, capsules = [], [], []
         for g in robot_geoms:
             geom = _hull(g.geometry)
-            a, b, r = bounding_capsule(_vertices(geom))
+            end0, end1, r = bounding_capsule(_vertices(geom))
             M = g.placement
-            capsules.append((M.rotation @ a + M.translation, M.rotation @ b + M.translation, r))
+            capsules.append((M.rotation @ end0 + M.translation, M.rotation @ end1 + M.translation, r))
             geom.computeLocalAABB()
             lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
             centres.append(0.5 * (lo + hi))
