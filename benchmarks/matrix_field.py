@@ -1,6 +1,7 @@
 """Benchmarks of the matrix-field planner. Prints medians; run on a quiet machine for timings.
 
     python benchmarks/matrix_field.py step                  # per-step cost and its split
+    python benchmarks/matrix_field.py step --rounds 15      # more rounds (a busy machine)
     python benchmarks/matrix_field.py step --config '{"hierarchy": "priority"}'   # with settings
     python benchmarks/matrix_field.py mbm "mbm:*/0021-0100"  # planning on MotionBenchMaker
     python benchmarks/matrix_field.py sweep                 # parameter sweep on 0001-0020
@@ -261,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     st = sub.add_parser("step")
     st.add_argument("--problem", default="mbm:box/0001")
     st.add_argument("--config", default="{}", help='JSON object of settings, e.g. {"hierarchy": "priority"}')
+    st.add_argument(
+        "--rounds", type=int, default=5, help="rounds of which the medians are taken (more on a busy machine)"
+    )
     m = sub.add_parser("mbm")
     m.add_argument("selector", nargs="?", default="mbm:*/0021-0100")
     m.add_argument("--config", default="{}", help="JSON object of MatrixFieldConfig settings")
@@ -271,8 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     sw.add_argument("--grid", default='{"standoff": [0.08, 0.1, 0.12], "tool_repulsion_gain": [0.0, 1.0]}')
     args = ap.parse_args(argv)
     if args.cmd == "step":
-        res = bench_step(args.problem, settings=json.loads(args.config))
-        print(f"{args.problem}, {int(res.pop('control_points'))} control points, median of 5 rounds [us per step]:")
+        res = bench_step(args.problem, repeats=args.rounds, settings=json.loads(args.config))
+        points = int(res.pop("control_points"))
+        print(f"{args.problem}, {points} control points, median of {args.rounds} rounds [us per step]:")
         print(f"  full loop step     {res.pop('step'):7.2f}  (kinematics + repulsion + solve + integrate + loop)")
         print(f"  bare pinocchio     {res.pop('pinocchio'):7.2f}  (computeJointJacobians + updateFramePlacement)")
         print(f"  ratio              {res.pop('ratio'):7.2f}")
