@@ -74,7 +74,9 @@ class SelfCollisionPush:
         """Pairs whose bounding volumes came within the influence distance at the last ask (the
         ones handed to coal)."""
         first, second = dm.pair_bodies
-        self._cull_args = (dm.body_joint, dm.body_segment, dm.body_capsule_radius, first, second, dm.influence)
+        segment, radius = dm.body_segment, dm.body_capsule_radius
+        reach = radius + 0.5 * np.linalg.norm(segment[:, 1] - segment[:, 0], axis=1)  # spheres around the capsules
+        self._cull_args = (dm.body_joint, segment, radius, reach, first, second, dm.influence)
         self._segment = np.empty((dm.n_robot, 2, 3))
         self._candidates = np.empty(dm.n_pairs, dtype=np.intp)
         self._bound: tuple[Any, Callable[[], int]] | None = None  # (kinematics, its bound cull)
@@ -104,10 +106,11 @@ class SelfCollisionPush:
         return self._candidates[: self._bound[1]()]
 
     def forces(self, kin: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        points, F, support, joint = self.inner.forces(kin)
-        if self._quiet > 0:
+        inner = self.inner.forces(kin)
+        if self._quiet > 0:  # the common step: nothing near at the last ask
             self._quiet -= 1
-            return points, F, support, joint
+            return inner  # type: ignore[no-any-return]
+        points, F, support, joint = inner
         near = self.candidates(kin)
         self.pairs_culled = len(near)
         m = 0
