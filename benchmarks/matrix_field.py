@@ -1,6 +1,7 @@
 """Benchmarks of the matrix-field planner. Prints medians; run on a quiet machine for timings.
 
     python benchmarks/matrix_field.py step                  # per-step cost and its split
+    python benchmarks/matrix_field.py step --rounds 15      # more rounds (a busy machine)
     python benchmarks/matrix_field.py step --config '{"hierarchy": "priority"}'   # with settings
     python benchmarks/matrix_field.py mbm "mbm:*/0021-0100"  # planning on MotionBenchMaker
     python benchmarks/matrix_field.py sweep                 # parameter sweep on 0001-0020
@@ -11,7 +12,9 @@ solve, integration and the loop's bookkeeping), next to the bare pinocchio calls
 (``computeJointJacobians`` and ``updateFramePlacement``) and their ratio, each the median of 5
 rounds. The breakdown times each part alone, on the query's own objects: the rest of the
 kinematics (control points and the goal frame's Jacobian, one compiled call), field sampling
-(``FieldRepulsion.forces``), the compiled step (all task terms, manipulability gradient,
+(``FieldRepulsion.forces``), the self-collision push (``SelfCollisionPush``: field sampling and
+push timed over the round's own path, in order, so that the push's ask schedule and its coal
+queries near the arm's own links count as in the loop), the compiled step (all task terms, manipulability gradient,
 repulsion mapping, DLS with null space, limits), the integration; glue is the rest (the Python
 loop and its bookkeeping). The numpy reference step (the task functions composed in Python) is
 timed alone too.
@@ -37,6 +40,7 @@ from _bench import run_suite
 
 import planbench
 from planbench_plugins.ik_loop import fast
+from planbench_plugins.ik_loop.self_collision import SelfCollisionPush
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
 
 
@@ -45,6 +49,27 @@ def _per_call_us(fn: Any, reps: int = 2000) -> float:
     for _ in range(reps):
         fn()
     return (time.perf_counter() - t0) / reps * 1e6
+
+
+def _along_path(path: np.ndarray, kin: Any, push: SelfCollisionPush) -> tuple[float, float]:
+    """Per-step time [us] of the field's repulsion (``push.inner``) and of the self-collision
+    push on top of it, over the configurations of ``path`` in order (the push's ask schedule as
+    in the loop): the kinematics alone, with the field, with field and push, each timed over the
+    whole path and subtracted."""
+    inner = push.inner
+
+    def over(fn: Any) -> float:
+        push.restart()
+        t0 = time.perf_counter()
+        for q in path:
+            kin.update(q)
+            fn(kin)
+        return (time.perf_counter() - t0) / len(path) * 1e6
+
+    base = over(lambda k: None)
+    field = over(inner.forces)
+    both = over(push.forces)
+    return field - base, both - field
 
 
 def bench_step(
@@ -73,6 +98,7 @@ def bench_step(
     # the query's own objects, as the loop uses them (prepared by setup), at a configuration near the start
     stepper = planner.stepper
     kin, inputs, repulsion = stepper.kin, stepper.inputs, stepper.repulsion
+    push = repulsion if isinstance(repulsion, SelfCollisionPush) else None
     q = np.asarray(problem.start, dtype=float) + 0.05
     kin.update(q)
     points, F, support, joint = repulsion.forces(kin)
@@ -124,7 +150,10 @@ def bench_step(
         row["ratio"] = row["step"] / row["pinocchio"]
         pin3 = _per_call_us(pin_calls_frame_jacobian)
         row["kinematics (rest)"] = _per_call_us(lambda: kin.update(q)) - row["pinocchio"]
-        row["field sampling"] = _per_call_us(lambda: repulsion.forces(kin))
+        if push is None:
+            row["field sampling"] = _per_call_us(lambda: repulsion.forces(kin))
+        else:  # along the round's own path: the push asks coal only where the arm comes near itself
+            row["field sampling"], row["self-collision push"] = _along_path(np.asarray(r.path), kin, push)
         row["solve (compiled step)"] = _per_call_us(lambda: step(points, F, support, tool))
         row["integrate"] = _per_call_us(lambda: advance(1))
         row["glue (rest)"] = row["step"] - sum(v for k, v in row.items() if k not in ("step", "ratio"))
@@ -233,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     st = sub.add_parser("step")
     st.add_argument("--problem", default="mbm:box/0001")
     st.add_argument("--config", default="{}", help='JSON object of settings, e.g. {"hierarchy": "priority"}')
+    st.add_argument(
+        "--rounds", type=int, default=5, help="rounds of which the medians are taken (more on a busy machine)"
+    )
     m = sub.add_parser("mbm")
     m.add_argument("selector", nargs="?", default="mbm:*/0021-0100")
     m.add_argument("--config", default="{}", help="JSON object of MatrixFieldConfig settings")
@@ -243,8 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     sw.add_argument("--grid", default='{"standoff": [0.08, 0.1, 0.12], "tool_repulsion_gain": [0.0, 1.0]}')
     args = ap.parse_args(argv)
     if args.cmd == "step":
-        res = bench_step(args.problem, settings=json.loads(args.config))
-        print(f"{args.problem}, {int(res.pop('control_points'))} control points, median of 5 rounds [us per step]:")
+        res = bench_step(args.problem, repeats=args.rounds, settings=json.loads(args.config))
+        points = int(res.pop("control_points"))
+        print(f"{args.problem}, {points} control points, median of {args.rounds} rounds [us per step]:")
         print(f"  full loop step     {res.pop('step'):7.2f}  (kinematics + repulsion + solve + integrate + loop)")
         print(f"  bare pinocchio     {res.pop('pinocchio'):7.2f}  (computeJointJacobians + updateFramePlacement)")
         print(f"  ratio              {res.pop('ratio'):7.2f}")

@@ -12,9 +12,9 @@ import planbench
 from planbench import Obstacle, Problem, Scene
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot
-from planbench_plugins.ik_loop import ArmKinematics, fast
+from planbench_plugins.ik_loop import ArmKinematics, ScaledRepulsion, fast
 from planbench_plugins.ik_loop import tasks as T
-from planbench_plugins.ik_loop.config import resolve_hierarchy
+from planbench_plugins.ik_loop.config import repulsion_scale, resolve_hierarchy
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner, place_control_points
 
 
@@ -67,6 +67,34 @@ def test_auto_is_chosen_from_the_arms_redundancy(ur5, panda):
     assert planbench.plan(ur5_plate_problem(ur5), "edt-field", max_steps=3).info["hierarchy"] == "priority"
 
 
+def test_the_scene_push_is_scaled_where_the_rows_replace_the_null_space(ur5, panda):
+    """On an arm without redundancy in the priority hierarchy the scene's push is scaled by
+    ``repulsion_scale_without_redundancy``; a redundant arm, the null space and a 6-joint arm in
+    it keep the push as it is."""
+    cfg = MatrixFieldConfig(repulsion_scale_without_redundancy=0.4)
+    assert repulsion_scale(cfg, 6, "priority") == 0.4
+    assert repulsion_scale(cfg, 6, "nullspace") == 1.0
+    assert repulsion_scale(cfg, 7, "priority") == 1.0
+    planner = MatrixFieldPlanner(cfg)
+    planner.setup(ur5_plate_problem(ur5))
+    push = planner.stepper.repulsion
+    scaled = push.inner  # the self-collision push wraps the scaled scene push
+    assert isinstance(scaled, ScaledRepulsion) and scaled.scale == 0.4
+    kin = planner.stepper.kin
+    kin.update(np.asarray(ur5.home) + 0.3)
+    _, F, _, _ = scaled.forces(kin)
+    _, F_scene, _, _ = scaled.inner.forces(kin)
+    assert np.any(F_scene != 0) and np.array_equal(F, 0.4 * F_scene)
+    assert scaled.gain == 0.4 * scaled.inner.gain
+    wall = Obstacle("wall", "box", position=(0.6, 0.0, 0.3), size=(0.02, 0.6, 0.6))
+    redundant = MatrixFieldPlanner(cfg)
+    redundant.setup(Problem.create(panda, Scene((wall,), name="wall"), np.array(panda.home), np.array(panda.home)))
+    assert not isinstance(redundant.stepper.repulsion.inner, ScaledRepulsion)
+    paper = planbench.make_planner("matrix-field:paper")
+    paper.setup(ur5_plate_problem(ur5))
+    assert not isinstance(paper.stepper.repulsion, ScaledRepulsion)
+
+
 @pytest.mark.parametrize(
     "bad, name",
     [
@@ -76,6 +104,7 @@ def test_auto_is_chosen_from_the_arms_redundancy(ur5, panda):
         (dict(priority_weight=float("inf")), "priority_weight"),
         (dict(priority_fade_distance=0.0), "priority_fade_distance"),
         (dict(orientation_priority=-1.0), "orientation_priority"),
+        (dict(repulsion_scale_without_redundancy=-0.1), "repulsion_scale_without_redundancy"),
     ],
 )
 def test_bad_hierarchy_settings_are_refused_by_name(bad, name):

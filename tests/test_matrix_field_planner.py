@@ -277,8 +277,15 @@ def test_on_a_six_joint_arm_the_priority_hierarchy_lets_the_repulsion_act():
     goal[0] += 0.5
     problem = Problem.create(ur5, Scene((plate,), name="plate"), start, goal, id="test:ur5-plate")
 
-    def plan(**settings):
-        return planbench.plan(problem, MatrixFieldPlanner, time_limit=5.0, slowdown_gain=0.0, **settings)
+    def plan(**settings):  # the push at full strength (not scaled as on an arm without redundancy)
+        return planbench.plan(
+            problem,
+            MatrixFieldPlanner,
+            time_limit=5.0,
+            slowdown_gain=0.0,
+            repulsion_scale_without_redundancy=1.0,
+            **settings,
+        )
 
     deviation, clearance = {}, {}
     for hierarchy in ("nullspace", "priority"):

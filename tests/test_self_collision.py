@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 import planbench
-from planbench_plugins.ik_loop import DistanceModel, ZeroRepulsion, tasks
+from planbench_plugins.ik_loop import DistanceModel, ZeroRepulsion, fast, tasks
 from planbench_plugins.ik_loop.self_collision import SelfCollisionPush
 from planbench_plugins.matrix_field import MatrixFieldPlanner
 
@@ -74,8 +75,71 @@ def test_a_query_asks_the_distances_afresh_however_the_last_one_ended(near_itsel
     push = planner.stepper.repulsion
     assert isinstance(push, SelfCollisionPush)
     asked = []
-    near = push.distances.near
-    push.distances.near = lambda *a: asked.append(1) or near(*a)
+    cull = push.candidates
+    push.candidates = lambda *a: asked.append(1) or cull(*a)
     push._quiet = push.every - 1  # as a query that ended between two asks leaves it
     planner.plan(problem, time_limit=1.0, rng=np.random.default_rng(0))
     assert asked  # its first step asked
+
+
+def reference_forces(push, kin):
+    """The push as first written (before the compiled culling): every pair culled and measured
+    by ``DistanceModel.near``, the pushes appended by concatenation."""
+    points, F, support, joint = push.inner.forces(kin)
+    pairs = push.distances.near(kin.model, kin.data)
+    u = np.clip((push.influence - pairs.distance) / push.influence, 0.0, None)
+    f = (push.push_gain * push.speed_max * u * u)[:, None] * pairs.normal
+    m = len(pairs)
+    return (
+        np.concatenate((points, pairs.point, pairs.other_point)),
+        np.concatenate((F, -f, f)),
+        np.concatenate((support, pairs.support, pairs.other_support)),
+        np.concatenate((joint, np.full(2 * m, -1, dtype=joint.dtype))),
+    )
+
+
+@pytest.mark.parametrize(
+    "compiled", [False, pytest.param(True, marks=pytest.mark.skipif(not fast.have_numba(), reason="numba"))]
+)
+def test_the_culled_push_equals_the_reference_on_random_configurations(near_itself, compiled):
+    problem, q_near = near_itself
+    planner = MatrixFieldPlanner()
+    planner.setup(problem)
+    kin = planner.stepper.kin
+    push = SelfCollisionPush(
+        ZeroRepulsion(), problem.robot, problem.scene, influence=0.05, gain=3.0, speed_max=0.25, compiled=compiled
+    )
+    robot = problem.robot
+    rng = np.random.default_rng(7)
+    near = 0
+    for q in [q_near] + [rng.uniform(robot.lower, robot.upper) for _ in range(150)]:
+        kin.update(q)
+        push.restart()
+        got = push.forces(kin)
+        want = reference_forces(push, kin)
+        near += push.pairs_near > 0
+        for a, b in zip(got, want, strict=True):
+            assert a.shape == b.shape
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert near >= 10  # the comparison covered configurations with pushes, not only empty ones
+
+
+def test_the_spheres_bound_every_pair_coal_reports(near_itself):
+    """Culling loses nothing: every pair that coal puts within the influence distance is among
+    the candidates the spheres leave."""
+    problem, _ = near_itself
+    robot = problem.robot
+    model = DistanceModel(robot, problem.scene, 0.05, self_pairs=True, obstacle_pairs=False)
+    everything = DistanceModel(robot, problem.scene, 0.05, self_pairs=True, obstacle_pairs=False)
+    everything.influence = np.inf  # culls nothing: coal measures every pair
+    rng = np.random.default_rng(3)
+    data = robot.model.createData()
+    for _ in range(100):
+        q = rng.uniform(robot.lower, robot.upper)
+        pin.forwardKinematics(robot.model, data, q)
+        candidates = model.self_candidates(
+            np.array([M.rotation for M in data.oMi]), np.array([M.translation for M in data.oMi])
+        )
+        pairs = everything.near(robot.model, data)
+        close = pairs.pair[pairs.distance < 0.05]
+        assert set(close.tolist()) <= set(candidates.tolist())

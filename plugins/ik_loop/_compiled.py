@@ -349,3 +349,69 @@ def advance(q, qd, dt, lower, upper, path, k):  # type: ignore[no-untyped-def]
             val = upper[j]
         q[j] = val
         path[k, j] = val
+
+
+@nb.njit(cache=True)
+def segment_distance(P, i, j):  # type: ignore[no-untyped-def]
+    """Distance [m] between segments ``P[i, 0]-P[i, 1]`` and ``P[j, 0]-P[j, 1]`` (the closest
+    points' parameters clamped to the segments, then each recomputed from the other)."""
+    d10, d11, d12 = P[i, 1, 0] - P[i, 0, 0], P[i, 1, 1] - P[i, 0, 1], P[i, 1, 2] - P[i, 0, 2]
+    d20, d21, d22 = P[j, 1, 0] - P[j, 0, 0], P[j, 1, 1] - P[j, 0, 1], P[j, 1, 2] - P[j, 0, 2]
+    r0, r1, r2 = P[i, 0, 0] - P[j, 0, 0], P[i, 0, 1] - P[j, 0, 1], P[i, 0, 2] - P[j, 0, 2]
+    a = d10 * d10 + d11 * d11 + d12 * d12
+    e = d20 * d20 + d21 * d21 + d22 * d22
+    f = d20 * r0 + d21 * r1 + d22 * r2
+    s = 0.0
+    t = 0.0
+    if a <= 1e-18:
+        if e > 1e-18:
+            t = min(1.0, max(0.0, f / e))
+    else:
+        c = d10 * r0 + d11 * r1 + d12 * r2
+        if e <= 1e-18:
+            s = min(1.0, max(0.0, -c / a))
+        else:
+            b = d10 * d20 + d11 * d21 + d12 * d22
+            den = a * e - b * b
+            if den > 0.0:
+                s = min(1.0, max(0.0, (b * f - c * e) / den))
+            t = (b * s + f) / e
+            if t < 0.0:
+                t = 0.0
+                s = min(1.0, max(0.0, -c / a))
+            elif t > 1.0:
+                t = 1.0
+                s = min(1.0, max(0.0, (b - c) / a))
+    x0 = r0 + d10 * s - d20 * t
+    x1 = r1 + d11 * s - d21 * t
+    x2 = r2 + d12 * s - d22 * t
+    return math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+
+
+@nb.njit(cache=True)
+def capsules_within(Rs, ts, body_joint, body_segment, radius, reach, first, second, limit, segment, out):  # type: ignore[no-untyped-def]
+    """The pairs whose bounding capsules lie closer than ``limit`` [m] (a lower bound of the
+    bodies' distance: the segments' distance less both radii, less a micrometre for rounding):
+    their indices into ``out``, their number returned. Each body's segment, given in its joint's
+    frame (``body_segment[b]``), is placed in the world into ``segment[b]`` on the way. A pair is
+    first tested with the spheres around the capsules (centre the segment's middle, radius
+    ``reach``: half its length plus the capsule's radius), which end most pairs in a few flops."""
+    for b in range(body_joint.shape[0]):
+        j = body_joint[b]
+        for e in range(2):
+            c0, c1, c2 = body_segment[b, e, 0], body_segment[b, e, 1], body_segment[b, e, 2]
+            for a in range(3):
+                segment[b, e, a] = Rs[j, a, 0] * c0 + Rs[j, a, 1] * c1 + Rs[j, a, 2] * c2 + ts[j, a]
+    m = 0
+    for k in range(first.shape[0]):
+        i, j = first[k], second[k]
+        d0 = 0.5 * (segment[i, 0, 0] + segment[i, 1, 0] - segment[j, 0, 0] - segment[j, 1, 0])
+        d1 = 0.5 * (segment[i, 0, 1] + segment[i, 1, 1] - segment[j, 0, 1] - segment[j, 1, 1])
+        d2 = 0.5 * (segment[i, 0, 2] + segment[i, 1, 2] - segment[j, 0, 2] - segment[j, 1, 2])
+        r = limit + reach[i] + reach[j] + 1e-6
+        if d0 * d0 + d1 * d1 + d2 * d2 >= r * r:
+            continue
+        if segment_distance(segment, i, j) - radius[i] - radius[j] - 1e-6 < limit:
+            out[m] = k
+            m += 1
+    return m

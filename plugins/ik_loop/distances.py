@@ -94,6 +94,43 @@ def _hull(geometry: Any) -> Any:
     return geometry
 
 
+def _vertices(geometry: Any) -> np.ndarray:
+    """Points (V, 3) whose convex hull contains ``geometry`` (in its own frame): a convex hull's
+    vertices, else its local bounding box's eight corners."""
+    if isinstance(geometry, coal.ConvexBase) and geometry.num_points:
+        return np.asarray(geometry.points(), dtype=float).reshape(-1, 3)
+    geometry.computeLocalAABB()
+    lo, hi = np.array(geometry.aabb_local.min_), np.array(geometry.aabb_local.max_)
+    return np.array([[(lo, hi)[i >> a & 1][a] for a in range(3)] for i in range(8)])
+
+
+def _point_segment(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances [m] of ``points`` (V, 3) to the segment from ``a`` to ``b``."""
+    d = b - a
+    dd = float(d @ d)
+    t = np.clip((points - a) @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(points))
+    return np.linalg.norm(points - (a + t[:, None] * d), axis=1)
+
+
+def bounding_capsule(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """A capsule containing ``points`` (V, 3), hence their convex hull: the segment's ends (3,),
+    (3,) and its radius [m]. The segment runs along the points' principal axis, shortened at each
+    end by the largest distance off the axis (a long link gets a long thin capsule, a round one a
+    sphere); the radius is the largest distance of a point to it (a millionth of a millimetre added
+    for rounding), so the capsule holds every point whatever the fit."""
+    c = points.mean(axis=0)
+    centred = points - c
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    axis = vecs[:, -1]
+    t = centred @ axis
+    off = float(np.max(np.linalg.norm(centred - t[:, None] * axis, axis=1)))
+    lo, hi = float(t.min()) + off, float(t.max()) - off
+    if lo > hi:
+        lo = hi = 0.5 * (float(t.min()) + float(t.max()))
+    a, b = c + lo * axis, c + hi * axis
+    return a, b, float(np.max(_point_segment(points, a, b))) + 1e-9
+
+
 def _support_row(model: Any, joint: int) -> np.ndarray:
     """1.0 at every velocity index of ``joint`` and its ancestors (the joints that move it)."""
     row = np.zeros(model.nv)
@@ -120,9 +157,12 @@ class DistanceModel:
         model = robot.model
         gm = pin.GeometryModel()
         robot_geoms = list(robot.collision_model.geometryObjects)
-        centres, radii = [], []
+        centres, radii, capsules = [], [], []
         for g in robot_geoms:
             geom = _hull(g.geometry)
+            end0, end1, r = bounding_capsule(_vertices(geom))
+            M = g.placement
+            capsules.append((M.rotation @ end0 + M.translation, M.rotation @ end1 + M.translation, r))
             geom.computeLocalAABB()
             lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
             centres.append(0.5 * (lo + hi))
@@ -171,12 +211,22 @@ class DistanceModel:
         # culling: a sphere per robot geometry (local centre, radius), a box per obstacle
         self._centre_local = np.array(centres).reshape(-1, 3)
         self._radius = np.array(radii)
+        # the same spheres in their joints' frames, for culling straight from the joint placements
+        self.body_joint = np.array([int(g.parentJoint) for g in robot_geoms], dtype=np.intp)
+        self.body_centre = np.array(
+            [g.placement.rotation @ c + g.placement.translation for g, c in zip(robot_geoms, centres, strict=True)]
+        ).reshape(-1, 3)
+        self.body_segment = np.array([(a, b) for a, b, _ in capsules]).reshape(-1, 2, 3)
+        """(B_robot, 2, 3): each robot geometry's bounding capsule, its segment's ends in its joint's frame [m]."""
+        self.body_capsule_radius = np.array([r for _, _, r in capsules])
+        """(B_robot,): the capsules' radii [m]."""
         self._obs_lo = np.array(lows).reshape(-1, 3)
         self._obs_hi = np.array(highs).reshape(-1, 3)
         self._is_self = second < n_robot
         self.geometry_model = gm
         self.geometry_data = gd = fresh_geometry_data(gm)  # the same answer whatever was queried before
         self._oMg = [gd.oMg[i] for i in range(n_robot)]
+        self._results = [gd.distanceResults[k] for k in range(self.n_pairs)]  # references, fetched once
         self._rotation = np.tile(np.eye(3), (n_bodies, 1, 1))
         self._translation = np.zeros((n_bodies, 3))
         self._model = model
@@ -184,21 +234,11 @@ class DistanceModel:
         self.n_pairs_checked = 0
         """Pairs handed to coal by the last :meth:`near` (after culling)."""
 
-    def near_at(self, q: np.ndarray) -> PairDistances:
-        """:meth:`near` at configuration ``q`` (forward kinematics on this object's own data)."""
-        pin.forwardKinematics(self._model, self._data, q)
-        return self.near(self._model, self._data)
-
-    def near(self, model: Any, data: Any) -> PairDistances:
-        """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
-        placements ``data.oMi`` up to date: after ``kin.update(q)``)."""
-        gm, gd = self.geometry_model, self.geometry_data
-        pin.updateGeometryPlacements(model, data, gm, gd)
+    def _cull(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Pairs whose lower bound (spheres against spheres or obstacle boxes) is below the
+        influence distance, the robot geometries placed at ``rotation``, ``translation``."""
         n_robot = self.n_robot
-        rotation, translation = self._rotation.copy(), self._translation.copy()
-        rotation[:n_robot] = [M.rotation for M in self._oMg]
-        translation[:n_robot] = [M.translation for M in self._oMg]
-        centre = np.einsum("gij,gj->gi", rotation[:n_robot], self._centre_local) + translation[:n_robot]
+        centre = np.einsum("gij,gj->gi", rotation, self._centre_local) + translation
         first, second = self._first, self._second
         bound = np.empty(self.n_pairs)
         c = centre[first]
@@ -208,28 +248,106 @@ class DistanceModel:
         bound[obstacle] = np.sqrt(np.einsum("ka,ka->k", gap, gap)) - self._radius[first[obstacle]]
         s = self._is_self
         bound[s] = np.linalg.norm(c[s] - centre[second[s]], axis=1) - self._radius[first[s]] - self._radius[second[s]]
-        candidates = np.flatnonzero(bound < self.influence)
-        m = len(candidates)
-        dist, point, other, normal = np.empty(m), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3))
-        keep = np.zeros(m, dtype=bool)
-        results = gd.distanceResults
-        for i, k in enumerate(candidates.tolist()):
+        return np.flatnonzero(bound < self.influence)
+
+    def measure(
+        self,
+        model: Any,
+        data: Any,
+        candidates: np.ndarray,
+        pair: np.ndarray,
+        distance: np.ndarray,
+        point: np.ndarray,
+        other_point: np.ndarray,
+        normal: np.ndarray,
+    ) -> int:
+        """:meth:`near` for the pairs ``candidates`` into the caller's buffers (of at least
+        ``len(candidates)`` rows): the ``k`` pairs within the influence distance, in the order of
+        ``candidates``, in the first ``k`` rows; ``k`` returned. No arrays are made: the per-step
+        path of the self-collision push."""
+        pin.updateGeometryPlacements(model, data, self.geometry_model, self.geometry_data)
+        return self._measure(candidates, pair, distance, point, other_point, normal)
+
+    def _measure(self, candidates, pair, dist, point, other, normal) -> int:  # type: ignore[no-untyped-def]
+        """coal's distance for each of ``candidates`` (geometry placements up to date), the pairs
+        within the influence distance kept in the buffers' first rows; their number returned."""
+        gm, gd, results, compute = self.geometry_model, self.geometry_data, self._results, pin.computeDistance
+        influence, octree, second = self.influence, self._octree, self._second
+        m = 0
+        for k in candidates.tolist():
             results[k].clear()
-            res = pin.computeDistance(gm, gd, k)
+            res = compute(gm, gd, k)
             d = res.min_distance
-            if d < self.influence:
-                keep[i] = True
-                dist[i] = d
-                point[i], other[i], normal[i] = witnesses(res, bool(self._octree[second[k]]))
-        self.n_pairs_checked = m
-        pair = candidates[keep]
+            if d < influence:
+                pair[m], dist[m] = k, d
+                if octree[second[k]]:  # coal's witnesses of an octree corrected
+                    point[m], other[m], normal[m] = witnesses(res, True)
+                else:
+                    point[m] = res.getNearestPoint1()
+                    other[m] = res.getNearestPoint2()
+                    normal[m] = res.normal
+                m += 1
+        self.n_pairs_checked = len(candidates)
+        return m
+
+    @property
+    def body_support(self) -> np.ndarray:
+        """(B, n): 1.0 where joint ``k`` moves body ``b`` (all 0 for an obstacle or the fixed base)."""
+        return self._support
+
+    def near_at(self, q: np.ndarray) -> PairDistances:
+        """:meth:`near` at configuration ``q`` (forward kinematics on this object's own data)."""
+        pin.forwardKinematics(self._model, self._data, q)
+        return self.near(self._model, self._data)
+
+    @property
+    def radius(self) -> np.ndarray:
+        """Radius of each robot geometry's bounding sphere [m] (its local box's half diagonal)."""
+        return self._radius
+
+    @property
+    def pair_bodies(self) -> tuple[np.ndarray, np.ndarray]:
+        """The first and second body of every pair (P,), geometry indices."""
+        return self._first, self._second
+
+    def self_candidates(self, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """Indices of the pairs whose bounding spheres lie closer than :attr:`influence`, the
+        joints placed at ``rotation`` (J, 3, 3) and ``translation`` (J, 3) [m] (pinocchio's
+        ``data.oMi``); only for a model of self pairs (``obstacle_pairs=False``). What
+        :meth:`near` culls to, in numpy (the compiled push culls tighter, with capsules:
+        :attr:`body_segment`, ``_compiled.capsules_within``)."""
+        if self.n_obstacles:
+            raise ValueError("self_candidates culls self pairs only: build the model with obstacle_pairs=False")
+        j = self.body_joint
+        centre = np.einsum("bij,bj->bi", rotation[j], self.body_centre) + translation[j]
+        first, second = self._first, self._second
+        bound = np.linalg.norm(centre[first] - centre[second], axis=1) - self._radius[first] - self._radius[second]
+        return np.flatnonzero(bound < self.influence)
+
+    def near(self, model: Any, data: Any, candidates: np.ndarray | None = None) -> PairDistances:
+        """The pairs closer than :attr:`influence` with the robot placed as in ``data`` (joint
+        placements ``data.oMi`` up to date: after ``kin.update(q)``). ``candidates``: the pairs
+        that a bounding volume leaves (:meth:`self_candidates`) when the caller culled already."""
+        gm, gd = self.geometry_model, self.geometry_data
+        pin.updateGeometryPlacements(model, data, gm, gd)
+        n_robot = self.n_robot
+        rotation, translation = self._rotation.copy(), self._translation.copy()
+        rotation[:n_robot] = [M.rotation for M in self._oMg]
+        translation[:n_robot] = [M.translation for M in self._oMg]
+        first, second = self._first, self._second
+        if candidates is None:
+            candidates = self._cull(rotation[:n_robot], translation[:n_robot])
+        m = len(candidates)
+        pair, dist, point, other, normal = np.empty(m, dtype=np.intp), np.empty(m), *np.empty((3, m, 3))
+        k = self._measure(candidates, pair, dist, point, other, normal)
+        pair, dist, point, other, normal = pair[:k], dist[:k], point[:k], other[:k], normal[:k]
         return PairDistances(
             self.n_pairs,
             pair=pair,
-            distance=dist[keep],
-            point=point[keep],
-            other_point=other[keep],
-            normal=normal[keep],
+            distance=dist,
+            point=point,
+            other_point=other,
+            normal=normal,
             first=first[pair],
             second=second[pair],
             support=self._support[first[pair]],

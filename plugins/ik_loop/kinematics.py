@@ -108,6 +108,13 @@ class ArmKinematics:
             self._Rbuf, self._tbuf = R, t
         return ok
 
+    @property
+    def joint_placements(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's world rotation (J, 3, 3) and translation (J, 3) [m] at the last
+        :meth:`update` (pinocchio's ``data.oMi``; buffers, or views of pinocchio's own memory,
+        that keep their identity: read them, never write them)."""
+        return self._Rbuf, self._tbuf
+
     @staticmethod
     def _chain(model: Any, j: int) -> list[int]:
         out = []

@@ -60,7 +60,7 @@ from planbench.runtime import backend as field_backend
 from planbench.scene import Scene
 from planbench.validate import verdict_checker
 from planbench_plugins.ik_loop import fast
-from planbench_plugins.ik_loop.config import IKLoopConfig, resolve_hierarchy
+from planbench_plugins.ik_loop.config import IKLoopConfig, repulsion_scale, resolve_hierarchy
 from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
 from planbench_plugins.ik_loop.escape import escape_motion
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
@@ -133,6 +133,32 @@ class ZeroRepulsion:
         if self._zeros.shape != kin.points.shape:
             self._zeros = np.zeros_like(kin.points)
         return kin.points, self._zeros, kin.support, kin.cp_joint
+
+
+class ScaledRepulsion:
+    """``inner``'s repulsion times ``scale`` (the push on an arm without redundancy,
+    :func:`.config.repulsion_scale`), into a buffer of its own that keeps its identity, so the
+    loop's compiled step stays bound to it."""
+
+    def __init__(self, inner: Repulsion, scale: float) -> None:
+        self.inner, self.scale = inner, float(scale)
+        self._F = np.zeros((0, 3))
+
+    @property
+    def gain(self) -> float:
+        return float(self.inner.gain) * self.scale
+
+    def restart(self) -> None:
+        restart = getattr(self.inner, "restart", None)
+        if callable(restart):
+            restart()
+
+    def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        points, F, support, joint = self.inner.forces(kin)
+        if self._F.shape != F.shape:
+            self._F = np.empty_like(F)
+        np.multiply(F, self.scale, out=self._F)
+        return points, self._F, support, joint
 
 
 class StepInputs:
@@ -283,6 +309,9 @@ class IKLoopPlanner(Planner):
         hierarchy = self.hierarchy_for(n)
         self._step = fast.compiled().step if self.use_numba else fast.step_numpy
         warnings = self._warnings(robot, hierarchy, repulsion)
+        scale = repulsion_scale(cfg, n, hierarchy) if type(self).solve_step is IKLoopPlanner.solve_step else 1.0
+        if scale != 1.0 and not isinstance(repulsion, ZeroRepulsion):
+            repulsion = ScaledRepulsion(repulsion, scale)
         if self.pushes_off_itself():
             push = SelfCollisionPush(
                 repulsion,
