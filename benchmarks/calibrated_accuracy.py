@@ -1,7 +1,7 @@
 """Accuracy of the calibrated field's distance against the exact distance transform (issue 32).
 
     python benchmarks/calibrated_accuracy.py
-    python benchmarks/calibrated_accuracy.py --sigmas 0.01,0.02 --problems "gen:panda_shelf/0001" "mbm:cage/0001"
+    python benchmarks/calibrated_accuracy.py --problems "mbm:*/0001" tuning/panda/0000.json tuning/ur5/0005.json
 
 For each problem's scene, voxelized as the planners do (:func:`planbench.geometry.occupancy.scene_grid`,
 rule ``"any"``, margin reach plus a cell, no surface pass), the calibrated distance at every free cell
@@ -25,19 +25,12 @@ import numpy as np
 
 from planbench.field.calibrated import CalibratedSpec, calibrated_at, calibrated_full
 from planbench.geometry.occupancy import scene_grid
-from planbench.problems.datasets import load_problem
+from planbench.problems.datasets import load_problems
 from planbench_plugins.potential_fields.edt import signed_distance
 
-PROBLEMS = (
-    "gen:panda_shelf/0001",
-    "gen:panda_window/0001",
-    "gen:panda_pillars/0001",
-    "gen:panda_table_clutter/0001",
-    "gen:ur5_shelf/0001",
-    "mbm:bookshelf_small/0001",
-    "mbm:cage/0001",
-    "mbm:table_pick/0001",
-)
+PROBLEMS = ("mbm:*/0001",)
+"""Default: the first MotionBenchMaker problem of each family (the tuning range); add generated
+scenes of the tuning seed as files (``benchmarks/tuning_set.py --seed 1``)."""
 
 
 def _edt_at(sd: np.ndarray, grid, points: np.ndarray) -> np.ndarray:  # type: ignore[no-untyped-def]
@@ -60,8 +53,9 @@ def main() -> None:
     rng = np.random.default_rng(0)
     errors: dict[tuple[float, float], list[np.ndarray]] = {}
     res_diff: dict[tuple[float, float], list[np.ndarray]] = {}
-    for ref in args.problems:
-        problem = load_problem(ref)
+    problems = [p for selector in args.problems for p in load_problems(selector)]
+    for problem in problems:
+        ref = problem.id
         coarse_pts: np.ndarray | None = None
         coarse_vals: dict[float, np.ndarray] = {}
         coarse_edt: np.ndarray | None = None
