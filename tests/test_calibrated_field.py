@@ -12,6 +12,7 @@ from planbench import Obstacle, Problem, Scene
 from planbench.errors import InvalidConfigError, ResourceLimitError
 from planbench.field.calibrated import CalibratedSpec, calibrated_at, calibrated_full
 from planbench.geometry.occupancy import OccupancyGrid
+from planbench.registry import make_controller
 from planbench.robot import load_robot
 from planbench_plugins.controllers.matrix_field import GridField, MatrixFieldController
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
@@ -208,3 +209,25 @@ def test_the_controller_setting_builds_the_calibrated_push():
     assert np.linalg.norm(pushes["lazy"], axis=1).min() > 0
     assert np.allclose(pushes["lazy"], pushes["full"], rtol=1e-6, atol=1e-9)
     assert GridField(MatrixFieldController(field_kind="calibrated").config).repulsion(grid) is not None
+    preset = make_controller("matrix-field:calibrated")
+    assert preset.config.field_kind == "calibrated" and preset.config.field_mode == "lazy"
+    assert isinstance(preset.field.repulsion(grid), CalibratedRepulsion)
+
+
+def test_forces_at_control_points_equal_the_push_at_those_points(wall_problem):
+    """The loop's query (``forces``, buffers bound to the control points) gives :meth:`at`'s push,
+    in full and lazy mode, and the same arrays every step."""
+    for mode in ("full", "lazy"):
+        planner = planbench.make_planner("matrix-field:calibrated", field_mode=mode)
+        planner.setup(wall_problem)
+        rep = getattr(planner.stepper.repulsion, "inner", planner.stepper.repulsion)
+        kin = planner.stepper.kin
+        q = np.array(wall_problem.start)
+        q[3] += 0.3  # the arm nearer the wall
+        kin.update(q)
+        points, F, _, _ = rep.forces(kin)
+        assert np.linalg.norm(F, axis=1).max() > 0
+        assert np.allclose(F, rep.at(points), rtol=1e-9, atol=1e-12)
+        kin.update(np.array(wall_problem.start))
+        points2, F2, _, _ = rep.forces(kin)
+        assert F2 is F and np.allclose(F2, rep.at(points2), rtol=1e-9, atol=1e-12)

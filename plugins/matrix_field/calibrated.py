@@ -9,11 +9,13 @@ the distance differs between the two, so comparing them compares the fields.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from planbench.field.calibrated import CalibratedKernel, CalibratedSpec, DistanceField, calibrated_at, calibrated_full
+from planbench.field.interpolate import field_sampler
 from planbench.geometry.occupancy import OccupancyGrid, scene_grid
 from planbench_plugins.ik_loop import ArmKinematics
 from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
@@ -37,6 +39,9 @@ class CalibratedRepulsion:
     ) -> None:
         self.grid, self.kernel, self.field = grid, kernel, field
         self.gain, self.d0, self.floor = float(gain), float(influence_distance), float(floor)
+        self._points: np.ndarray | None = None  # the control points the buffers below are for
+        self._F = np.empty((0, 3))
+        self._fill: Callable[[], None] = lambda: None
 
     def distance_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(d, grad d)`` at world points (N, 3) [m]: ``d`` [m] capped at ``d0``."""
@@ -58,7 +63,37 @@ class CalibratedRepulsion:
         return g * scale[:, None]
 
     def forces(self, kin: ArmKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return kin.points, self.at(kin.points), kin.support, kin.cp_joint
+        """``(points, F, support, joint)`` at ``kin.points``; ``F`` is a buffer rewritten by the
+        next call (full mode: the compiled samplers bound to the points and buffers, so the loop
+        gets the same arrays every step)."""
+        points = kin.points
+        if points is not self._points:
+            self._prepare(points)
+        self._fill()
+        return points, self._F, kin.support, kin.cp_joint
+
+    def _prepare(self, points: np.ndarray) -> None:
+        F = np.empty((len(points), 3))
+        if self.field is None:
+
+            def fill() -> None:
+                F[:] = self.at(points)
+
+        else:
+            deficit, grad = np.empty((len(points), 3)), np.empty((len(points), 3))
+            sample_d = field_sampler(self.field.deficit, points, deficit)
+            sample_g = field_sampler(self.field.gradient, points, grad)
+            d0, gain, floor = self.d0, self.gain, self.floor
+
+            def fill() -> None:
+                sample_d()
+                sample_g()
+                d = np.maximum(deficit[:, 0] + d0, floor)
+                norm = np.sqrt(np.einsum("ij,ij->i", grad, grad))
+                mag = np.where(d < d0, gain * (1.0 / d - 1.0 / d0) / (d * d), 0.0)  # khatib_magnitude
+                np.multiply(grad, (mag / np.maximum(norm, 1e-9) * (norm > 1e-9))[:, None], out=F)
+
+        self._points, self._F, self._fill = points, F, fill
 
 
 def calibrated_gain(config: Any) -> float:
