@@ -12,6 +12,7 @@ from planbench import Obstacle, Problem, Scene
 from planbench.errors import InvalidConfigError, ResourceLimitError
 from planbench.field.calibrated import CalibratedSpec, calibrated_at, calibrated_full
 from planbench.geometry.occupancy import OccupancyGrid
+from planbench.reactive.conformance import check_controller
 from planbench.registry import make_controller
 from planbench.robot import load_robot
 from planbench_plugins.controllers.matrix_field import GridField, MatrixFieldController
@@ -231,3 +232,8 @@ def test_forces_at_control_points_equal_the_push_at_those_points(wall_problem):
         kin.update(np.array(wall_problem.start))
         points2, F2, _, _ = rep.forces(kin)
         assert F2 is F and np.allclose(F2, rep.at(points2), rtol=1e-9, atol=1e-12)
+
+
+def test_the_calibrated_controller_conforms():
+    """The preset as a controller passes planbench's controller checks (frames, ticks, goal)."""
+    assert check_controller("matrix-field:calibrated") == []

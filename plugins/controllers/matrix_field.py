@@ -99,7 +99,7 @@ class GridField:
         used as it is: the per-frame work is nothing, every step reads its windows, through the
         surface pass cell by cell where one is due (``lazy_field(..., surface=True)``); the cut
         to the occupied part would save a lazy step nothing and cost a pass over the grid."""
-        if self.config.field_kind == "calibrated":
+        if getattr(self.config, "field_kind", "matrix") == "calibrated":  # the QP controller has no such setting
             margin = math.ceil(self.config.kernel_reach / grid.resolution) + 2  # beyond it no push
             part = grid if self.config.field_mode == "lazy" else occupied_part(grid, margin)
             return None if part is None else grid_repulsion(part, self.config, self.config.field_mode)
@@ -136,4 +136,4 @@ class MatrixFieldController(IKLoopController):
         return self.field.repulsion(observation.grid, surfaces=observation.points is not None)
 
     def extra_info(self) -> dict[str, Any]:
-        return {"field_mode": self.config.field_mode, "field_kind": self.config.field_kind}
+        return {"field_mode": self.config.field_mode, "field_kind": getattr(self.config, "field_kind", "matrix")}
