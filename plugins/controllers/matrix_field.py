@@ -15,8 +15,8 @@ grid's own resolution, and the gain from the stand-off on those kernels
 of each observed grid pushes instead (:mod:`planbench_plugins.matrix_field.calibrated`), read on
 the grid as observed (no surface pass); ``"lazy"`` evaluates it at the control points every step,
 ``"full"`` at every cell of the occupied part every frame. A depth sensor's grid holds surfaces
-only, one cell thick: the distance to such a shell is over-estimated by about ``0.4 sigma`` at
-its face (docs/method.md, section 8).
+only, one cell thick: its distance is over-estimated like an obstacle thinner than ``sigma``
+(docs/method.md, section 8).
 
 Both work on the block of the grid that holds occupied cells (:mod:`.crop`: the same field).
 Measured (Panda, the first problem of each MotionBenchMaker family seen by the benchmark's truth
