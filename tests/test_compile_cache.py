@@ -52,7 +52,7 @@ def test_a_warm_cache_changes_nothing(cold, capsys, tmp_path):
 def test_the_marker_follows_the_kernel_sources(cold, monkeypatch):
     before = compile_cache.marker_path()
     sources = compile_cache.kernel_sources()
-    assert len(sources) == 4
+    assert len(sources) == 5
     monkeypatch.setattr(compile_cache, "kernel_sources", lambda: sources[:1])
     assert compile_cache.marker_path() != before
 
@@ -79,16 +79,17 @@ def test_a_workers_private_cache_is_found_where_numba_looks_for_it(tmp_path):
 
 def test_the_kernel_modules_are_the_ones_packages_declare():
     """The cache keys on what installed packages declare (entry points ``planbench.kernels``): the
-    field's, the IK loop's and the ``mppi`` controller's kernels here; the core names no plugin
-    module itself."""
+    field's (the matrix field's and the calibrated field's), the IK loop's and the ``mppi``
+    controller's kernels here; the core names no plugin module itself."""
     import inspect
 
     assert compile_cache.kernel_modules() == [
+        "planbench.field._calibrated_compiled",
         "planbench.field._compiled",
         "planbench.geometry._compiled",
         "planbench_plugins.controllers._mppi_compiled",
         "planbench_plugins.ik_loop._compiled",
     ]
     names = [p.name for p in compile_cache.kernel_sources()]
-    assert names == ["_compiled.py", "_compiled.py", "_mppi_compiled.py", "_compiled.py"]
+    assert names == ["_calibrated_compiled.py", "_compiled.py", "_compiled.py", "_mppi_compiled.py", "_compiled.py"]
     assert "planbench_plugins" not in inspect.getsource(compile_cache)

@@ -18,7 +18,7 @@ from planbench.runtime import compile_cache
 
 __all__ = ["main", "warm_up"]
 
-PLANNERS = ("matrix-field", "edt-field", "distance-field")
+PLANNERS = ("matrix-field", "matrix-field:calibrated", "edt-field", "distance-field")
 """The planners whose plans use every compiled kernel (the field's and the IK loop's)."""
 
 

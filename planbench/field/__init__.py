@@ -11,7 +11,8 @@ docs/method.md, sections 1-3. Typical use::
 
 Modules: ``kernels`` (profiles, tapers, sizes), ``full`` (separable passes over the grid),
 ``lazy`` (window sums at points), ``interpolate`` (trilinear sampling), ``surface`` (thin-wall
-pre-pass), ``reference`` (brute-force checks), ``plots``, ``bench`` and ``commands`` (CLI).
+pre-pass), ``reference`` (brute-force checks), ``plots``, ``bench`` and ``commands`` (CLI);
+``calibrated`` (section 8: a signed distance in metres from separable Gaussian kernels).
 """
 
 from planbench.field.full import MatrixField, full_field

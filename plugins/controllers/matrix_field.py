@@ -11,6 +11,13 @@ grid's own resolution, and the gain from the stand-off on those kernels
   holds surfaces already and is read as it is). Nothing is done per frame.
 - ``"full"``: the whole field is recomputed per frame and sampled per step.
 
+``field_kind = "calibrated"`` (or the preset ``matrix-field:calibrated``): the calibrated distance
+of each observed grid pushes instead (:mod:`planbench_plugins.matrix_field.calibrated`), read on
+the grid as observed (no surface pass); ``"lazy"`` evaluates it at the control points every step,
+``"full"`` at every cell of the occupied part every frame. A depth sensor's grid holds surfaces
+only, one cell thick: its distance is over-estimated like an obstacle thinner than ``sigma``
+(docs/method.md, section 8).
+
 Both work on the block of the grid that holds occupied cells (:mod:`.crop`: the same field).
 Measured (Panda, the first problem of each MotionBenchMaker family seen by the benchmark's truth
 and depth sensors at 2 cm, one numba thread, the shared 2-core machine; docs/writing-a-controller.md
@@ -23,6 +30,7 @@ a 10 ms tick with room to spare: hence its default here. Both give the same fiel
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +47,7 @@ from planbench_plugins.controllers.crop import occupied_part
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
 from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
+from planbench_plugins.matrix_field.calibrated import CalibratedRepulsion, grid_repulsion
 
 __all__ = ["GridField", "MatrixFieldController", "MatrixFieldControllerConfig"]
 
@@ -81,7 +90,7 @@ class GridField:
             self._kernels[resolution] = kernels, c.repulsion_gain * standoff_gain(kernels, c.speed_max, c.standoff)
         return self._kernels[resolution]
 
-    def repulsion(self, grid: OccupancyGrid, surfaces: bool = False) -> FieldRepulsion | None:
+    def repulsion(self, grid: OccupancyGrid, surfaces: bool = False) -> FieldRepulsion | CalibratedRepulsion | None:
         """The push of ``grid`` (None when nothing is occupied, or the gain is zero), computed on
         the part of it that holds occupied cells (:func:`.crop.occupied_part`: the same field).
 
@@ -90,6 +99,10 @@ class GridField:
         used as it is: the per-frame work is nothing, every step reads its windows, through the
         surface pass cell by cell where one is due (``lazy_field(..., surface=True)``); the cut
         to the occupied part would save a lazy step nothing and cost a pass over the grid."""
+        if getattr(self.config, "field_kind", "matrix") == "calibrated":  # the QP controller has no such setting
+            margin = math.ceil(self.config.kernel_reach / grid.resolution) + 2  # beyond it no push
+            part = grid if self.config.field_mode == "lazy" else occupied_part(grid, margin)
+            return None if part is None else grid_repulsion(part, self.config, self.config.field_mode)
         kernels, gain = self.kernels(grid.resolution)
         if gain <= 0:
             return None
@@ -123,4 +136,4 @@ class MatrixFieldController(IKLoopController):
         return self.field.repulsion(observation.grid, surfaces=observation.points is not None)
 
     def extra_info(self) -> dict[str, Any]:
-        return {"field_mode": self.config.field_mode}
+        return {"field_mode": self.config.field_mode, "field_kind": getattr(self.config, "field_kind", "matrix")}

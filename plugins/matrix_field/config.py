@@ -1,18 +1,23 @@
 """Settings of the matrix-field planner: the IK loop's (:class:`~planbench_plugins.ik_loop.IKLoopConfig`)
-plus the field's (:class:`~planbench.field.scene_field.FieldSettings`).
+plus the field's (:class:`~planbench.field.scene_field.FieldSettings`) and which field pushes
+(``field_kind``: the matrix field as specified, or the calibrated distance of docs/method.md, section 8).
 
 Units: metres, radians, seconds. Field values are dimensionless sums of occupancy times kernel
 weight; the gain derived from the stand-off (times ``repulsion_gain``) turns them into a speed [m/s].
+The calibrated field is a distance [m], turned into a speed by Khatib's profile.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from planbench.errors import InvalidConfigError
 from planbench.field.scene_field import FIELD_MODES, FieldSettings
-from planbench_plugins.ik_loop import IKLoopConfig
+from planbench_plugins.ik_loop import IKLoopConfig, check_number
 
-__all__ = ["MatrixFieldConfig", "FIELD_MODES"]
+__all__ = ["MatrixFieldConfig", "FIELD_KINDS", "FIELD_MODES"]
+
+FIELD_KINDS = ("matrix", "calibrated")
 
 
 @dataclass(frozen=True)
@@ -27,8 +32,33 @@ class MatrixFieldConfig(FieldSettings, IKLoopConfig):
     the field of a flat, one-cell-thick wall at distance ``d`` (computed from the kernels
     themselves). Control points sit on the link axes, so the link *surface* keeps about
     ``standoff`` minus the link radius (~0.05-0.09 m on the Panda).
+
+    ``field_kind="calibrated"``: the push is Khatib's ``k (1/d - 1/d0) / d^2`` along the gradient
+    of the calibrated distance ``d`` (:mod:`planbench.field.calibrated`), ``d0 = kernel_reach``,
+    ``k`` from the same stand-off (``edt-field``'s push, on the matrix field's kernels).
     """
+
+    field_kind: str = "matrix"
+    """``"matrix"``: the directional kernels (docs/method.md, sections 2-3; the method as
+    specified); ``"calibrated"``: the smooth signed distance [m] of separable Gaussian kernels
+    (section 8), read on the solid grid (``surface_only``, ``kernel_profile`` and ``kernel_taper``
+    are not used)."""
+    field_sigma: float = 0.02
+    """``field_kind="calibrated"``: the Gaussian's standard deviation [m]: the distance is exact at
+    a flat face, up to ``0.67 sigma`` too large at a convex edge and ``1.15 sigma`` at a corner."""
+    distance_floor: float = 0.01
+    """``field_kind="calibrated"``: the distance is floored here [m] so that the push stays finite
+    in contact (``edt-field``'s setting)."""
 
     def validate(self) -> None:
         IKLoopConfig.validate(self)
         self.validate_field()
+        if self.field_kind not in FIELD_KINDS:
+            raise InvalidConfigError(f"field_kind must be one of {FIELD_KINDS}, got {self.field_kind!r}")
+        for name in ("field_sigma", "distance_floor"):
+            check_number(self, name, lambda v: v > 0, "finite and > 0")
+        if self.field_kind == "calibrated" and self.distance_floor >= self.standoff:
+            raise InvalidConfigError(
+                f"distance_floor {self.distance_floor} m must be below standoff {self.standoff} m "
+                "(it only keeps the push finite at contact); use e.g. 0.01"
+            )

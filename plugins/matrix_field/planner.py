@@ -9,11 +9,14 @@ derived from the stand-off. Everything else (steps, endings, diagnostics) is the
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from planbench.field.scene_field import FieldRepulsion, scene_repulsion
 from planbench.problem import Problem
 from planbench_plugins.ik_loop import ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
+from planbench_plugins.matrix_field.calibrated import CalibratedRepulsion, calibrated_repulsion
 from planbench_plugins.matrix_field.config import MatrixFieldConfig
 
 __all__ = ["MatrixFieldPlanner"]
@@ -33,27 +36,38 @@ class MatrixFieldPlanner(IKLoopPlanner):
             "hierarchy": "nullspace",
             "self_collision": False,
             "escape_attempts": 0,
-        }
+        },
+        "calibrated": {"field_kind": "calibrated"},
     }
     """``matrix-field:paper``: the method as specified (docs/method.md), every configurable departure
     set back: the repulsion in the pose task's null space only, a fixed damping ``lambda``,
     success at the problem's own tolerances, no tool repulsion. Departures that are not settings
     (the angular speed cap, the collision checks, the limit handling) stay; docs/method.md lists
-    them."""
+    them. ``matrix-field:calibrated``: the calibrated field (``field_kind="calibrated"``,
+    docs/method.md section 8) in place of the directional kernels."""
 
     auto_hierarchy_redundant = "priority"
     """``hierarchy="auto"`` on a redundant arm: the priority rows near obstacles (their onset, a
     push ratio, measured with this field on MotionBenchMaker 0001-0020 with the 7-joint Panda:
-    48/140 solved against 44/140 in the null space, 4 problems gained and none lost)."""
+    48/140 solved against 44/140 in the null space, 4 problems gained and none lost). With
+    ``field_kind="calibrated"`` an instance says ``"nullspace"``: that field pushes with
+    ``edt-field``'s Khatib profile, measured better in the null space there (docs/planners.md)."""
+
+    def __init__(self, config: Any = None, **settings: Any) -> None:
+        super().__init__(config, **settings)
+        if self.config.field_kind == "calibrated":
+            self.auto_hierarchy_redundant = "nullspace"
 
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize the scene, build the kernels and (full mode) the whole field; derive the gain."""
+        if self.config.field_kind == "calibrated":
+            return calibrated_repulsion(problem, self.config) or ZeroRepulsion()
         return scene_repulsion(problem, self.config) or ZeroRepulsion()
 
     def field_at(self, points: np.ndarray) -> np.ndarray:
         """Field (N, 3) at world points [m] for the prepared problem (zeros without obstacles)."""
         rep = self.stepper.repulsion
         rep = getattr(rep, "inner", rep)  # under the self-collision push
-        if not isinstance(rep, FieldRepulsion):
+        if not isinstance(rep, (FieldRepulsion, CalibratedRepulsion)):
             return np.zeros((len(points), 3))
         return rep.field_at(points)
