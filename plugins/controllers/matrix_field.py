@@ -46,8 +46,7 @@ from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
-from planbench_plugins.matrix_field import MatrixFieldConfig, MatrixFieldPlanner
-from planbench_plugins.matrix_field.calibrated import CalibratedRepulsion, grid_repulsion
+from planbench_plugins.matrix_field import CalibratedRepulsion, MatrixFieldConfig, MatrixFieldPlanner, grid_repulsion
 
 __all__ = ["GridField", "MatrixFieldController", "MatrixFieldControllerConfig"]
 

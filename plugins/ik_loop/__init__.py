@@ -32,6 +32,7 @@ from planbench_plugins.ik_loop import tasks
 from planbench_plugins.ik_loop.config import DAMPING_MODES, IKLoopConfig, check_number
 from planbench_plugins.ik_loop.control_points import ControlPoints, place_control_points
 from planbench_plugins.ik_loop.distances import DistanceModel, PairDistances
+from planbench_plugins.ik_loop.khatib import khatib_gain, khatib_magnitude
 from planbench_plugins.ik_loop.kinematics import ArmKinematics
 from planbench_plugins.ik_loop.loop import (
     DIAGNOSTICS,
@@ -62,6 +63,8 @@ __all__ = [
     "StepInputs",
     "ZeroRepulsion",
     "check_number",
+    "khatib_gain",
+    "khatib_magnitude",
     "place_control_points",
     "plot_result",
     "stalled",

@@ -5,7 +5,16 @@ repulsion (:mod:`planbench.field.scene_field`). Modules: ``config`` (settings), 
 """
 
 from planbench_plugins.ik_loop import ControlPoints, place_control_points, plot_result
+from planbench_plugins.matrix_field.calibrated import CalibratedRepulsion, grid_repulsion
 from planbench_plugins.matrix_field.config import MatrixFieldConfig
 from planbench_plugins.matrix_field.planner import MatrixFieldPlanner
 
-__all__ = ["MatrixFieldConfig", "MatrixFieldPlanner", "ControlPoints", "place_control_points", "plot_result"]
+__all__ = [
+    "CalibratedRepulsion",
+    "ControlPoints",
+    "MatrixFieldConfig",
+    "MatrixFieldPlanner",
+    "grid_repulsion",
+    "place_control_points",
+    "plot_result",
+]

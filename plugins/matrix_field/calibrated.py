@@ -2,7 +2,7 @@
 
 The calibrated distance ``d`` and its gradient (:mod:`planbench.field.calibrated`) at the control
 points, turned into a push by Khatib's profile exactly as ``edt-field`` turns its distance
-transform into one (:mod:`planbench_plugins.potential_fields.khatib`):
+transform into one (:mod:`planbench_plugins.ik_loop.khatib`):
 ``f_i = |f|(d_i) grad d_i / |grad d_i|``, ``d0 = kernel_reach``, the gain from the stand-off. Only
 the distance differs between the two, so comparing them compares the fields.
 """
@@ -17,8 +17,7 @@ import numpy as np
 from planbench.field.calibrated import CalibratedKernel, CalibratedSpec, DistanceField, calibrated_at, calibrated_full
 from planbench.field.interpolate import field_sampler
 from planbench.geometry.occupancy import OccupancyGrid, scene_grid
-from planbench_plugins.ik_loop import ArmKinematics
-from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
+from planbench_plugins.ik_loop import ArmKinematics, khatib_gain, khatib_magnitude
 
 __all__ = ["CalibratedRepulsion", "calibrated_gain", "calibrated_repulsion"]
 

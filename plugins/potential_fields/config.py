@@ -1,5 +1,5 @@
 """Settings of the potential-field baselines: the IK loop's (shared with ``matrix-field``) plus
-the Khatib profile (:mod:`.khatib`) and, for ``edt-field``, the grid.
+the Khatib profile (:mod:`planbench_plugins.ik_loop.khatib`) and, for ``edt-field``, the grid.
 
 Only the repulsion source differs from ``matrix-field``; every other setting (attraction,
 damping, secondary tasks, slow-down, limits, endings, dense path check) has the same name,

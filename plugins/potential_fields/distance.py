@@ -11,8 +11,9 @@ Per step, at the arm's configuration (placements from the loop's own forward kin
    ``pinocchio.computeDistance``: signed distance ``d``, witness point ``p`` on the robot, and the
    separating normal ``n`` (from the robot towards the obstacle, also when they overlap);
 4. per link (all geometries of one link), the nearest obstacle only (Khatib 1986: one point of
-   closest approach per link): ``f = |f|(d) * (-n)`` applied at ``p`` (:mod:`.khatib`), mapped by
-   the loop through the Jacobian of ``p`` (support row of the link's joint).
+   closest approach per link): ``f = |f|(d) * (-n)`` applied at ``p``
+   (:mod:`planbench_plugins.ik_loop.khatib`), mapped by the loop through the Jacobian of ``p``
+   (support row of the link's joint).
 
 Robot meshes are replaced by their convex hulls (coal's ``buildConvexRepresentation``): GJK/EPA
 then gives signed distances and a separating direction when a link touches an obstacle (a mesh
@@ -32,9 +33,16 @@ import pinocchio as pin
 from planbench.checking.collision import fresh_geometry_data, witnesses
 from planbench.problem import Problem
 from planbench.robot import link_of
-from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
+from planbench_plugins.ik_loop import (
+    ArmKinematics,
+    ControlPoints,
+    IKLoopPlanner,
+    Repulsion,
+    ZeroRepulsion,
+    khatib_gain,
+    khatib_magnitude,
+)
 from planbench_plugins.potential_fields.config import DistanceFieldConfig
-from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
 
 __all__ = ["DistanceFieldPlanner", "DistanceFieldRepulsion"]
 

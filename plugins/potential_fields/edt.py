@@ -17,8 +17,8 @@ Setup (untimed):
 
 Per step, at the matrix field's control points ``p_i``: gradient and deficit sampled trilinearly
 (planbench's field sampler, compiled), ``d = d0 + deficit``, and ``f_i = |f|(d) g / |g|``
-(:mod:`.khatib`). The same control points, loop and stand-off as ``matrix-field``: only the field
-differs.
+(:mod:`planbench_plugins.ik_loop.khatib`). The same control points, loop and stand-off as
+``matrix-field``: only the field differs.
 """
 
 from __future__ import annotations
@@ -31,9 +31,16 @@ from scipy.ndimage import distance_transform_edt
 from planbench.field.full import MatrixField
 from planbench.geometry.occupancy import scene_grid
 from planbench.problem import Problem
-from planbench_plugins.ik_loop import ArmKinematics, ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
+from planbench_plugins.ik_loop import (
+    ArmKinematics,
+    ControlPoints,
+    IKLoopPlanner,
+    Repulsion,
+    ZeroRepulsion,
+    khatib_gain,
+    khatib_magnitude,
+)
 from planbench_plugins.potential_fields.config import EDTFieldConfig
-from planbench_plugins.potential_fields.khatib import khatib_gain, khatib_magnitude
 
 __all__ = ["EDTFieldPlanner", "EDTFieldRepulsion", "signed_distance"]
 

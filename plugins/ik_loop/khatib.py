@@ -1,4 +1,6 @@
-"""Khatib's repulsive profile and the gain that makes it comparable with the matrix field.
+"""Khatib's repulsive profile and the gain that makes it comparable with the matrix field: part
+of the loop, since every distance-based push on it (``edt-field``, ``distance-field``, the
+calibrated matrix field) uses the same profile.
 
 Khatib (1986), "Real-time obstacle avoidance for manipulators and mobile robots": a point at
 distance ``d`` from an obstacle is pushed away with magnitude
