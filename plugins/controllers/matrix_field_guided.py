@@ -221,13 +221,13 @@ class MatrixFieldGuidedController(Controller):
         self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
-        scale = task.period / SLICE_PERIOD if c.scale_slices else 1.0
-        self.slice_checks = max(1, round(c.plan_checks_per_tick * scale))
-        """Collision checks of a planning or path-check slice (``scale_slices``)."""
-        self.slice_cells = max(100, round(c.octree_cells * scale)) if c.scale_slices else c.octree_cells
-        """Most occupied cells in one octree built in a slice."""
-        self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
-        """Slices in which a grid's occupied cells are found."""
+        # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
+        self.slice_checks, self.slice_cells, self.scan_parts = c.plan_checks_per_tick, c.octree_cells, SCAN_PARTS
+        if c.scale_slices:
+            scale = task.period / SLICE_PERIOD
+            self.slice_checks = max(1, round(c.plan_checks_per_tick * scale))
+            self.slice_cells = max(100, round(c.octree_cells * scale))
+            self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""

@@ -193,7 +193,7 @@ class DistanceModel:
                 if joint[a] != joint[b]:
                     gm.addCollisionPair(pin.CollisionPair(a, b))
         self.n_obstacles = len(lows)
-        self._octree = np.array(octrees, dtype=bool)
+        self._octree = np.array(octrees, dtype=bool) if any(octrees) else None  # None: no witness to correct
         n_bodies = n_robot + self.n_obstacles
         self.body_names = tuple(names)
         support = np.zeros((n_bodies, model.nv))
@@ -280,7 +280,7 @@ class DistanceModel:
             d = res.min_distance
             if d < influence:
                 pair[m], dist[m] = k, d
-                if octree[second[k]]:  # coal's witnesses of an octree corrected
+                if octree is not None and octree[second[k]]:  # coal's witnesses of an octree corrected
                     point[m], other[m], normal[m] = witnesses(res, True)
                 else:
                     point[m] = res.getNearestPoint1()
