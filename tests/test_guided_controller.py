@@ -8,7 +8,9 @@ the controller tick by tick as the runner does, without charging compute.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -356,3 +358,37 @@ def test_slices_are_sized_for_the_control_period(task, period, scale, expected):
     c = MatrixFieldGuidedController(scale_slices=scale)
     c.setup(dataclasses.replace(task, period=period))
     assert (c.slice_checks, c.slice_cells, c.scan_parts) == expected
+
+
+def test_exact_slices_make_the_unsliced_search_and_end_at_their_bound(bookshelf):
+    """An exact query (its search on a thread paused at each slice's bound) makes, for any slice
+    size, the checks and path of one unlimited solve, and each slice but the last makes exactly
+    its checks."""
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    whole = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False)
+    assert whole.advance(10**9)
+    for size in (1, 7, 50):
+        query = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, shorten=False, exact=True)
+        per_slice = []
+        while True:
+            before = query.checks
+            done = query.advance(size)
+            per_slice.append(query.checks - before)
+            if done:
+                break
+        assert set(per_slice[:-1]) == {size} and per_slice[-1] <= size
+        assert query.checks == whole.checks and np.array_equal(query.path, whole.path)
+
+
+def test_an_exact_query_dropped_or_closed_unfinished_ends_its_thread(bookshelf):
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    before = threading.active_count()
+    closed = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, exact=True)
+    dropped = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=4, exact=True)
+    assert not closed.advance(5) and not dropped.advance(5)
+    assert threading.active_count() == before + 2
+    closed.close()
+    assert not closed.advance(5) and closed.path is None
+    del dropped
+    gc.collect()
+    assert threading.active_count() == before

@@ -88,20 +88,20 @@ class CollisionChecker:
                 geom.addCollisionPair(pin.CollisionPair(rid, gid))
         self.geometry_model = geom
         self._model = robot.model
-        self._data = robot.model.createData()
-        self._geom_data = fresh_geometry_data(geom)
-        # Broadphase for in_collision: its own data, so that collisions() results stay apart.
+        # Broadphase for in_collision, built now: the one query every planner makes.
         self._bp_data = robot.model.createData()
         self._bp_geom_data = fresh_geometry_data(geom)
         self._broadphase = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(robot.model, geom, self._bp_geom_data)
-        # Distances only between robot and obstacles (clearance), never robot-robot.
-        self._dist_data = fresh_geometry_data(geom)
-        self._obstacle_pairs = []
-        for k, pair in enumerate(geom.collisionPairs):
-            is_obstacle_pair = pair.second >= self.n_robot_geoms or pair.first >= self.n_robot_geoms
-            self._dist_data.activateCollisionPair(k) if is_obstacle_pair else self._dist_data.deactivateCollisionPair(k)
-            if is_obstacle_pair:
-                self._obstacle_pairs.append(k)
+        # The data of collisions() and of clearance() (its distances only between robot and
+        # obstacles, never robot-robot), each built when first asked: a checker built per sensor
+        # frame (a controller's) asks only in_collision, and each costs as much as the broadphase's.
+        self._all_pairs: tuple[Any, Any] | None = None
+        self._distances: Any = None
+        self._obstacle_pairs = [
+            k
+            for k, pair in enumerate(geom.collisionPairs)
+            if pair.second >= self.n_robot_geoms or pair.first >= self.n_robot_geoms
+        ]
         self.n_checks = 0
 
     @classmethod
@@ -123,21 +123,19 @@ class CollisionChecker:
         """``in_collision`` without the broadphase: every pair goes to coal's narrowphase (the
         reference that the broadphase is checked against; slower)."""
         self.n_checks += 1
+        data, geom_data = self._all_pairs_data()
         return bool(
-            pin.computeCollisions(
-                self._model, self._data, self.geometry_model, self._geom_data, np.asarray(q, dtype=float), True
-            )
+            pin.computeCollisions(self._model, data, self.geometry_model, geom_data, np.asarray(q, dtype=float), True)
         )
 
     def collisions(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Every colliding pair at ``q`` as (robot link, link or ``obstacle:<name>``)."""
-        pin.computeCollisions(
-            self._model, self._data, self.geometry_model, self._geom_data, np.asarray(q, dtype=float), False
-        )
+        data, geom_data = self._all_pairs_data()
+        pin.computeCollisions(self._model, data, self.geometry_model, geom_data, np.asarray(q, dtype=float), False)
         out = []
         objs = self.geometry_model.geometryObjects
         for k, pair in enumerate(self.geometry_model.collisionPairs):
-            if self._geom_data.collisionResults[k].isCollision():
+            if geom_data.collisionResults[k].isCollision():
                 a, b = objs[pair.first].name, objs[pair.second].name
                 out.append((_display(a), _display(b)))
         return out
@@ -147,9 +145,24 @@ class CollisionChecker:
         ``inf`` in an empty scene). Self-distances are not included."""
         if not self._obstacle_pairs:
             return float("inf")
-        pin.computeDistances(self._model, self._data, self.geometry_model, self._dist_data, np.asarray(q, dtype=float))
-        results = self._dist_data.distanceResults
+        if self._distances is None:
+            self._distances = fresh_geometry_data(self.geometry_model)
+            obstacle = set(self._obstacle_pairs)
+            for k in range(len(self.geometry_model.collisionPairs)):
+                if k in obstacle:
+                    self._distances.activateCollisionPair(k)
+                else:
+                    self._distances.deactivateCollisionPair(k)
+        data, _ = self._all_pairs_data()
+        pin.computeDistances(self._model, data, self.geometry_model, self._distances, np.asarray(q, dtype=float))
+        results = self._distances.distanceResults
         return float(min(results[k].min_distance for k in self._obstacle_pairs))
+
+    def _all_pairs_data(self) -> tuple[Any, Any]:
+        """The model's data and the every-pair geometry data, built when first asked."""
+        if self._all_pairs is None:
+            self._all_pairs = (self._model.createData(), fresh_geometry_data(self.geometry_model))
+        return self._all_pairs
 
 
 def _display(geometry_name: str) -> str:

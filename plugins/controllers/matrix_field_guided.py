@@ -350,6 +350,7 @@ class MatrixFieldGuidedController(Controller):
             extension=c.plan_range,
             resolution=c.motion_resolution,
             shorten=c.shorten,
+            exact=True,
         )
         yield
         while True:
@@ -358,7 +359,7 @@ class MatrixFieldGuidedController(Controller):
             self._count(query.checks - before)
             if done:
                 break
-            if query.path is None and query.checks >= c.plan_check_budget:
+            if query.path is None and (query.checks >= c.plan_check_budget or query.failed):
                 query.close()
                 self.stats["restarts"] += 1
                 return  # the next job starts again, on the latest frame

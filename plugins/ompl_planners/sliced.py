@@ -26,6 +26,15 @@ a median 2,022 checks; one motion of overrun (the default) 22/24, 950 checks, at
 slice; no bound 22/24, 744 checks, up to 318 in a slice. Either way it is deterministic: which
 checks a slice makes depends on the seed and the check counts only, never on the clock.
 
+**Exact slices** (``exact=True``). The search runs on a thread of its own, paused at every check
+once its slice's checks are spent and resumed by the next :meth:`~SlicedRRTConnect.advance`: a slice
+makes exactly its checks (motions are checked a configuration at a time), no iteration is cut,
+and the query makes the checks, trees and path of one ``solve`` without a limit whatever the slice
+sizes (tested). Only one of the two threads runs at a time (each waits on the other's semaphore),
+so the checks are the same whatever the scheduler does, and the CPU time the search consumes is
+the process's, charged where it is spent. This is what a 1 kHz loop needs: 5 checks a slice with a
+one-motion overrun would still allow 105 checks (several milliseconds) in one tick.
+
 **No batch pool.** Motions are checked a configuration at a time on the checker's own broadphase
 (:class:`~.motion.SegmentChecker` with ``pooled=False``): the batch check's pool copies every
 obstacle when it is built, 6-12 ms in one piece with a depth frame's octrees, which alone missed a
@@ -42,6 +51,7 @@ zigzag: tracked as found, the arm would take the zigzag at the tracking speed.
 from __future__ import annotations
 
 import math
+import threading
 import weakref
 from typing import Any
 
@@ -63,7 +73,9 @@ class SlicedRRTConnect:
     object of the query is created after it is set); ``extension``: RRT-Connect's range, its longest
     extension [rad]; ``resolution``: the largest joint motion between checked configurations [rad];
     ``shorten``: shorten the path found; ``overrun_motions``: how many motions past its bound a
-    slice may run to finish the iteration under way (None: no limit; module docstring)."""
+    slice may run to finish the iteration under way (None: no limit; module docstring); ``exact``:
+    the search on a thread of its own, paused at its slice's bound (module docstring; the overrun
+    then does not apply)."""
 
     def __init__(
         self,
@@ -76,6 +88,7 @@ class SlicedRRTConnect:
         resolution: float = 0.01,
         shorten: bool = True,
         overrun_motions: float | None = 1.0,
+        exact: bool = False,
     ) -> None:
         self.start = np.array(start, dtype=float)
         self.goal = np.array(goal, dtype=float)
@@ -86,6 +99,10 @@ class SlicedRRTConnect:
         """Checks past its bound after which a slice refuses states and motions (None: never)."""
         self.max_overshoot = None if self.overrun is None else self.overrun + motion
         """The most checks a slice may make beyond its bound (None: no limit)."""
+        self._pacer = _Pacer() if exact else None
+        if self._pacer is not None:
+            self.overrun = self.max_overshoot = 0
+            weakref.finalize(self, self._pacer.stop)  # a query dropped unfinished ends its search's thread
         self.path: np.ndarray | None = None
         """The path once found (start first), shortened as :meth:`advance` goes on; None before."""
         self.done = False
@@ -119,6 +136,11 @@ class SlicedRRTConnect:
         """States and motions are refused now: the slice is ``overrun`` checks past its end."""
         return self.overrun is not None and self.checks >= self._end + self.overrun
 
+    @property
+    def failed(self) -> bool:
+        """The search ended without a path (an exact query whose search stopped: it never will)."""
+        return self.path is None and self._pacer is not None and self._pacer.finished
+
     def advance(self, checks: int) -> bool:
         """Spend at most ``checks`` more checks (the search: up to :attr:`max_overshoot` beyond) on
         the search, then on shortening its path; True once the path is final (:attr:`done`)."""
@@ -127,10 +149,20 @@ class SlicedRRTConnect:
         self.slices += 1
         self._end = self.checks + max(1, int(checks))
         if self.path is None:
-            assert self._ompl is not None
+            if self._ompl is None:  # closed, or an exact search that ended without a path
+                return False
             ss, stop = self._ompl[0], self._ompl[1]
-            status = ss.solve(stop)
-            if status.asString() != "Exact solution" or not ss.haveExactSolutionPath():
+            if self._pacer is None:
+                status = ss.solve(stop)
+            else:
+                if not self._pacer.run_slice(self._end, ss):
+                    return False
+                status = self._pacer.status
+                if self._pacer.error is not None:
+                    raise self._pacer.error
+            if status is None or status.asString() != "Exact solution" or not ss.haveExactSolutionPath():
+                if self._pacer is not None:
+                    self.close()
                 return False
             found = ss.getSolutionPath()
             nq = len(self.start)
@@ -195,8 +227,63 @@ class SlicedRRTConnect:
         return True
 
     def close(self) -> None:
-        """Free the OMPL objects (the path, once found, stays)."""
+        """Free the OMPL objects, ending an exact query's search (the path, once found, stays)."""
+        if self._pacer is not None:
+            self._pacer.stop()
         self._ompl = None
+
+
+class _Pacer:
+    """The thread of an exact query's search and the two semaphores by which it and the caller
+    hand the turn to each other (module docstring): only one of them runs at a time."""
+
+    def __init__(self) -> None:
+        self.go = threading.Semaphore(0)  # the caller -> the search: run a slice
+        self.paused = threading.Semaphore(0)  # the search -> the caller: the slice is spent, or it ended
+        self.stopped = False
+        self.finished = False
+        self.status: Any = None
+        self.error: BaseException | None = None
+        self.thread: threading.Thread | None = None
+
+    def run_slice(self, end: int, ss: Any) -> bool:
+        """Let the search run until its slice is spent; True once it has ended."""
+        if self.finished:
+            return True
+        if self.thread is None:
+            stop = ob.PlannerTerminationCondition(lambda: self.stopped)
+            self.thread = threading.Thread(target=self._search, args=(ss, stop), daemon=True, name="sliced-search")
+            self.thread.start()
+        self.go.release()
+        self.paused.acquire()
+        return self.finished
+
+    def wait_turn(self, spent: bool) -> bool:
+        """Before a check on the search's thread: wait for the next slice when this one is
+        ``spent``; False once the search is stopped (the check is refused)."""
+        if spent and not self.stopped:
+            self.paused.release()
+            self.go.acquire()
+        return not self.stopped
+
+    def stop(self) -> None:
+        """End the search (its checks refused, the termination condition true) and its thread."""
+        self.stopped = True
+        thread = self.thread
+        if thread is not None and thread.is_alive() and thread is not threading.current_thread():
+            self.go.release()
+            thread.join()
+
+    def _search(self, ss: Any, stop: Any) -> None:
+        self.go.acquire()
+        try:
+            if not self.stopped:
+                self.status = ss.solve(stop)
+        except BaseException as exc:  # handed to the caller's thread, raised there
+            self.error = exc
+        finally:
+            self.finished = True
+            self.paused.release()
 
 
 def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float, resolution: float, seed: int) -> Any:
@@ -216,15 +303,34 @@ def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float,
         bounds.setHigh(i, float(checker.robot.upper[i]))
     space.setBounds(bounds)
     space.setLongestValidSegmentFraction(resolution / space.getMaximumExtent())
-    in_collision, motion_free = checker.in_collision, owner.segments.motion_free
+    in_collision, segments, pacer = checker.in_collision, owner.segments, owner._pacer
+
+    def my_turn() -> bool:
+        """Exact: wait for the slice a check belongs to (no frame of this thread holds the owner
+        meanwhile: one dropped is freed, and its search ended); False once the search is stopped."""
+        assert pacer is not None
+        return pacer.wait_turn(owner.checks >= owner._end)
 
     def is_valid(state: Any) -> bool:
-        return owner.count_state() and not in_collision(np.array([state[i] for i in index]))
+        if pacer is None:
+            return owner.count_state() and not in_collision(np.array([state[i] for i in index]))
+        if not my_turn():
+            return False
+        owner._states += 1
+        return not in_collision(np.array([state[i] for i in index]))
+
+    def motion_free(a: np.ndarray, b: np.ndarray) -> bool:
+        """Refused once the slice is spent, as at an obstacle (the connect in progress stops
+        there); exact: a configuration at a time, each waiting for its slice."""
+        if pacer is None:
+            return not owner.refusing and segments.motion_free(a, b)
+        d = b - a
+        n = max(1, math.ceil(float(np.abs(d).max()) / segments.resolution - 1e-12))
+        states = a + (np.arange(1, n + 1) / n)[:, None] * d
+        return all(my_turn() and segments.first_hit(q[None]) < 0 for q in states[bisection_order(n)])
 
     class Motions(ob.MotionValidator):
         def checkMotion(self, s1: Any, s2: Any, *rest: Any) -> bool:  # noqa: N802 (OMPL's name)
-            if owner.refusing:
-                return False  # refused, as at an obstacle: the connect in progress stops here
             return motion_free(np.array([s1[i] for i in index]), np.array([s2[i] for i in index]))
 
     ss = og.SimpleSetup(space)
