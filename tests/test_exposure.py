@@ -149,3 +149,13 @@ def test_the_cells_of_the_arm_are_those_it_marks(free_problem, backend):
         marked = np.zeros(shape, dtype=bool)
         body.mark(marked, q)
         assert np.array_equal(body.cells(q), np.flatnonzero(marked))
+
+
+def test_the_cells_of_points_are_each_found_once_and_sorted():
+    """PartPoints.cells' unique-by-sort gives np.unique's answer (duplicates, unsorted input,
+    one point, none)."""
+    from planbench.geometry.part_cells import _sorted_unique
+
+    rng = np.random.default_rng(0)
+    for values in (rng.integers(0, 50, size=400), rng.integers(0, 10**6, size=30), np.array([7]), np.zeros(0, int)):
+        assert np.array_equal(_sorted_unique(values), np.unique(values))

@@ -347,14 +347,15 @@ def test_it_reaches_the_goal_of_a_static_scene_with_truth_sensing():
     ("period", "scale", "expected"),
     [
         (0.01, True, (50, 4000, 2)),
-        (0.001, True, (5, 400, 20)),
+        (0.001, True, (5, 1000, 20)),  # cells: at least MIN_SLICE_CELLS
         (0.001, False, (50, 4000, 2)),
         (0.02, True, (100, 8000, 2)),
     ],
 )
 def test_slices_are_sized_for_the_control_period(task, period, scale, expected):
     """A 10 ms tick's slice sizes, scaled with the period (``scale_slices``): at 1 kHz a tenth of
-    the checks and cells, the grid's scan in ten times the parts; at 100 Hz the settings as given."""
+    the checks (the cells no fewer than 1,000 an octree), the grid's scan in ten times the parts; at
+    100 Hz the settings as given."""
     c = MatrixFieldGuidedController(scale_slices=scale)
     c.setup(dataclasses.replace(task, period=period))
     assert (c.slice_checks, c.slice_cells, c.scan_parts) == expected

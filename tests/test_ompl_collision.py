@@ -55,6 +55,29 @@ def test_broadphase_agrees_on_random_configurations():
     assert checker.n_checks == 600
 
 
+def test_a_checker_built_in_steps_answers_as_one_built_at_once():
+    """CollisionChecker.in_steps (a control loop's, a yield between its three steps) builds the
+    same checker; collisions() and clearance(), whose data are built when first asked, agree."""
+    (problem,) = load_problems("mbm:table_pick/0001")
+    whole = CollisionChecker(problem.robot, problem.scene)
+    steps = CollisionChecker.in_steps(problem.robot, problem.scene)
+    yields = 0
+    while True:
+        try:
+            next(steps)
+            yields += 1
+        except StopIteration as done:
+            stepped = done.value
+            break
+    assert yields == 2 and isinstance(stepped, CollisionChecker)
+    Q = np.random.default_rng(2).uniform(problem.robot.lower, problem.robot.upper, size=(100, 7))
+    verdicts = [whole.in_collision(q) for q in Q]
+    assert verdicts == [stepped.in_collision(q) for q in Q] and 0 < sum(verdicts) < len(verdicts)
+    q = Q[int(np.argmax(verdicts))]
+    assert stepped.collisions(q) == whole.collisions(q) != []
+    assert stepped.clearance(Q[0]) == whole.clearance(Q[0])
+
+
 # --- OMPL motion validation: the harness's check points, in one batch -----------------------------
 
 pytest.importorskip("ompl")

@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 import warnings
 import weakref
+from collections.abc import Generator
 from typing import Any
 
 import coal
@@ -55,16 +56,18 @@ def witnesses(result: Any, octree_second: bool) -> tuple[np.ndarray, np.ndarray,
     return p1, p2, n
 
 
-def fresh_geometry_data(geometry_model: Any) -> Any:
+def fresh_geometry_data(geometry_model: Any, distances: bool = True) -> Any:
     """``pin.GeometryData`` whose coal queries start GJK from its default guess every time, never
     from the previous query's answer, so that a distance does not depend on what was asked before
     (a verdict or a path on the order of runs). pinocchio's requests come with coal's deprecated
     ``enable_cached_gjk_guess`` set, which overrides ``gjk_initial_guess``; with it a convex pair's
-    distance moved by up to 1.4 um with the query history."""
+    distance moved by up to 1.4 um with the query history. ``distances``: set the distance
+    requests too (False: data for collision checks only; setting a request costs about 1 us, and a
+    checker of a depth frame's octree pieces has hundreds of pairs)."""
     data = pin.GeometryData(geometry_model)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        for requests in (data.distanceRequests, data.collisionRequests):
+        for requests in (data.distanceRequests, data.collisionRequests) if distances else (data.collisionRequests,):
             for request in requests:
                 request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
                 request.enable_cached_gjk_guess = False
@@ -75,6 +78,19 @@ class CollisionChecker:
     """Collision and clearance queries for one robot in one scene. Not thread-safe (own buffers)."""
 
     def __init__(self, robot: Robot, scene: Scene) -> None:
+        for _ in self._build(robot, scene):
+            pass
+
+    @classmethod
+    def in_steps(cls, robot: Robot, scene: Scene) -> Generator[None, None, CollisionChecker]:
+        """The checker built in three steps, a ``yield`` between them (the geometry model, its
+        data, the broadphase: each a fraction of a millisecond), for a control loop that spreads
+        its work over ticks; ``yield from`` it."""
+        checker = cls.__new__(cls)
+        yield from checker._build(robot, scene)
+        return checker
+
+    def _build(self, robot: Robot, scene: Scene) -> Generator[None, None, None]:
         self.robot = robot
         self.scene = scene
         geom = pin.GeometryModel(robot.collision_model)  # copy: the robot stays untouched
@@ -88,9 +104,11 @@ class CollisionChecker:
                 geom.addCollisionPair(pin.CollisionPair(rid, gid))
         self.geometry_model = geom
         self._model = robot.model
+        yield
         # Broadphase for in_collision, built now: the one query every planner makes.
         self._bp_data = robot.model.createData()
-        self._bp_geom_data = fresh_geometry_data(geom)
+        self._bp_geom_data = fresh_geometry_data(geom, distances=False)
+        yield
         self._broadphase = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(robot.model, geom, self._bp_geom_data)
         # The data of collisions() and of clearance() (its distances only between robot and
         # obstacles, never robot-robot), each built when first asked: a checker built per sensor

@@ -59,7 +59,14 @@ class ArmCells:
         body = self.body
         if body is None:
             raise RuntimeError("ArmCells.fit(grid) before near()")
-        flat = body.cells(q)
+        return self.around(body.cells(q), cells)
+
+    def around(self, flat: np.ndarray, cells: int) -> np.ndarray:
+        """Flat indices of the cells within ``cells`` cells (a cube) of the cells ``flat`` (the
+        arm's, :meth:`ArmBody.cells`): :meth:`near` in two steps, for a caller that spreads them."""
+        body = self.body
+        if body is None:
+            raise RuntimeError("ArmCells.fit(grid) before around()")
         if not len(flat):
             return np.zeros(0, dtype=np.intp)
         hit = np.column_stack(np.unravel_index(flat, body.shape))

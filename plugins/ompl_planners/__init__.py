@@ -12,7 +12,7 @@ except ImportError as exc:  # pragma: no cover
     raise ImportError("the OMPL planners need the 'ompl' package: pip install ompl") from exc
 
 from .base import OMPLAnyConfig, OMPLConfig, OMPLPlanner, geometric_planners, planner_parameters
-from .grid import cells_checker, cells_octree, pieces_checker
+from .grid import cells_checker, cells_octree, pieces_checker, pieces_checker_in_steps
 from .planners import BITstarPlanner, KPIECEPlanner, PRMstarPlanner, RRTConnectPlanner, RRTstarPlanner
 from .sliced import SlicedRRTConnect
 
@@ -30,5 +30,6 @@ __all__ = [
     "cells_checker",
     "cells_octree",
     "pieces_checker",
+    "pieces_checker_in_steps",
     "SlicedRRTConnect",
 ]

@@ -21,6 +21,7 @@ A cell value is occupied when it is ``>= threshold`` (the grid may be probabilis
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,7 +34,15 @@ from planbench.geometry.occupancy import OccupancyGrid, merge_cells, scene_grid
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["GRID_GEOMETRIES", "cells_checker", "cells_octree", "grid_for_scene", "grid_checker", "pieces_checker"]
+__all__ = [
+    "GRID_GEOMETRIES",
+    "cells_checker",
+    "cells_octree",
+    "grid_checker",
+    "grid_for_scene",
+    "pieces_checker",
+    "pieces_checker_in_steps",
+]
 
 GRID_GEOMETRIES = ("octree", "boxes")
 
@@ -129,3 +138,8 @@ def pieces_checker(robot: Robot, pieces: list[Any]) -> CollisionChecker:
     """A CollisionChecker of ``robot`` against the obstacles made by :func:`cells_octree` (their
     names must differ)."""
     return CollisionChecker(robot, _GeometryScene(tuple(pieces)))  # type: ignore[arg-type]
+
+
+def pieces_checker_in_steps(robot: Robot, pieces: list[Any]) -> Generator[None, None, CollisionChecker]:
+    """:func:`pieces_checker` built in steps (:meth:`CollisionChecker.in_steps`); ``yield from`` it."""
+    return CollisionChecker.in_steps(robot, _GeometryScene(tuple(pieces)))  # type: ignore[arg-type]
