@@ -299,6 +299,23 @@ def test_a_depth_goal_blocked_by_cells_that_appeared_is_left_out_after_goal_bloc
     assert 0.5 <= d.k * task.period <= 1.5  # planned once the cells had blocked the goal for 0.5 s
 
 
+def test_a_goal_that_stays_blocked_is_checked_against_the_cells_near_it_then_reached(task):
+    """Once a plan was refused for its goal, the next frames test the goal against the occupied
+    cells near it only (no plan geometry built), until they clear; then it plans and goes."""
+    goal_q = np.asarray(task.goal.q)
+    hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    ball = Scene((Obstacle("ball", "sphere", tuple(hand), radius=0.06),))
+    d = Driver(task, goal_block_time=100.0)
+    d.c.update(depth(Scene()))  # every cell near the goal seen free: the ball's cells block the goal
+    d.k = 3
+    d.run(depth(ball), 150)
+    info = d.c.info()
+    assert info["paths"] == 0 and info["blocked"] >= 10 and info["blocked_near_goal"] == info["blocked"] - 1
+    d.run(depth(Scene()), 800, until=lambda d: np.max(np.abs(d.q - goal_q)) < 1e-3)
+    info = d.c.info()
+    assert np.max(np.abs(d.q - goal_q)) < 1e-3 and info["paths"] == 1 and info["blocked_near_goal"] >= 9
+
+
 def test_unknown_cells_near_the_arm_are_obstacles_for_the_plan_with_unknown_occupied(task):
     """An unknown block where the free-space path's hand passes: ``"free"`` plans through it,
     ``"occupied"`` around it (every unknown cell in reach counts: ``unknown_reach`` 2 m)."""
@@ -347,15 +364,15 @@ def test_it_reaches_the_goal_of_a_static_scene_with_truth_sensing():
     ("period", "scale", "expected"),
     [
         (0.01, True, (50, 4000, 2)),
-        (0.001, True, (5, 1000, 20)),  # cells: at least MIN_SLICE_CELLS
+        (0.001, True, (3, 1000, 20)),  # checks: the period left beyond TICK_COST; cells: at least MIN_SLICE_CELLS
         (0.001, False, (50, 4000, 2)),
-        (0.02, True, (100, 8000, 2)),
+        (0.02, True, (103, 8000, 2)),
     ],
 )
 def test_slices_are_sized_for_the_control_period(task, period, scale, expected):
-    """A 10 ms tick's slice sizes, scaled with the period (``scale_slices``): at 1 kHz a tenth of
-    the checks (the cells no fewer than 1,000 an octree), the grid's scan in ten times the parts; at
-    100 Hz the settings as given."""
+    """A 10 ms tick's slice sizes, scaled with the period (``scale_slices``): the checks with the
+    period left beyond a tick's fixed cost (3 at 1 kHz), the cells with the period (no fewer than
+    1,000 an octree), the grid's scan in ten times the parts at 1 kHz; at 100 Hz as given."""
     c = MatrixFieldGuidedController(scale_slices=scale)
     c.setup(dataclasses.replace(task, period=period))
     assert (c.slice_checks, c.slice_cells, c.scan_parts) == expected

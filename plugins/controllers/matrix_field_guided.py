@@ -88,6 +88,12 @@ MIN_SLICE_CELLS = 1000
 about 0.25 ms, and each octree adds about 0.08 ms to building the checker (18 pieces of 400 cells:
 2.0 ms, 7 of 1,000: 1.0 ms, on a Panda frame of 7,000 occupied cells)."""
 
+TICK_COST = 0.0005
+"""[s] What a tick costs besides its slice (the tracking law, the call and a frame's share), charged
+every tick: about 0.2-0.3 ms in process and 0.5 ms across processes on the Panda at 1 kHz. A
+search slice gets ``plan_checks_per_tick`` times the period left beyond it over that of a 10 ms
+tick (``scale_slices``): 3 checks at 1 kHz (5 checks, a tenth, made ticks of 1.3 ms at p99)."""
+
 SLICE_PERIOD = 0.01
 """[s] The control period for which the slice sizes are given (``plan_checks_per_tick``,
 ``octree_cells``, :data:`SCAN_PARTS`); with ``scale_slices`` they scale with the task's period."""
@@ -105,9 +111,10 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
     depth sensing; docs/reactive.md has the measurement)."""
     scale_slices: bool = True
     """Size the slices for the task's control period: ``plan_checks_per_tick`` and ``octree_cells``
-    are a 10 ms tick's, multiplied by ``period / 10 ms`` (at least 1 check, :data:`MIN_SLICE_CELLS`
-    cells), and a grid's scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 5 checks, 1,000 cells,
-    20 parts, so a tick
+    are a 10 ms tick's, the checks multiplied by the share of the period left beyond
+    :data:`TICK_COST` (at least 1), the cells by ``period / 10 ms`` (at least :data:`MIN_SLICE_CELLS`),
+    and a grid's scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 3 checks, 1,000 cells, 20
+    parts, so a tick
     stays near a tenth of the work; at 100 Hz nothing changes. False: the numbers as given."""
     plan_check_budget: int = 20000
     """Checks one RRT-Connect query may spend without a path before it starts again from the held
@@ -231,7 +238,8 @@ class MatrixFieldGuidedController(Controller):
         self.slice_checks, self.slice_cells, self.scan_parts = c.plan_checks_per_tick, c.octree_cells, SCAN_PARTS
         if c.scale_slices:
             scale = task.period / SLICE_PERIOD
-            self.slice_checks = max(1, round(c.plan_checks_per_tick * scale))
+            left = max(0.0, task.period - TICK_COST) / (SLICE_PERIOD - TICK_COST)  # of the time a slice may take
+            self.slice_checks = max(1, round(c.plan_checks_per_tick * left))
             self.slice_cells = max(MIN_SLICE_CELLS, round(c.octree_cells * scale))
             self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
 
@@ -257,11 +265,14 @@ class MatrixFieldGuidedController(Controller):
         self.job: Work | None = None
         self.job_kind = ""
         self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
+        self.blocked_from: np.ndarray | None = None  # depth: the start of the last plan refused for its goal
+        self.start_near: tuple[np.ndarray, np.ndarray] | None = None  # depth: a plan's start, cells near the arm there
         self.stats: dict[str, Any] = {
             "plans": 0,
             "paths": 0,
             "restarts": 0,
             "blocked": 0,
+            "blocked_near_goal": 0,
             "start_in_collision": 0,
             "replans": {"invalidated": 0, "blocked": 0, "lag": 0},
             "slices": 0,
@@ -300,7 +311,8 @@ class MatrixFieldGuidedController(Controller):
 
     def info(self) -> dict[str, Any]:
         """Counts of the run: plans started (``plans``), paths found (``paths``), queries restarted,
-        plans refused with the goal (``blocked``) or the start in collision, replans by why, work
+        plans refused with the goal (``blocked``; ``blocked_near_goal`` of them against the cells near
+        the goal only) or the start in collision, replans by why, work
         slices (planning, path checks) and the most checks one made, frames, cells or obstacles
         left out where the arm touched them, ticks from each plan's start to its path, waypoints of
         each path, unknown cells read as occupied in the last frame."""
@@ -338,11 +350,18 @@ class MatrixFieldGuidedController(Controller):
     def _plan(self) -> Work:
         """A plan from the held configuration (module docstring), a slice per ``yield``."""
         start, frame, c = self.hold.copy(), self.frame, self.config
+        if (yield from self._goal_still_blocked(start)):
+            self.stats["blocked"] += 1
+            self.stats["blocked_near_goal"] += 1
+            self.wait_frame = frame
+            return
         checker = yield from self._planning_checker(start)
         if checker.in_collision(self.goal_q):
             self.stats["blocked"] += 1
             self.wait_frame = frame
+            self.blocked_from = start
             return
+        self.blocked_from = None
         yield  # a new checker's first queries cost 0.2 ms each
         if checker.in_collision(start):
             self.stats["start_in_collision"] += 1
@@ -409,6 +428,35 @@ class MatrixFieldGuidedController(Controller):
         yield
         return checker
 
+    def _goal_still_blocked(self, start: np.ndarray) -> Generator[None, None, bool]:
+        """Depth, while the arm holds where the last plan was refused for its goal: whether the goal
+        is in collision with the occupied cells near the arm's body there (the cells it can touch),
+        left-out cells aside. A goal that stays blocked then costs an octree of those cells and a
+        small checker per frame instead of the plan's whole geometry (about 3 ms on the Panda).
+        It only says "blocked" where the plan would: its cells are among the plan's, unless the arm
+        at the start is within a cell of one of them (the plan leaves out cells the arm touches),
+        and then the plan decides."""
+        if self.blocked_from is None or not np.array_equal(self.blocked_from, start) or self.grid is None:
+            return False
+        near = self.cells.near_goal
+        blocking = np.asarray(self.grid.data).reshape(-1)[near] >= 0.5
+        if self.goal_out is not None and len(self.goal_out) == len(near):
+            blocking &= ~self.goal_out
+        cells = near[blocking]
+        start_near = self.start_near
+        if (
+            not len(cells)
+            or start_near is None
+            or not np.array_equal(start_near[0], start)
+            or np.isin(cells, start_near[1], kind="table").any()
+        ):
+            return False
+        octree = cells_octree(self.grid, cells, "near-goal")
+        yield
+        checker = yield from pieces_checker_in_steps(self.task.robot, [octree])
+        yield
+        return checker.in_collision(self.goal_q)
+
     def _occupied(self) -> Generator[None, None, np.ndarray]:
         """Depth: the flat indices of the occupied cells of the latest grid, found in
         :attr:`scan_parts` slices (a pass over a 142^3 grid costs 2-4 ms; a part is read from the
@@ -435,7 +483,9 @@ class MatrixFieldGuidedController(Controller):
         assert self.cells.body is not None
         arm = self.cells.body.cells(q)
         yield
-        return cells, cells[np.isin(cells, self.cells.around(arm, 1), kind="table")]
+        near = self.cells.around(arm, 1)
+        self.start_near = (np.array(q, dtype=float), near)
+        return cells, cells[np.isin(cells, near, kind="table")]
 
     def _without_touched(
         self, cells: np.ndarray, close: np.ndarray, q: np.ndarray, checker: CollisionChecker | None
