@@ -67,7 +67,7 @@ from planbench.reactive.body import body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
-from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
+from planbench_plugins.controllers.observed import ArmCells, scene_without_touched_in_steps
 from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, check_number, place_control_points
 from planbench_plugins.ik_loop import tasks as T
@@ -404,7 +404,7 @@ class MatrixFieldGuidedController(Controller):
         robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:  # truth: the scene less what the arm at the start touches
-            _, checker, dropped = scene_without_touched(robot, scene, start)
+            _, checker, dropped = yield from scene_without_touched_in_steps(robot, scene, start)
             del scene
             self.stats["dropped"] += dropped
             self.plan_cells = None
@@ -530,7 +530,7 @@ class MatrixFieldGuidedController(Controller):
         robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:
-            _, checker, dropped = scene_without_touched(robot, scene, q)
+            _, checker, dropped = yield from scene_without_touched_in_steps(robot, scene, q)
             del scene
             self.stats["dropped"] += dropped
         else:

@@ -13,6 +13,8 @@ obstacles out of a plan, the same way:
 
 from __future__ import annotations
 
+from collections.abc import Generator
+
 import numpy as np
 
 from planbench.checking.collision import CollisionChecker
@@ -21,7 +23,7 @@ from planbench.reactive.body import ArmBody
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["ArmCells", "scene_without_touched"]
+__all__ = ["ArmCells", "scene_without_touched", "scene_without_touched_in_steps"]
 
 
 class ArmCells:
@@ -81,9 +83,29 @@ class ArmCells:
 def scene_without_touched(robot: Robot, scene: Scene, q: np.ndarray) -> tuple[Scene, CollisionChecker, int]:
     """``scene`` less the obstacles ``robot`` at ``q`` touches, a checker of it, and how many
     obstacles were left out."""
-    checker = CollisionChecker(robot, scene)
-    touched = {obstacle.removeprefix("obstacle:") for _, obstacle in checker.collisions(q)}
-    if not touched:
+    steps = scene_without_touched_in_steps(robot, scene, q)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value  # type: ignore[no-any-return]
+
+
+def scene_without_touched_in_steps(
+    robot: Robot, scene: Scene, q: np.ndarray
+) -> Generator[None, None, tuple[Scene, CollisionChecker, int]]:
+    """:func:`scene_without_touched` with a ``yield`` between its steps (each a fraction of a
+    millisecond), for a control loop; ``yield from`` it. The contacts are listed only when the
+    broadphase finds the arm at ``q`` in collision (every pair's check costs more)."""
+    checker = yield from CollisionChecker.in_steps(robot, scene)
+    yield
+    if not checker.in_collision(q):
         return scene, checker, 0
+    yield
+    touched = {b.removeprefix("obstacle:") for _, b in checker.collisions(q) if b.startswith("obstacle:")}
+    if not touched:  # the arm touches only itself
+        return scene, checker, 0
+    yield
     scene = Scene(tuple(o for o in scene.obstacles if o.name not in touched), scene.name)
-    return scene, CollisionChecker(robot, scene), len(touched)
+    checker = yield from CollisionChecker.in_steps(robot, scene)
+    return scene, checker, len(touched)
