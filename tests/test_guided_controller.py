@@ -410,3 +410,25 @@ def test_an_exact_query_dropped_or_closed_unfinished_ends_its_thread(bookshelf):
     del dropped
     gc.collect()
     assert threading.active_count() == before
+
+
+@pytest.mark.parametrize("way", [(0, 1, 0), (0, -1, 0), (0, 0, 1)])  # sideways, from above
+def test_while_it_waits_it_backs_away_from_an_obstacle_that_comes_at_it(task, way):
+    """Holding while the goal is blocked, the field on: a ball driven at the hand (0.58 m/s) pushes
+    the arm back, and the arm never touches it; with the hold pulling the arm back
+    (``hold_gives_way=False``) the ball reaches it."""
+    goal_q = np.asarray(task.goal.q)
+    goal_hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    hand = task.robot.frame_pose(np.asarray(task.start), task.goal.pose.frame).translation
+    blocker = Obstacle("blocker", "sphere", tuple(goal_hand), radius=0.06)
+    touched = {}
+    for gives in (True, False):
+        d = Driver(task, hold_gives_way=gives)
+        d.run(truth(Scene((blocker,))), 30)
+        assert d.c.info()["blocked"] >= 1 and d.c.reference is None
+        touched[gives] = []
+        for k in range(60):  # from 0.40 m to 0.05 m off where the hand was, over 0.6 s
+            ball = Obstacle("ball", "sphere", tuple(hand + np.array(way) * (0.40 - 0.35 * k / 59)), radius=0.05)
+            d.run(truth(Scene((blocker, ball))), 3)
+            touched[gives].append(CollisionChecker(task.robot, Scene((ball,))).in_collision(d.q))
+    assert not any(touched[True]) and any(touched[False])

@@ -54,7 +54,7 @@ import itertools
 import math
 from collections.abc import Generator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -78,6 +78,8 @@ __all__ = ["MatrixFieldGuidedController", "MatrixFieldGuidedControllerConfig"]
 
 Work = Generator[None, None, None]
 """A job cut into slices: each ``next`` runs one slice."""
+
+R = TypeVar("R")
 
 SCAN_PARTS = 2
 """Slices in which a depth grid's occupied cells are found (each a part of the grid's cells), at
@@ -139,6 +141,10 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
     replan_lag: float = 0.3
     """[rad] The arm farther than this from its reference (largest joint error) plans again from
     where it is."""
+    hold_gives_way: bool = True
+    """While there is no path (planning, or the goal blocked), the held configuration follows the
+    arm wherever the field pushes it, so that an obstacle coming at the waiting arm drives it back;
+    False: the hold pulls the arm back against the push (which fades with the distance from it)."""
 
     # --- tracking ---------------------------------------------------------------------------------
     velocity_scale: float = 0.5
@@ -188,7 +194,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
         check_number(self, "velocity_scale", lambda v: v <= 1, "in (0, 1]")
         check_number(self, "goal_fade", lambda v: v >= 0, "finite and >= 0")
         check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0")
-        for name in ("shorten", "scale_slices"):
+        for name in ("shorten", "scale_slices", "hold_gives_way"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         self.validate_field()
@@ -236,6 +242,7 @@ class MatrixFieldGuidedController(Controller):
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
         # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
         self.slice_checks, self.slice_cells, self.scan_parts = c.plan_checks_per_tick, c.octree_cells, SCAN_PARTS
+        self.fine = c.scale_slices and task.period < SLICE_PERIOD  # slices cut finer than a 10 ms tick's
         if c.scale_slices:
             scale = task.period / SLICE_PERIOD
             left = max(0.0, task.period - TICK_COST) / (SLICE_PERIOD - TICK_COST)  # of the time a slice may take
@@ -362,7 +369,7 @@ class MatrixFieldGuidedController(Controller):
             self.blocked_from = start
             return
         self.blocked_from = None
-        yield  # a new checker's first queries cost 0.2 ms each
+        yield from self._pause()  # a new checker's first queries cost 0.2 ms each
         if checker.in_collision(start):
             self.stats["start_in_collision"] += 1
             self.wait_frame = frame
@@ -404,7 +411,7 @@ class MatrixFieldGuidedController(Controller):
         robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:  # truth: the scene less what the arm at the start touches
-            _, checker, dropped = yield from scene_without_touched_in_steps(robot, scene, start)
+            _, checker, dropped = yield from self._in_steps(scene_without_touched_in_steps(robot, scene, start))
             del scene
             self.stats["dropped"] += dropped
             self.plan_cells = None
@@ -424,9 +431,25 @@ class MatrixFieldGuidedController(Controller):
             assert self.grid is not None  # the latest frame's: every frame has the same cells
             pieces.append(cells_octree(self.grid, kept[k : k + self.slice_cells], f"cells-{k}"))
             yield
-        checker = yield from pieces_checker_in_steps(robot, pieces)
+        checker = yield from self._in_steps(pieces_checker_in_steps(robot, pieces))
         yield
         return checker
+
+    def _pause(self) -> Generator[None, None, None]:
+        """A slice boundary only where slices are finer than a 10 ms tick's (``scale_slices``
+        with a shorter period): work that a 10 ms tick takes in one piece is cut there at 1 kHz."""
+        if self.fine:
+            yield
+
+    def _in_steps(self, steps: Generator[None, None, R]) -> Generator[None, None, R]:
+        """``steps`` (a job built in steps) a slice each where slices are fine, else in one."""
+        if self.fine:
+            return (yield from steps)
+        while True:
+            try:
+                next(steps)
+            except StopIteration as done:
+                return done.value  # type: ignore[no-any-return]
 
     def _goal_still_blocked(self, start: np.ndarray) -> Generator[None, None, bool]:
         """Depth, while the arm holds where the last plan was refused for its goal: whether the goal
@@ -452,9 +475,9 @@ class MatrixFieldGuidedController(Controller):
         ):
             return False
         octree = cells_octree(self.grid, cells, "near-goal")
-        yield
-        checker = yield from pieces_checker_in_steps(self.task.robot, [octree])
-        yield
+        yield from self._pause()
+        checker = yield from self._in_steps(pieces_checker_in_steps(self.task.robot, [octree]))
+        yield from self._pause()
         return checker.in_collision(self.goal_q)
 
     def _occupied(self) -> Generator[None, None, np.ndarray]:
@@ -479,10 +502,10 @@ class MatrixFieldGuidedController(Controller):
         (``np.isin``'s ``kind="table"``: 0.04 ms where sorting takes 0.7 ms on 7,000 cells)."""
         if self.goal_out is not None and self.goal_out.any():
             cells = cells[~np.isin(cells, self.cells.near_goal[self.goal_out], kind="table")]
-            yield
+            yield from self._pause()
         assert self.cells.body is not None
         arm = self.cells.body.cells(q)
-        yield
+        yield from self._pause()
         near = self.cells.around(arm, 1)
         self.start_near = (np.array(q, dtype=float), near)
         return cells, cells[np.isin(cells, near, kind="table")]
@@ -530,7 +553,7 @@ class MatrixFieldGuidedController(Controller):
         robot = self.task.robot
         scene = self.observation.scene if self.observation is not None else None
         if scene is not None:
-            _, checker, dropped = yield from scene_without_touched_in_steps(robot, scene, q)
+            _, checker, dropped = yield from self._in_steps(scene_without_touched_in_steps(robot, scene, q))
             del scene
             self.stats["dropped"] += dropped
         else:
@@ -616,6 +639,10 @@ class MatrixFieldGuidedController(Controller):
         if w > 0 and c.repulsion_gain > 0 and self.grid is not None:
             points, F, support, _ = self.arm.at(q)
             push = w * T.repulsion_joint_velocity(self.arm.kin.S, points, F, support)
+            if ref is None and c.hold_gives_way and np.any(push):
+                # holding: the hold gives way to the push (an obstacle coming at the arm drives it
+                # back); with no push the arm stays where it was driven
+                r = r_next = self.hold = q.copy()
         else:
             self.arm.kin.update(q)  # where the arm is: the unknown cells near it are read there
         return tracking_velocity(q, r, r_next, period, c.tracking_gain, push, self.qd_max, self.lower, self.upper)
