@@ -231,3 +231,18 @@ def _init(self, kind, config, settings):
 
 for _kind in WrongCommand.KINDS:
     globals()[f"Wrong_{_kind.replace('-', '_')}"] = make_wrong(_kind)
+
+
+class CollectorState(_ToGoal):
+    """Reports what the garbage collector holds frozen when the run starts (the benchmark collects
+    and freezes what set-up made, so no full collection of it lands on a tick)."""
+
+    def reset(self, q, rng):
+        self.tried = {}
+
+    def step(self, t, q, observation, goal):
+        if "frozen" not in self.tried:
+            import gc
+
+            self.tried["frozen"] = gc.get_freeze_count()
+        return self.toward_goal(q)

@@ -50,7 +50,7 @@ def _within_velocity_limits(row, scenario) -> bool:
 
 @pytest.mark.slow
 def test_patching_clocks_modules_and_the_robot_in_the_controller_process_changes_no_verdict(tmp_path):
-    rows = _bench(tmp_path, ["PatchEverything", "SlowClocks", "BackgroundThread"])
+    rows = _bench(tmp_path, ["PatchEverything", "SlowClocks", "BackgroundThread", "CollectorState"])
     scenario = load_scenario(SCENARIO)
     T = scenario.period
 
@@ -76,6 +76,9 @@ def test_patching_clocks_modules_and_the_robot_in_the_controller_process_changes
     else:  # it did not: the run's calls were charged at least the horizon's worth of CPU
         assert charged >= 0.5 * scenario.horizon or background["deadline_misses"] > 0
     assert charged >= 0.1 and background["deadline_misses"] > 0
+
+    # what set-up made was collected and frozen before the first tick: no full collection of it later
+    assert json.loads(rows["CollectorState"]["info"])["controller"]["frozen"] > 10000
 
 
 @pytest.mark.slow
