@@ -98,7 +98,7 @@ def serve_run(
     except Exception as exc:
         return _error(f"could not prepare the run: {type(exc).__name__}: {exc}", t0, traceback.format_exc())
     # What exists now lives for the run: collected once here, then out of the collector's reach.
-    # A full collection of the 90,000-170,000 objects a controller's process holds costs 20-40 ms
+    # A full collection of the 90,000-170,000 objects a controller's process holds costs 18-45 ms
     # of the controller's charged time: a missed deadline whenever the collector chose to run one.
     gc.collect()
     gc.freeze()
