@@ -316,6 +316,25 @@ def test_a_goal_that_stays_blocked_is_checked_against_the_cells_near_it_then_rea
     assert np.max(np.abs(d.q - goal_q)) < 1e-3 and info["paths"] == 1 and info["blocked_near_goal"] >= 9
 
 
+def test_at_1_khz_a_frames_goal_cells_are_classified_on_the_step_after_next(task):
+    """With slices finer than a 10 ms tick's, the frame's tick carries the update only: the cells
+    near the goal are classified on the step after next, which runs no slice of work."""
+    goal_q = np.asarray(task.goal.q)
+    hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
+    ball = Scene((Obstacle("ball", "sphere", tuple(hand), radius=0.06),))
+    c = MatrixFieldGuidedController()
+    c.setup(dataclasses.replace(task, period=0.001))
+    q = np.array(task.start, dtype=float)
+    c.reset(q.copy(), np.random.default_rng(0))
+    c.update(depth(ball))
+    assert c.first_seen is None
+    c.step(0.0, q, None, task.goal)
+    assert c.first_seen is None and c.job is not None  # the frame's tick: a slice of the plan, no classification
+    slices = c.info()["slices"]
+    c.step(0.001, q, None, task.goal)
+    assert c.first_seen is not None and c.first_seen.any() and c.info()["slices"] == slices
+
+
 def test_unknown_cells_near_the_arm_are_obstacles_for_the_plan_with_unknown_occupied(task):
     """An unknown block where the free-space path's hand passes: ``"free"`` plans through it,
     ``"occupied"`` around it (every unknown cell in reach counts: ``unknown_reach`` 2 m)."""

@@ -104,6 +104,7 @@ def serve_run(
     gc.freeze()
     notify("plan")
     serve_controller(sock, controller, scenario.problem.robot.nq, scenario.problem.goal)
+    gc.unfreeze()  # collectable again as the process ends (frozen, the bindings report them leaked)
     return None
 
 
