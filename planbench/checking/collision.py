@@ -87,7 +87,7 @@ class CollisionChecker:
         data, the broadphase: each a fraction of a millisecond), for a control loop that spreads
         its work over ticks; ``yield from`` it."""
         checker = cls.__new__(cls)
-        yield from checker._build(robot, scene)
+        yield from cls._build(checker, robot, scene)
         return checker
 
     def _build(self, robot: Robot, scene: Scene) -> Generator[None, None, None]:

@@ -119,7 +119,7 @@ class SlicedRRTConnect:
                 # OMPL would wait for another goal sample (sleeping 10 ms at a time) until the slice
                 # ends, and with no checks made it never would
                 raise ValueError(f"the {what} configuration is in collision: check it before planning")
-        self._ompl: tuple[Any, ...] | None = _query(self, checker, extension, resolution, int(seed))
+        self._ompl: tuple[Any, ...] | None = _query(self, checker, extension, resolution, int(seed), self._pacer)
 
     @property
     def checks(self) -> int:
@@ -178,8 +178,9 @@ class SlicedRRTConnect:
         return self.done
 
     def count_state(self) -> bool:
-        """Count one state validity check; False when it is refused (:attr:`refusing`)."""
-        if self.refusing:
+        """Count one state validity check; False when it is refused (:attr:`refusing`; an exact
+        query's search waits for its slice instead, and is never refused)."""
+        if self._pacer is None and self.refusing:
             return False
         self._states += 1
         return True
@@ -286,7 +287,14 @@ class _Pacer:
             self.paused.release()
 
 
-def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float, resolution: float, seed: int) -> Any:
+def _query(
+    owner: SlicedRRTConnect,
+    checker: CollisionChecker,
+    extension: float,
+    resolution: float,
+    seed: int,
+    pacer: _Pacer | None,
+) -> Any:
     """The OMPL objects of ``owner``'s query: the setup, its termination condition, and what they
     hold on to. States and motions are refused once the owner's slice is spent. The callbacks hold
     ``owner`` weakly: OMPL holds them, and a query dropped unfinished frees its OMPL objects with it
@@ -303,21 +311,18 @@ def _query(owner: SlicedRRTConnect, checker: CollisionChecker, extension: float,
         bounds.setHigh(i, float(checker.robot.upper[i]))
     space.setBounds(bounds)
     space.setLongestValidSegmentFraction(resolution / space.getMaximumExtent())
-    in_collision, segments, pacer = checker.in_collision, owner.segments, owner._pacer
+    in_collision, segments = checker.in_collision, owner.segments
 
     def my_turn() -> bool:
         """Exact: wait for the slice a check belongs to (no frame of this thread holds the owner
         meanwhile: one dropped is freed, and its search ended); False once the search is stopped."""
         assert pacer is not None
-        return pacer.wait_turn(owner.checks >= owner._end)
+        return pacer.wait_turn(owner.spent)
 
     def is_valid(state: Any) -> bool:
         if pacer is None:
             return owner.count_state() and not in_collision(np.array([state[i] for i in index]))
-        if not my_turn():
-            return False
-        owner._states += 1
-        return not in_collision(np.array([state[i] for i in index]))
+        return my_turn() and owner.count_state() and not in_collision(np.array([state[i] for i in index]))
 
     def motion_free(a: np.ndarray, b: np.ndarray) -> bool:
         """Refused once the slice is spent, as at an obstacle (the connect in progress stops
