@@ -172,7 +172,7 @@ def test_the_preset_pushes_like_edt_field_at_the_standoff(wall_problem):
     planner = planbench.make_planner("matrix-field:calibrated")
     assert planner.config.field_kind == "calibrated"
     assert planner.hierarchy_for(7) == "nullspace"
-    assert MatrixFieldPlanner().hierarchy_for(7) == "priority"  # the original field keeps its choice
+    assert MatrixFieldPlanner(field_kind="matrix").hierarchy_for(7) == "nullspace"  # both fields (issue 32)
     planner.setup(wall_problem)
     rep = planner.stepper.repulsion
     rep = getattr(rep, "inner", rep)

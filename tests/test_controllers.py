@@ -92,6 +92,16 @@ def test_controllers_take_their_planners_settings_presets_and_a_lazy_field():
     assert paper.config.hierarchy == "nullspace" and paper.config.self_collision is False
 
 
+def test_the_matrix_field_controller_keeps_its_rows_on_a_redundant_arm(box):
+    """The planner took the null space on a redundant arm (issue 32, measured on planning sets);
+    the controller of the same name keeps the priority rows for the matrix field."""
+    assert make_planner("matrix-field").hierarchy_for(7) == "nullspace"
+    for name, hierarchy in (("matrix-field", "priority"), ("matrix-field:calibrated", "nullspace")):
+        controller = make_controller(name)
+        controller.setup(box.task)
+        assert controller.stepper is not None and controller.stepper.hierarchy == hierarchy, name
+
+
 def test_a_controller_registers_into_an_isolated_registry():
     registry = Registry(discover=False, group="planbench.controllers", kind="controller")
 

@@ -58,11 +58,12 @@ def test_auto_is_chosen_from_the_arms_redundancy(ur5, panda):
     prm = fast.step_params(cfg, 6)
     assert (prm.priority, prm.priority_onset, prm.priority_full, prm.orientation_weight) == (1.0, 0.0, 1.0, 0.1)
     assert fast.step_params(cfg, 7).priority == 0.0 and fast.step_params(cfg, 7, "priority").priority == 1.0
-    # the matrix field measured the rows on the 7-joint Panda; the potential fields keep the null space
-    assert MatrixFieldPlanner.auto_hierarchy_redundant == "priority"
+    # every loop planner takes the null space on a redundant arm (issue 32: the matrix field too)
+    assert MatrixFieldPlanner.auto_hierarchy_redundant == "nullspace"
     wall = Obstacle("wall", "box", position=(0.6, 0.0, 0.3), size=(0.02, 0.6, 0.6))
     problem = Problem.create(panda, Scene((wall,), name="wall"), np.array(panda.home), np.array(panda.home))
-    assert planbench.plan(problem, "matrix-field", max_steps=3).info["hierarchy"] == "priority"
+    assert planbench.plan(problem, "matrix-field", max_steps=3).info["hierarchy"] == "nullspace"
+    assert planbench.plan(problem, "matrix-field", max_steps=3, hierarchy="priority").info["hierarchy"] == "priority"
     assert planbench.plan(problem, "edt-field", max_steps=3).info["hierarchy"] == "nullspace"
     assert planbench.plan(ur5_plate_problem(ur5), "edt-field", max_steps=3).info["hierarchy"] == "priority"
 

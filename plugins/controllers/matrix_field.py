@@ -41,11 +41,11 @@ from planbench.field.kernels import Kernels, KernelSpec
 from planbench.field.scene_field import FieldRepulsion, standoff_gain
 from planbench.field.surface import surface_grid
 from planbench.geometry.occupancy import OccupancyGrid
-from planbench.reactive.controller import Observation
+from planbench.reactive.controller import ControlTask, Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
 from planbench_plugins.controllers.unknown import UnknownSettings
-from planbench_plugins.ik_loop import Repulsion
+from planbench_plugins.ik_loop import IKLoopPlanner, Repulsion
 from planbench_plugins.matrix_field import CalibratedRepulsion, MatrixFieldConfig, MatrixFieldPlanner, grid_repulsion
 
 __all__ = ["GridField", "MatrixFieldController", "MatrixFieldControllerConfig"]
@@ -130,6 +130,15 @@ class MatrixFieldController(IKLoopController):
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
         self.field = GridField(self.config)
+
+    def make_planner(self, task: ControlTask) -> IKLoopPlanner:
+        """The planner, with the priority rows on a redundant arm for the matrix field (the
+        controller's choice, kept when the planner's changed to the null space: issue 32 measured
+        only the planner)."""
+        planner = super().make_planner(task)
+        if getattr(planner.config, "field_kind", "matrix") == "matrix":
+            planner.auto_hierarchy_redundant = "priority"
+        return planner
 
     def make_source(self, observation: Observation) -> Repulsion | None:
         return self.field.repulsion(observation.grid, surfaces=observation.points is not None)

@@ -9,8 +9,6 @@ derived from the stand-off. Everything else (steps, endings, diagnostics) is the
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from planbench.field.scene_field import FieldRepulsion, scene_repulsion
@@ -46,17 +44,12 @@ class MatrixFieldPlanner(IKLoopPlanner):
     them. ``matrix-field:calibrated``: the calibrated field (``field_kind="calibrated"``,
     docs/method.md section 8) in place of the directional kernels."""
 
-    auto_hierarchy_redundant = "priority"
-    """``hierarchy="auto"`` on a redundant arm: the priority rows near obstacles (their onset, a
-    push ratio, measured with this field on MotionBenchMaker 0001-0020 with the 7-joint Panda:
-    48/140 solved against 44/140 in the null space, 4 problems gained and none lost). With
-    ``field_kind="calibrated"`` an instance says ``"nullspace"``: that field pushes with
-    ``edt-field``'s Khatib profile, measured better in the null space there (docs/planners.md)."""
-
-    def __init__(self, config: Any = None, **settings: Any) -> None:
-        super().__init__(config, **settings)
-        if self.config.field_kind == "calibrated":
-            self.auto_hierarchy_redundant = "nullspace"
+    auto_hierarchy_redundant = "nullspace"
+    """``hierarchy="auto"`` on a redundant arm: the null space, for both fields (docs/method.md,
+    section 4). The priority rows were chosen here before the loop had escapes (MotionBenchMaker
+    0001-0020, 48/140 against 44/140); with escapes they stall the hand short of goals next to
+    obstacles, the same stall after every escape (issue 32, docs/planners.md). The controller of
+    the same name keeps its rows (:class:`~planbench_plugins.controllers.MatrixFieldController`)."""
 
     def make_repulsion(self, problem: Problem, points: ControlPoints) -> Repulsion:
         """Voxelize the scene, build the kernels and (full mode) the whole field; derive the gain."""
