@@ -44,6 +44,14 @@ from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.controller import Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
+from planbench_plugins.controllers.prediction import (
+    MotionPredictor,
+    Prediction,
+    PredictionSettings,
+    SummedRepulsion,
+    describe,
+    predicted_grid,
+)
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
 from planbench_plugins.matrix_field import CalibratedRepulsion, MatrixFieldConfig, MatrixFieldPlanner, grid_repulsion
@@ -52,12 +60,15 @@ __all__ = ["GridField", "MatrixFieldController", "MatrixFieldControllerConfig"]
 
 
 @dataclass(frozen=True)
-class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings):
+class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings, PredictionSettings):
     """The planner's settings (:class:`~planbench_plugins.matrix_field.MatrixFieldConfig`), with the
     cheaper field mode for a grid that changes every frame (module docstring), and how unknown
     cells are read (:class:`~.unknown.UnknownSettings`): ``unknown = "occupied"`` adds the unknown
     cells near the arm to the grid whose field pushes, so the arm keeps the stand-off from space
     no camera saw as from an obstacle's surface (the surface pass keeps their boundary).
+    ``prediction = "swept"`` (:class:`~.prediction.PredictionSettings`): the cells the moving
+    clusters of the frames sweep over the horizon push too (their own field, through the surface
+    pass, added to the grid's).
 
     ``grid_resolution`` is not used: the kernels are built at the resolution of the grid observed.
     ``dt``, ``escape_attempts``, ``collision_check_every`` and ``verify_path`` are planning settings
@@ -70,6 +81,7 @@ class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings):
     def validate(self) -> None:
         super().validate()
         self.validate_unknown()
+        self.validate_prediction()
 
 
 class GridField:
@@ -130,9 +142,31 @@ class MatrixFieldController(IKLoopController):
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)
         self.field = GridField(self.config)
+        self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
+        self.prediction: Prediction | None = None  # the latest frame's
+
+    def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
+        super().reset(q, rng)
+        if self.predictor is not None:
+            self.predictor.reset()
+        self.prediction = None
+
+    def update(self, observation: Observation) -> None:
+        """The frame's prediction first (from the frame as delivered: its points), then its field."""
+        if self.predictor is not None:
+            self.prediction = self.predictor.observe(observation)
+        super().update(observation)
 
     def make_source(self, observation: Observation) -> Repulsion | None:
-        return self.field.repulsion(observation.grid, surfaces=observation.points is not None)
+        base = self.field.repulsion(observation.grid, surfaces=observation.points is not None)
+        if self.prediction is None:
+            return base
+        block = predicted_grid(observation.grid, self.prediction.cells)
+        extra = None if block is None else self.field.repulsion(block, surfaces=False)
+        return base if extra is None else SummedRepulsion(base, extra)
 
     def extra_info(self) -> dict[str, Any]:
-        return {"field_mode": self.config.field_mode, "field_kind": getattr(self.config, "field_kind", "matrix")}
+        out = {"field_mode": self.config.field_mode, "field_kind": getattr(self.config, "field_kind", "matrix")}
+        if self.prediction is not None:
+            out["prediction"] = describe(self.prediction)
+        return out

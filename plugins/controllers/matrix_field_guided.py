@@ -68,8 +68,14 @@ from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
 from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
+from planbench_plugins.controllers.prediction import (
+    MotionPredictor,
+    PredictionSettings,
+    SummedRepulsion,
+    predicted_grid,
+)
 from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown, unknown_as_occupied
-from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, check_number, place_control_points
+from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, Repulsion, check_number, place_control_points
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_guided import Reference, push_weight, tracking_velocity
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_octree, pieces_checker
@@ -89,7 +95,7 @@ SLICE_PERIOD = 0.01
 
 
 @dataclass(frozen=True)
-class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
+class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, PredictionSettings):
     """Settings of the ``matrix-field-guided`` controller (module docstring). The field's are
     ``matrix-field-guided``'s (:class:`~planbench.field.scene_field.FieldSettings`; ``grid_resolution``
     is not used: the kernels are built at the observed grid's resolution)."""
@@ -180,6 +186,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
                 raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         self.validate_field()
         self.validate_unknown()
+        self.validate_prediction()
 
 
 class MatrixFieldGuidedController(Controller):
@@ -193,6 +200,7 @@ class MatrixFieldGuidedController(Controller):
         super().__init__(config, **settings)
         self.field = GridField(self.config)
         self.repulsion = LiveRepulsion()
+        self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
 
     # --- the controller interface -------------------------------------------------------------------
     def setup(self, task: ControlTask) -> None:
@@ -248,6 +256,9 @@ class MatrixFieldGuidedController(Controller):
         self.t_ref = 0.0  # [s] along the reference
         self.t_last: float | None = None  # the last step's time [s]
         self.plan_cells: np.ndarray | None = None  # depth: cells the path was planned with (bool, grid)
+        self.predicted = np.zeros(0, dtype=np.intp)  # the cells moving clusters sweep (flat, the latest frame's)
+        if self.predictor is not None:
+            self.predictor.reset()
         self.job: Work | None = None
         self.job_kind = ""
         self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
@@ -267,6 +278,8 @@ class MatrixFieldGuidedController(Controller):
             "plan_ticks": [],
             "path_waypoints": [],
             "unknown_cells": 0,
+            "predicted_frames": 0,
+            "predicted_cells_max": 0,
         }
         self._plan_started = 0
         self._ticks = 0
@@ -277,7 +290,16 @@ class MatrixFieldGuidedController(Controller):
         self.observation = observation
         self.grid = self._unknown_read(observation)
         surfaces = observation.points is not None and self.grid is observation.grid
-        self.repulsion.replace(self.field.repulsion(self.grid, surfaces=surfaces))
+        source: Repulsion | None = self.field.repulsion(self.grid, surfaces=surfaces)
+        if self.predictor is not None:
+            self.predicted = self.predictor.observe(observation).cells
+            block = predicted_grid(observation.grid, self.predicted)
+            extra = None if block is None else self.field.repulsion(block, surfaces=False)
+            if extra is not None:
+                source = SummedRepulsion(source, extra)
+                self.stats["predicted_frames"] += 1
+                self.stats["predicted_cells_max"] = max(self.stats["predicted_cells_max"], len(self.predicted))
+        self.repulsion.replace(source)
         self.frame += 1
         self.stats["frames"] += 1
         self.fresh = True
@@ -414,6 +436,8 @@ class MatrixFieldGuidedController(Controller):
                 yield
             assert self.grid is not None
             found.append(a + np.flatnonzero(np.asarray(self.grid.data).reshape(-1)[a:b] >= 0.5))
+        if len(self.predicted):  # the cells moving clusters sweep are obstacles of plans and checks
+            return np.union1d(np.concatenate(found), self.predicted)
         return np.concatenate(found)
 
     def _near_cells(self, cells: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
