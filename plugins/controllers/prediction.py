@@ -75,14 +75,17 @@ class PredictionSettings:
     prediction_max_speed: float = 2.0
     """[m/s] Fastest believed motion: a track's gate, and a faster fit is not trusted (the
     ``dynamic`` set's obstacles peak at 1 m/s)."""
-    prediction_min_speed: float = 0.05
-    """[m/s] A track slower than this is still: nothing swept."""
+    prediction_min_speed: float = 0.15
+    """[m/s] A track slower than this is still: nothing swept (a centroid's wander of a centimetre
+    over a fit reads as up to 0.1 m/s)."""
     prediction_memory: float = 0.3
     """[s] A run of points in a cell seen free before counts as moving this long."""
     prediction_gap: float = 0.1
     """[s] Points may miss a cell this long (dropout) without ending its run."""
-    prediction_min_cells: int = 4
-    """Fewest moving cells of a cluster (fewer: noise)."""
+    prediction_min_cells: int = 6
+    """Fewest moving cells of a cluster (fewer: noise). With ``prediction_min_speed`` chosen on
+    ``dynamic-tune`` by the tracks' match to the true obstacles (``benchmarks/prediction.py``): 4 cells
+    and 0.05 m/s left 38 tracks matching no obstacle in 3 fast scenarios, 6 and 0.15 none."""
     prediction_gate: float = 0.1
     """[m] Slack of a track's gate beyond what ``prediction_max_speed`` covers."""
     prediction_track_timeout: float = 0.15
@@ -177,6 +180,7 @@ class MotionPredictor:
         self._last_hit: np.ndarray = np.zeros(0)  # [s] per cell: latest capture with a point in it
         self._run_start: np.ndarray = np.zeros(0)  # [s] per cell: when its current run began
         self._moving: np.ndarray = np.zeros(0, dtype=bool)  # per cell: its run began seen free
+        self._mark: np.ndarray = np.zeros(0, dtype=bool)
         self._prev: OccupancyGrid | None = None
         self._grid: OccupancyGrid = OccupancyGrid.empty(np.zeros(3), np.ones(3), 1.0)  # the latest frame's
         self._points_in: tuple[np.ndarray, np.ndarray] | None = None  # its moving cells' points, and their cells
@@ -196,8 +200,9 @@ class MotionPredictor:
         self._grid = grid
         self._points_in = None
         if points is not None and len(moving):  # the points of moving cells: centroids finer than a cell
-            at = np.searchsorted(moving, cells).clip(max=len(moving) - 1)
-            keep = moving[at] == cells
+            self._mark[moving] = True
+            keep = self._mark[cells]
+            self._mark[moving] = False
             self._points_in = (cells[keep], points[keep])
         clusters = self._clusters(moving, grid.shape)
         self._associate(clusters, grid, t)
@@ -224,6 +229,7 @@ class MotionPredictor:
         self._last_hit = np.full(n, -np.inf, dtype=np.float32)
         self._run_start = np.full(n, -np.inf, dtype=np.float32)
         self._moving = np.zeros(n, dtype=bool)
+        self._mark = np.zeros(n, dtype=bool)  # scratch, all false between frames
         self._last_hit[cells] = t
         self._run_start[cells] = t
         self._prev = grid
