@@ -41,7 +41,7 @@ from planbench.field.kernels import Kernels, KernelSpec
 from planbench.field.scene_field import FieldRepulsion, standoff_gain
 from planbench.field.surface import surface_grid
 from planbench.geometry.occupancy import OccupancyGrid
-from planbench.reactive.controller import Observation
+from planbench.reactive.controller import ControlTask, Observation
 from planbench_plugins.controllers.adapter import IKLoopController
 from planbench_plugins.controllers.crop import occupied_part
 from planbench_plugins.controllers.prediction import (
@@ -51,6 +51,7 @@ from planbench_plugins.controllers.prediction import (
     SummedRepulsion,
     describe,
     predicted_grid,
+    warm_up,
 )
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ik_loop import Repulsion
@@ -77,6 +78,9 @@ class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings, Prediction
     field_mode: str = "lazy"
     """``"lazy"``: window sums at the control points every step (default: measured cheaper for a
     grid observed at 30 frames/s, module docstring); ``"full"``: the whole field every frame."""
+    prediction: str = "swept"
+    """``"swept"`` (default here, chosen on ``dynamic-tune``'s fast crossing, swinging and pair depth
+    scenarios: 4 of 9 solved against 0 with ``"none"``, docs/reactive.md, "Prediction") or ``"none"``."""
 
     def validate(self) -> None:
         super().validate()
@@ -144,6 +148,18 @@ class MatrixFieldController(IKLoopController):
         self.field = GridField(self.config)
         self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
         self.prediction: Prediction | None = None  # the latest frame's
+
+    def setup(self, task: ControlTask) -> None:
+        """The loop for ``task``, then the predictor's warm-up (:func:`.prediction.warm_up`)."""
+        super().setup(task)
+        if self.predictor is not None:
+            stepper = self._require()
+            warm_up(self.config, lambda block: self._warm_push(block, stepper.kin))
+
+    def _warm_push(self, block: OccupancyGrid, kin: Any) -> None:
+        source = self.field.repulsion(block, surfaces=False)
+        if source is not None:
+            source.forces(kin)
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         super().reset(q, rng)

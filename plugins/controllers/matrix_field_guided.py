@@ -73,6 +73,7 @@ from planbench_plugins.controllers.prediction import (
     PredictionSettings,
     SummedRepulsion,
     predicted_grid,
+    warm_up,
 )
 from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, Repulsion, check_number, place_control_points
@@ -229,6 +230,8 @@ class MatrixFieldGuidedController(Controller):
         self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
+        if self.predictor is not None:
+            warm_up(c, self._warm_push)
         # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
         self.slice_checks, self.slice_cells, self.scan_parts = c.plan_checks_per_tick, c.octree_cells, SCAN_PARTS
         if c.scale_slices:
@@ -236,6 +239,11 @@ class MatrixFieldGuidedController(Controller):
             self.slice_checks = max(1, round(c.plan_checks_per_tick * scale))
             self.slice_cells = max(100, round(c.octree_cells * scale))
             self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
+
+    def _warm_push(self, block: OccupancyGrid) -> None:
+        source = self.field.repulsion(block, surfaces=False)
+        if source is not None:
+            source.forces(self.arm.kin)
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""
