@@ -18,6 +18,9 @@ the grid as observed (no surface pass); ``"lazy"`` evaluates it at the control p
 only, one cell thick: its distance is over-estimated like an obstacle thinner than ``sigma``
 (docs/method.md, section 8).
 
+``prediction = "swept"`` (the default, :mod:`.prediction`): the cells the moving clusters of the
+frames will sweep push too, their own field added to the grid's.
+
 Both work on the block of the grid that holds occupied cells (:mod:`.crop`: the same field).
 Measured (Panda, the first problem of each MotionBenchMaker family seen by the benchmark's truth
 and depth sensors at 2 cm, one numba thread, the shared 2-core machine; docs/writing-a-controller.md

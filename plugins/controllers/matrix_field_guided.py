@@ -46,6 +46,13 @@ observed: the arm holds, field on, and tries again on the next frame.
 cells near the arm (where the last step left it) as occupied, for the field and for the plan and its
 checks, as ``matrix-field`` does for its field; ``"free"`` (default) reads them free. With truth
 sensing every cell is known.
+
+**Prediction** (``prediction``, :class:`.prediction.PredictionSettings`): ``"swept"`` adds the cells
+the moving clusters of the frames sweep over ``prediction_horizon`` to the push (their own field)
+and to the occupied cells of its plans and path checks, so a sweep across the rest of the path
+invalidates it and one over the goal blocks it. ``"none"`` (default: on ``dynamic-tune`` it held
+while sweeps blocked its goal and solved one of two scenarios where ``"none"`` solved both,
+docs/reactive.md, "Prediction").
 """
 
 from __future__ import annotations
