@@ -9,7 +9,9 @@ controller leaves out where the arm touches obstacles), and one module per contr
 ``matrix_field_guided`` (the last two import OMPL: their entry points name their modules),
 ``mppi`` (a sampling model-predictive controller, its kernels in ``_mppi_compiled``; its entry
 point names its module);
-``unknown`` (which unknown cells a controller reads as occupied, the ``unknown`` setting of every one).
+``unknown`` (which unknown cells a controller reads as occupied, the ``unknown`` setting of every one);
+``prediction`` (obstacle motion from the frames, the ``prediction`` setting of ``matrix-field`` and
+``matrix-field-guided``).
 """
 
 from planbench_plugins.controllers.adapter import PLANNING_ONLY, IKLoopController

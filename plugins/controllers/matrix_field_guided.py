@@ -46,6 +46,13 @@ observed: the arm holds, field on, and tries again on the next frame.
 cells near the arm (where the last step left it) as occupied, for the field and for the plan and its
 checks, as ``matrix-field`` does for its field; ``"free"`` (default) reads them free. With truth
 sensing every cell is known.
+
+**Prediction** (``prediction``, :class:`.prediction.PredictionSettings`): ``"swept"`` adds the cells
+the moving clusters of the frames sweep over ``prediction_horizon`` to the push (their own field)
+and to the occupied cells of its plans and path checks, so a sweep across the rest of the path
+invalidates it and one over the goal blocks it. ``"none"`` (default: on ``dynamic-tune`` it held
+while sweeps blocked its goal and solved one of two scenarios where ``"none"`` solved both,
+docs/reactive.md, "Prediction").
 """
 
 from __future__ import annotations
@@ -68,8 +75,15 @@ from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
 from planbench_plugins.controllers.observed import ArmCells, scene_without_touched_in_steps
+from planbench_plugins.controllers.prediction import (
+    MotionPredictor,
+    PredictionSettings,
+    SummedRepulsion,
+    predicted_grid,
+    warm_up,
+)
 from planbench_plugins.controllers.unknown import UnknownSettings, near_unknown, unknown_as_occupied
-from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, check_number, place_control_points
+from planbench_plugins.ik_loop import ArmKinematics, ArmRepulsion, Repulsion, check_number, place_control_points
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_guided import Reference, push_weight, tracking_velocity
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_octree, pieces_checker, pieces_checker_in_steps
@@ -102,7 +116,7 @@ SLICE_PERIOD = 0.01
 
 
 @dataclass(frozen=True)
-class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
+class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, PredictionSettings):
     """Settings of the ``matrix-field-guided`` controller (module docstring). The field's are
     ``matrix-field-guided``'s (:class:`~planbench.field.scene_field.FieldSettings`; ``grid_resolution``
     is not used: the kernels are built at the observed grid's resolution)."""
@@ -199,6 +213,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings):
                 raise InvalidConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
         self.validate_field()
         self.validate_unknown()
+        self.validate_prediction()
 
 
 class MatrixFieldGuidedController(Controller):
@@ -212,6 +227,7 @@ class MatrixFieldGuidedController(Controller):
         super().__init__(config, **settings)
         self.field = GridField(self.config)
         self.repulsion = LiveRepulsion()
+        self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
 
     # --- the controller interface -------------------------------------------------------------------
     def setup(self, task: ControlTask) -> None:
@@ -240,6 +256,8 @@ class MatrixFieldGuidedController(Controller):
         self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
+        if self.predictor is not None:
+            warm_up(c, self._warm_push)
         # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
         self.slice_checks, self.slice_cells, self.scan_parts = c.plan_checks_per_tick, c.octree_cells, SCAN_PARTS
         self.fine = c.scale_slices and task.period < SLICE_PERIOD  # slices cut finer than a 10 ms tick's
@@ -249,6 +267,11 @@ class MatrixFieldGuidedController(Controller):
             self.slice_checks = max(1, round(c.plan_checks_per_tick * left))
             self.slice_cells = max(MIN_SLICE_CELLS, round(c.octree_cells * scale))
             self.scan_parts = max(SCAN_PARTS, math.ceil(SCAN_PARTS / scale - 1e-9))
+
+    def _warm_push(self, block: OccupancyGrid) -> None:
+        source = self.field.repulsion(block, surfaces=False)
+        if source is not None:
+            source.forces(self.arm.kin)
 
     def reset(self, q: np.ndarray, rng: np.random.Generator) -> None:
         """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""
@@ -269,6 +292,9 @@ class MatrixFieldGuidedController(Controller):
         self.t_ref = 0.0  # [s] along the reference
         self.t_last: float | None = None  # the last step's time [s]
         self.plan_cells: np.ndarray | None = None  # depth: cells the path was planned with (bool, grid)
+        self.predicted = np.zeros(0, dtype=np.intp)  # the cells moving clusters sweep (flat, the latest frame's)
+        if self.predictor is not None:
+            self.predictor.reset()
         self.job: Work | None = None
         self.job_kind = ""
         self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
@@ -293,6 +319,8 @@ class MatrixFieldGuidedController(Controller):
             "plan_ticks": [],
             "path_waypoints": [],
             "unknown_cells": 0,
+            "predicted_frames": 0,
+            "predicted_cells_max": 0,
         }
         self._plan_started = 0
         self._ticks = 0
@@ -303,7 +331,16 @@ class MatrixFieldGuidedController(Controller):
         self.observation = observation
         self.grid = self._unknown_read(observation)
         surfaces = observation.points is not None and self.grid is observation.grid
-        self.repulsion.replace(self.field.repulsion(self.grid, surfaces=surfaces))
+        source: Repulsion | None = self.field.repulsion(self.grid, surfaces=surfaces)
+        if self.predictor is not None:
+            self.predicted = self.predictor.observe(observation).cells
+            block = predicted_grid(observation.grid, self.predicted)
+            extra = None if block is None else self.field.repulsion(block, surfaces=False)
+            if extra is not None:
+                source = SummedRepulsion(source, extra)
+                self.stats["predicted_frames"] += 1
+                self.stats["predicted_cells_max"] = max(self.stats["predicted_cells_max"], len(self.predicted))
+        self.repulsion.replace(source)
         self.frame += 1
         self.stats["frames"] += 1
         self.fresh = True
@@ -504,6 +541,8 @@ class MatrixFieldGuidedController(Controller):
                 yield
             assert self.grid is not None
             found.append(a + np.flatnonzero(np.asarray(self.grid.data).reshape(-1)[a:b] >= 0.5))
+        if len(self.predicted):  # the cells moving clusters sweep are obstacles of plans and checks
+            return np.union1d(np.concatenate(found), self.predicted)
         return np.concatenate(found)
 
     def _near_cells(self, cells: np.ndarray, q: np.ndarray) -> Generator[None, None, tuple[np.ndarray, np.ndarray]]:
