@@ -20,6 +20,7 @@ from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
+from planbench_plugins.ompl_planners import cells_checker
 
 FIELD_CONTROLLERS = ["matrix-field", "matrix-field-qp", "edt-field", "distance-field"]
 ALL_CONTROLLERS = [*FIELD_CONTROLLERS, "ompl-replan"]
@@ -260,3 +261,40 @@ def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(fre
     assert runs.max() >= 8  # still for 3 frames (9 ticks) just before it went in (the lookahead after)
     assert c.info()["forced"] >= 1
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)
+
+
+def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free_task, open_space):
+    """Only the cells the path sweeps are known, a 10 cm cube of them is not, and one occupied cell
+    lies 0.3 m off the path: with a surface margin of 0.5 m every unknown cell near the path is the
+    unseen rest of that surface, so no plan exists. Without relaxing (``relax_steps = 0``) the arm
+    never leaves; relaxed in two steps to margin 0 it plans through the cube, stops short, looks,
+    goes in and reaches the goal, and its body never fills the occupied cell."""
+    grid, path = open_space
+    robot = free_task.robot
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    known = ndimage.binary_dilation(swept) & block
+    centre = grid.origin + (np.argwhere(~block).mean(axis=0) + 0.5) * grid.resolution  # the cube's [m]
+    far = ~ndimage.binary_dilation(swept, iterations=4)
+    cells = np.argwhere(far)
+    centres = grid.origin + (cells + 0.5) * grid.resolution
+    d = np.linalg.norm(centres - centre, axis=1)
+    cell = tuple(cells[int(np.argmin(np.abs(d - 0.3)))])
+    data = grid.data.copy()
+    data[cell] = 1.0
+    known[cell] = True
+    seen = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=known))
+    settings = dict(unknown="occupied", surface_margin=0.5, plan_time=0.2, known_plan_time=0.1)
+    qs, c = _run(free_task, seen, 300, relax_steps=0, **settings)
+    assert c.info()["plans"] >= 2 and c.info()["failed_plans"] == c.info()["plans"], c.info()
+    assert np.allclose(qs[-1], qs[0])  # never left: no plan under the margin
+    qs, c = _run(free_task, seen, 900, **settings)
+    info = c.info()
+    assert info["relaxed"] >= 1 and info["forced"] >= 1, info
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+    checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
+    assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell

@@ -130,6 +130,15 @@ class OMPLReplanConfig(UnknownSettings):
     """Safe mode: [m] unknown cells within this of an occupied cell (centre to centre) are the
     unseen rest of a seen surface (the far side of a plate seen from above, the edge seen
     edge-on): obstacles for a plan, and never entered, even where no plan avoids other unknown cells."""
+    relax_steps: int = 2
+    """Safe mode: how many steps ``surface_margin`` is relaxed in, toward 0, when plans fail (0:
+    never). After ``relax_after`` failed plans in a row the margin drops by ``surface_margin /
+    relax_steps``, for the rest of the run: on the Panda's tall bookshelf the unseen rest of the
+    boards and cans can leave no plan under the full margin, and the arm stood still to the
+    horizon. At margin 0 the hidden cells are unknown cells like any other: the arm stops short of
+    them and looks before it goes in (``look_frames``)."""
+    relax_after: int = 1
+    """Safe mode: failed plans in a row before ``surface_margin`` is relaxed by one step (>= 1)."""
     gate: bool = True
     """Safe mode: plan in known space first and stop short of unknown cells on a path that enters
     them (else only the hidden cells next to occupied ones, ``surface_margin``, are kept out of)."""
@@ -165,13 +174,14 @@ class OMPLReplanConfig(UnknownSettings):
             raise InvalidConfigError(f'goal_obstacles must be "ignore" or "wait", got {self.goal_obstacles!r}')
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
-        for name in ("look_frames", "known_checks_per_tick"):
+        for name in ("look_frames", "known_checks_per_tick", "relax_steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {v!r}")
-        v = self.known_plan_checks
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InvalidConfigError(f"known_plan_checks must be an integer >= 1, got {v!r}")
+        for name in ("known_plan_checks", "relax_after"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InvalidConfigError(f"{name} must be an integer >= 1, got {v!r}")
         self.validate_unknown()
 
 
@@ -252,13 +262,14 @@ class OMPLReplanController(Controller):
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
         self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
+        self.relaxed = 0  # safe mode: steps surface_margin has been relaxed by (relax_steps)
+        self.failed_in_row = 0  # plans failed since the last that found a path
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats.update(
-            known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0, goal_blocked=0
-        )
+        self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
+        self.stats.update(goal_blocked=0, relaxed=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -437,16 +448,34 @@ class OMPLReplanController(Controller):
         self.looks = 0
         self._limit(self.tau)
 
+    def _margin(self) -> float:
+        """Safe mode: the surface margin [m] now, ``surface_margin`` less the steps relaxed."""
+        c = self.config
+        return c.surface_margin * (1.0 - self.relaxed / c.relax_steps) if c.relax_steps else c.surface_margin
+
+    def _relax(self) -> None:
+        """Safe mode, after a failed plan: one more failure in a row; after ``relax_after`` of them,
+        relax the surface margin one step (the next frame's plan keeps out of fewer hidden cells)."""
+        self.failed_in_row += 1
+        c = self.config
+        if self.relaxed >= c.relax_steps or self.failed_in_row < c.relax_after:
+            return
+        self.relaxed += 1
+        self.failed_in_row = 0
+        self.hidden = None
+        self.stats["relaxed"] = self.relaxed
+
     def _hidden(self) -> np.ndarray:
-        """Safe mode, depth: the frame's unknown cells within ``surface_margin`` of an occupied
-        one (the unseen rest of a seen surface; computed once per frame, when first needed)."""
+        """Safe mode, depth: the frame's unknown cells within the surface margin (``_margin``) of
+        an occupied one (the unseen rest of a seen surface; computed once per frame, when first
+        needed; none at margin 0)."""
         obs = self.observation
         known = obs.grid.known if obs is not None else None
         if obs is None or known is None or self.occupied is None:
             return np.zeros(0, dtype=np.intp)
         if self.hidden is None:
             grid = obs.grid
-            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, known)
+            self.hidden = _next_to(self.occupied, grid.shape, self._margin() / grid.resolution, known)
         return self.hidden
 
     # --- planning ---------------------------------------------------------------------------
@@ -457,10 +486,16 @@ class OMPLReplanController(Controller):
         self.known_path, self.known_query = False, None
         checker = self.checker
         safe = self.safe and self.observation is not None and self.observation.grid.known is not None
-        if safe and self.observation is not None and self.observation.scene is None:
+        depth = safe and self.observation is not None and self.observation.scene is None
+        if depth:
             assert self.occupied is not None
             checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q)
-        if not self._plan_once(q, checker) or self.allowed is None or self.body is None:
+        if not self._plan_once(q, checker):
+            if depth:
+                self._relax()
+            return
+        self.failed_in_row = 0
+        if self.allowed is None or self.body is None:
             return
         if getattr(self.planner, "use_checker", None) is None:
             return
