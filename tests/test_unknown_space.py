@@ -267,8 +267,8 @@ def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free
     """Only the cells the path sweeps are known, a 10 cm cube of them is not, and one occupied cell
     lies 0.3 m off the path: with a surface margin of 0.5 m every unknown cell near the path is the
     unseen rest of that surface, so no plan exists. Without relaxing (``relax_steps = 0``) the arm
-    never leaves; relaxed in two steps to margin 0 it plans through the cube, stops short, looks,
-    goes in and reaches the goal, and its body never fills the occupied cell."""
+    never leaves; relaxed step by step (``relax_steps``) it plans through the cube, stops short,
+    looks, goes in and reaches the goal, and its body never meets the occupied cell."""
     grid, path = open_space
     robot = free_task.robot
     body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)

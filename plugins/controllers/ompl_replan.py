@@ -132,11 +132,14 @@ class OMPLReplanConfig(UnknownSettings):
     edge-on): obstacles for a plan, and never entered, even where no plan avoids other unknown cells."""
     relax_steps: int = 2
     """Safe mode: how many steps ``surface_margin`` is relaxed in, toward 0, when plans fail (0:
-    never). After ``relax_after`` failed plans in a row the margin drops by ``surface_margin /
+    never). After ``relax_after`` failures in a row the margin drops by ``surface_margin /
     relax_steps``, for the rest of the run: on the Panda's tall bookshelf the unseen rest of the
     boards and cans can leave no plan under the full margin, and the arm stood still to the
-    horizon. At margin 0 the hidden cells are unknown cells like any other: the arm stops short of
-    them and looks before it goes in (``look_frames``)."""
+    horizon. A failure is a plan without a path, or a dead end: after its looks the arm would go
+    on, but every unknown cell in its way is such a hidden cell (a frame since the plan showed more
+    of the surface); the path is then dropped and replanned around them. At margin 0 the hidden
+    cells are unknown cells like any other: the arm stops short of them and looks before it goes in
+    (``look_frames``)."""
     relax_after: int = 1
     """Safe mode: failed plans in a row before ``surface_margin`` is relaxed by one step (>= 1)."""
     gate: bool = True
@@ -269,7 +272,7 @@ class OMPLReplanController(Controller):
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
-        self.stats.update(goal_blocked=0, relaxed=0)
+        self.stats.update(goal_blocked=0, relaxed=0, stuck=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -442,6 +445,12 @@ class OMPLReplanController(Controller):
         flat = self.allowed.reshape(-1)
         cells = np.flatnonzero(mark.reshape(-1) & ~flat)
         cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
+        if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
+            self.stats["stuck"] += 1
+            if self.config.relax_steps:  # replanned around them, with less margin after relax_after
+                self._relax()
+                self.path, self.known_query, self.looks = None, None, 0
+            return
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
         self.stats["forced"] += 1
