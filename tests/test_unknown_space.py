@@ -298,3 +298,61 @@ def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
     checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
     assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell
+
+
+def _run_frames(task: ControlTask, frames: list[tuple[int, Observation]], ticks: int, **settings):
+    """As :func:`_run`, with the frame delivered every 3 ticks the last of ``frames`` (tick, frame)
+    whose tick has come."""
+    c = make_controller("ompl-replan", **settings)
+    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
+    q = np.array(task.start, dtype=float)
+    c.setup(task)
+    c.reset(q.copy(), np.random.default_rng(0))
+    qs = [q.copy()]
+    for k in range(ticks):
+        observation = [f for when, f in frames if when <= k][-1]
+        if k % 3 == 0:
+            c.update(dataclasses.replace(observation, time=k * task.period, frame=k // 3))
+        qd = c.step(k * task.period, q.copy(), observation, task.goal)
+        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
+        qs.append(q.copy())
+    return np.array(qs), c
+
+
+def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells_and_relaxes(free_task, open_space):
+    """The arm waits short of an unknown cube on its path (only the swept cells are known); then a
+    frame shows an occupied cell beside the cube, off the arm's way, so every cell of the cube is
+    the unseen rest of a surface (``surface_margin`` 0.25 m): after its looks the arm may not go in.
+    Without relaxing it waits there (a dead end, ``stuck``); relaxing drops the path, replans and
+    relaxes the margin until the arm may go through, reaching the goal without meeting the cell."""
+    grid, path = open_space
+    robot = free_task.robot
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    known = ndimage.binary_dilation(swept) & block
+    centre = np.argwhere(~block).mean(axis=0)  # the cube's centre [cells]
+    far = np.argwhere(~ndimage.binary_dilation(swept, iterations=2))
+    cell = tuple(far[int(np.argmin(np.linalg.norm(far - centre, axis=1)))])  # the nearest off the arm's way
+    assert np.linalg.norm(np.array(cell) - centre) * grid.resolution < 0.15
+    data = grid.data.copy()
+    data[cell] = 1.0
+    shown = known.copy()
+    shown[cell] = True
+    first = _seeing(grid, known)
+    later = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=shown))
+    frames = [(0, first), (150, later)]
+    settings = dict(unknown="occupied", surface_margin=0.25, plan_time=0.3, known_plan_time=0.1, look_frames=60)
+    qs, c = _run_frames(free_task, frames, 700, relax_steps=0, **settings)
+    info = c.info()
+    assert info["stuck"] >= 1 and info["relaxed"] == 0, info
+    assert not np.allclose(qs[-1], free_task.goal.q, atol=1e-3), info  # waits at the dead end
+    qs, c = _run_frames(free_task, frames, 1500, **settings)
+    info = c.info()
+    assert info["stuck"] >= 1 and info["relaxed"] >= 1, info
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+    checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
+    assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell
