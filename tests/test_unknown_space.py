@@ -319,12 +319,12 @@ def _run_frames(task: ControlTask, frames: list[tuple[int, Observation]], ticks:
     return np.array(qs), c
 
 
-def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells_and_relaxes(free_task, open_space):
+def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, open_space):
     """The arm waits short of an unknown cube on its path (only the swept cells are known); then a
     frame shows an occupied cell beside the cube, off the arm's way, so every cell of the cube is
-    the unseen rest of a surface (``surface_margin`` 0.25 m): after its looks the arm may not go in.
-    Without relaxing it waits there (a dead end, ``stuck``); relaxing drops the path, replans and
-    relaxes the margin until the arm may go through, reaching the goal without meeting the cell."""
+    the unseen rest of a surface (``surface_margin`` 0.25 m): after its looks the arm may not go in
+    (a dead end, ``stuck``). It drops the path and replans instead of waiting there for ever; the
+    margin is not relaxed for it, and the arm never enters the cube nor meets the cell."""
     grid, path = open_space
     robot = free_task.robot
     body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
@@ -344,15 +344,12 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells_and_relaxes
     shown[cell] = True
     first = _seeing(grid, known)
     later = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=shown))
-    frames = [(0, first), (150, later)]
     settings = dict(unknown="occupied", surface_margin=0.25, plan_time=0.3, known_plan_time=0.1, look_frames=60)
-    qs, c = _run_frames(free_task, frames, 700, relax_steps=0, **settings)
+    qs, c = _run_frames(free_task, [(0, first), (150, later)], 700, **settings)
     info = c.info()
     assert info["stuck"] >= 1 and info["relaxed"] == 0, info
-    assert not np.allclose(qs[-1], free_task.goal.q, atol=1e-3), info  # waits at the dead end
-    qs, c = _run_frames(free_task, frames, 1500, **settings)
-    info = c.info()
-    assert info["stuck"] >= 1 and info["relaxed"] >= 1, info
-    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+    assert info["plans"] >= 3, info  # its first plan and the one in known space, then replanned
+    cube = ~block
+    assert not any(body.in_unknown(q, ~cube) for q in qs[60:]), info  # never in the cube
     checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
     assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell

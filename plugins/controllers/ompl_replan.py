@@ -135,10 +135,11 @@ class OMPLReplanConfig(UnknownSettings):
     never). After ``relax_after`` failures in a row the margin drops by ``surface_margin /
     relax_steps``, for the rest of the run: on the Panda's tall bookshelf the unseen rest of the
     boards and cans can leave no plan under the full margin, and the arm stood still to the
-    horizon. A failure is a plan without a path, or a dead end: after its looks the arm would go
-    on, but every unknown cell in its way is such a hidden cell (a frame since the plan showed more
-    of the surface); the path is then dropped and replanned around them. At margin 0 the hidden
-    cells are unknown cells like any other: the arm stops short of them and looks before it goes in
+    horizon. Only a plan without a path counts: at a dead end (after its looks every unknown cell
+    in the arm's way is such a hidden cell, a frame since the plan having shown more of the
+    surface) the path is replanned around them at the same margin (relaxing there took the Panda
+    into the unseen cap of ``mbm:box`` on ``dynamic-tune``). At margin 0 the hidden cells are
+    unknown cells like any other: the arm stops short of them and looks before it goes in
     (``look_frames``)."""
     relax_after: int = 1
     """Safe mode: failed plans in a row before ``surface_margin`` is relaxed by one step (>= 1)."""
@@ -446,10 +447,8 @@ class OMPLReplanController(Controller):
         cells = np.flatnonzero(mark.reshape(-1) & ~flat)
         cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
         if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
-            self.stats["stuck"] += 1
-            if self.config.relax_steps:  # replanned around them, with less margin after relax_after
-                self._relax()
-                self.path, self.known_query, self.looks = None, None, 0
+            self.stats["stuck"] += 1  # replanned around them (relaxing here took the arm into them)
+            self.path, self.known_query, self.looks = None, None, 0
             return
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
