@@ -118,6 +118,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_checks_per_tick": -1},
         {"known_checks_per_tick": True},
         {"known_plan_checks": 0},
+        {"relax_steps": -1},
+        {"relax_after": 0},
+        {"dead_end": "jump"},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -323,8 +326,9 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     """The arm waits short of an unknown cube on its path (only the swept cells are known); then a
     frame shows an occupied cell beside the cube, off the arm's way, so every cell of the cube is
     the unseen rest of a surface (``surface_margin`` 0.25 m): after its looks the arm may not go in
-    (a dead end, ``stuck``). It drops the path and replans instead of waiting there for ever; the
-    margin is not relaxed for it, and the arm never enters the cube nor meets the cell."""
+    (a dead end, ``stuck``). With ``dead_end = "replan"`` it drops the path and replans instead of
+    waiting there (the default); the margin is not relaxed for it, and the arm never enters the
+    cube nor meets the cell."""
     grid, path = open_space
     robot = free_task.robot
     body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
@@ -345,7 +349,11 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     first = _seeing(grid, known)
     later = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=shown))
     settings = dict(unknown="occupied", surface_margin=0.25, plan_time=0.3, known_plan_time=0.1, look_frames=60)
-    qs, c = _run_frames(free_task, [(0, first), (150, later)], 700, **settings)
+    frames = [(0, first), (150, later)]
+    _, c = _run_frames(free_task, frames, 700, **settings)
+    info = c.info()
+    assert info["stuck"] >= 1 and info["relaxed"] == 0 and info["plans"] == 2, info  # waits: no new plan
+    qs, c = _run_frames(free_task, frames, 700, dead_end="replan", **settings)
     info = c.info()
     assert info["stuck"] >= 1 and info["relaxed"] == 0, info
     assert info["plans"] >= 3, info  # its first plan and the one in known space, then replanned

@@ -135,12 +135,19 @@ class OMPLReplanConfig(UnknownSettings):
     never). After ``relax_after`` failures in a row the margin drops by ``surface_margin /
     relax_steps``, for the rest of the run: on the Panda's tall bookshelf the unseen rest of the
     boards and cans can leave no plan under the full margin, and the arm stood still to the
-    horizon. Only a plan without a path counts: at a dead end (after its looks every unknown cell
-    in the arm's way is such a hidden cell, a frame since the plan having shown more of the
-    surface) the path is replanned around them at the same margin (relaxing there took the Panda
-    into the unseen cap of ``mbm:box`` on ``dynamic-tune``). At margin 0 the hidden cells are
-    unknown cells like any other: the arm stops short of them and looks before it goes in
-    (``look_frames``)."""
+    horizon. Only a plan without a path counts, not a dead end (``dead_end``: relaxing there took
+    the Panda into the unseen cap of ``mbm:box`` on ``dynamic-tune``). At margin 0 the hidden
+    cells are unknown cells like any other: the arm stops short of them and looks before it goes
+    in (``look_frames``). Chosen on ``dynamic-tune`` (docs/reactive.md, "Relaxing the surface
+    margin")."""
+    dead_end: str = "wait"
+    """Safe mode: what the arm does at a dead end, where after its looks every unknown cell in its
+    way is the unseen rest of a surface (``surface_margin``; a frame since the plan showed more of
+    it), counted in ``stuck``: ``"wait"`` (the default) stays short of them, looking, and goes on
+    if a frame shows them; ``"replan"`` drops the path and plans around them. On the Panda's 24
+    depth scenarios of ``dynamic-tune`` ``"replan"`` turned the three ``occluded`` runs that ended
+    short of the goal into collisions with the box's side, which a frame had shown
+    (docs/reactive.md)."""
     relax_after: int = 1
     """Safe mode: failed plans in a row before ``surface_margin`` is relaxed by one step (>= 1)."""
     gate: bool = True
@@ -174,6 +181,8 @@ class OMPLReplanConfig(UnknownSettings):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
         if not 0 < self.speed_scale <= 1:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
+        if self.dead_end not in ("wait", "replan"):
+            raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait"):
             raise InvalidConfigError(f'goal_obstacles must be "ignore" or "wait", got {self.goal_obstacles!r}')
         if not 0 <= self.cell_inset < 0.5:
@@ -447,8 +456,9 @@ class OMPLReplanController(Controller):
         cells = np.flatnonzero(mark.reshape(-1) & ~flat)
         cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
         if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
-            self.stats["stuck"] += 1  # replanned around them (relaxing here took the arm into them)
-            self.path, self.known_query, self.looks = None, None, 0
+            self.stats["stuck"] += 1
+            if self.config.dead_end == "replan":
+                self.path, self.known_query, self.looks = None, None, 0
             return
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
