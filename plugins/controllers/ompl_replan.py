@@ -28,7 +28,12 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
 - **hidden surfaces**: the unknown cells within ``surface_margin`` of an occupied cell are the
   unseen rest of a seen surface (the far side of a plate seen from above, an edge seen edge-on):
   obstacles for every plan, never entered after a look (below); found when a plan needs them, as
-  a frame's check of the rest of the path stops short of every unknown cell anyway;
+  a frame's check of the rest of the path stops short of every unknown cell anyway. When plans
+  fail (``relax_after`` in a row), the margin is relaxed a step toward 0 (``relax_steps``), for
+  the rest of the run: on a cluttered shelf the unseen rest of boards and cans can leave no plan,
+  and the arm stood still to the horizon; at margin 0 those cells are unknown like any other
+  (stopped short of, looked at, then entered). A dead end (after its looks every unknown cell in
+  the way is such a cell) waits, or replans (``dead_end``), and relaxes nothing;
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
   not enter (below), the arm plans again with every such cell an obstacle (the occupied cells and
   the two-cell layer of unknown ones next to the space the arm may enter stand for them all: any
