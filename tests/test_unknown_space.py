@@ -20,6 +20,7 @@ from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
+from planbench_plugins.ompl_planners import cells_checker
 
 FIELD_CONTROLLERS = ["matrix-field", "matrix-field-qp", "edt-field", "distance-field"]
 ALL_CONTROLLERS = [*FIELD_CONTROLLERS, "ompl-replan"]
@@ -117,6 +118,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_checks_per_tick": -1},
         {"known_checks_per_tick": True},
         {"known_plan_checks": 0},
+        {"relax_steps": -1},
+        {"relax_after": 0},
+        {"dead_end": "jump"},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -260,3 +264,100 @@ def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(fre
     assert runs.max() >= 8  # still for 3 frames (9 ticks) just before it went in (the lookahead after)
     assert c.info()["forced"] >= 1
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)
+
+
+def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free_task, open_space):
+    """Only the cells the path sweeps are known, a 10 cm cube of them is not, and one occupied cell
+    lies 0.3 m off the path: with a surface margin of 0.5 m every unknown cell near the path is the
+    unseen rest of that surface, so no plan exists. Without relaxing (``relax_steps = 0``) the arm
+    never leaves; relaxed step by step (``relax_steps``) it plans through the cube, stops short,
+    looks, goes in and reaches the goal, and its body never meets the occupied cell."""
+    grid, path = open_space
+    robot = free_task.robot
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    known = ndimage.binary_dilation(swept) & block
+    centre = grid.origin + (np.argwhere(~block).mean(axis=0) + 0.5) * grid.resolution  # the cube's [m]
+    far = ~ndimage.binary_dilation(swept, iterations=4)
+    cells = np.argwhere(far)
+    centres = grid.origin + (cells + 0.5) * grid.resolution
+    d = np.linalg.norm(centres - centre, axis=1)
+    cell = tuple(cells[int(np.argmin(np.abs(d - 0.3)))])
+    data = grid.data.copy()
+    data[cell] = 1.0
+    known[cell] = True
+    seen = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=known))
+    settings = dict(unknown="occupied", surface_margin=0.5, plan_time=0.2, known_plan_time=0.1)
+    qs, c = _run(free_task, seen, 300, relax_steps=0, **settings)
+    assert c.info()["plans"] >= 2 and c.info()["failed_plans"] == c.info()["plans"], c.info()
+    assert np.allclose(qs[-1], qs[0])  # never left: no plan under the margin
+    qs, c = _run(free_task, seen, 900, **settings)
+    info = c.info()
+    assert info["relaxed"] >= 1 and info["forced"] >= 1, info
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+    checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
+    assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell
+
+
+def _run_frames(task: ControlTask, frames: list[tuple[int, Observation]], ticks: int, **settings):
+    """As :func:`_run`, with the frame delivered every 3 ticks the last of ``frames`` (tick, frame)
+    whose tick has come."""
+    c = make_controller("ompl-replan", **settings)
+    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
+    q = np.array(task.start, dtype=float)
+    c.setup(task)
+    c.reset(q.copy(), np.random.default_rng(0))
+    qs = [q.copy()]
+    for k in range(ticks):
+        observation = [f for when, f in frames if when <= k][-1]
+        if k % 3 == 0:
+            c.update(dataclasses.replace(observation, time=k * task.period, frame=k // 3))
+        qd = c.step(k * task.period, q.copy(), observation, task.goal)
+        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
+        qs.append(q.copy())
+    return np.array(qs), c
+
+
+def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, open_space):
+    """The arm waits short of an unknown cube on its path (only the swept cells are known); then a
+    frame shows an occupied cell beside the cube, off the arm's way, so every cell of the cube is
+    the unseen rest of a surface (``surface_margin`` 0.25 m): after its looks the arm may not go in
+    (a dead end, ``stuck``). With ``dead_end = "replan"`` it drops the path and replans instead of
+    waiting there (the default); the margin is not relaxed for it, and the arm never enters the
+    cube nor meets the cell."""
+    grid, path = open_space
+    robot = free_task.robot
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    known = ndimage.binary_dilation(swept) & block
+    centre = np.argwhere(~block).mean(axis=0)  # the cube's centre [cells]
+    far = np.argwhere(~ndimage.binary_dilation(swept, iterations=2))
+    cell = tuple(far[int(np.argmin(np.linalg.norm(far - centre, axis=1)))])  # the nearest off the arm's way
+    assert np.linalg.norm(np.array(cell) - centre) * grid.resolution < 0.15
+    data = grid.data.copy()
+    data[cell] = 1.0
+    shown = known.copy()
+    shown[cell] = True
+    first = _seeing(grid, known)
+    later = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=shown))
+    settings = dict(unknown="occupied", surface_margin=0.25, plan_time=0.3, known_plan_time=0.1, look_frames=60)
+    frames = [(0, first), (150, later)]
+    _, c = _run_frames(free_task, frames, 700, **settings)
+    info = c.info()
+    assert info["stuck"] >= 1 and info["relaxed"] == 0 and info["plans"] == 2, info  # waits: no new plan
+    qs, c = _run_frames(free_task, frames, 700, dead_end="replan", **settings)
+    info = c.info()
+    assert info["stuck"] >= 1 and info["relaxed"] == 0, info
+    assert info["plans"] >= 3, info  # its first plan and the one in known space, then replanned
+    cube = ~block
+    assert not any(body.in_unknown(q, ~cube) for q in qs[60:]), info  # never in the cube
+    checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
+    assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell

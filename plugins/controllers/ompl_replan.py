@@ -28,7 +28,12 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
 - **hidden surfaces**: the unknown cells within ``surface_margin`` of an occupied cell are the
   unseen rest of a seen surface (the far side of a plate seen from above, an edge seen edge-on):
   obstacles for every plan, never entered after a look (below); found when a plan needs them, as
-  a frame's check of the rest of the path stops short of every unknown cell anyway;
+  a frame's check of the rest of the path stops short of every unknown cell anyway. When plans
+  fail (``relax_after`` in a row), the margin is relaxed a step toward 0 (``relax_steps``), for
+  the rest of the run: on a cluttered shelf the unseen rest of boards and cans can leave no plan,
+  and the arm stood still to the horizon; at margin 0 those cells are unknown like any other
+  (stopped short of, looked at, then entered). A dead end (after its looks every unknown cell in
+  the way is such a cell) waits, or replans (``dead_end``), and relaxes nothing;
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
   not enter (below), the arm plans again with every such cell an obstacle (the occupied cells and
   the two-cell layer of unknown ones next to the space the arm may enter stand for them all: any
@@ -130,6 +135,26 @@ class OMPLReplanConfig(UnknownSettings):
     """Safe mode: [m] unknown cells within this of an occupied cell (centre to centre) are the
     unseen rest of a seen surface (the far side of a plate seen from above, the edge seen
     edge-on): obstacles for a plan, and never entered, even where no plan avoids other unknown cells."""
+    relax_steps: int = 2
+    """Safe mode: how many steps ``surface_margin`` is relaxed in, toward 0, when plans fail (0:
+    never). After ``relax_after`` failures in a row the margin drops by ``surface_margin /
+    relax_steps``, for the rest of the run: on the Panda's tall bookshelf the unseen rest of the
+    boards and cans can leave no plan under the full margin, and the arm stood still to the
+    horizon. Only a plan without a path counts, not a dead end (``dead_end``: relaxing there took
+    the Panda into the unseen cap of ``mbm:box`` on ``dynamic-tune``). At margin 0 the hidden
+    cells are unknown cells like any other: the arm stops short of them and looks before it goes
+    in (``look_frames``). Chosen on ``dynamic-tune`` (docs/reactive.md, "Relaxing the surface
+    margin")."""
+    dead_end: str = "wait"
+    """Safe mode: what the arm does at a dead end, where after its looks every unknown cell in its
+    way is the unseen rest of a surface (``surface_margin``; a frame since the plan showed more of
+    it), counted in ``stuck``: ``"wait"`` (the default) stays short of them, looking, and goes on
+    if a frame shows them; ``"replan"`` drops the path and plans around them. On the Panda's 24
+    depth scenarios of ``dynamic-tune`` ``"replan"`` turned the three ``occluded`` runs that ended
+    short of the goal into collisions with the box's side, which a frame had shown
+    (docs/reactive.md)."""
+    relax_after: int = 1
+    """Safe mode: failed plans in a row before ``surface_margin`` is relaxed by one step (>= 1)."""
     gate: bool = True
     """Safe mode: plan in known space first and stop short of unknown cells on a path that enters
     them (else only the hidden cells next to occupied ones, ``surface_margin``, are kept out of)."""
@@ -161,17 +186,20 @@ class OMPLReplanConfig(UnknownSettings):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
         if not 0 < self.speed_scale <= 1:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
+        if self.dead_end not in ("wait", "replan"):
+            raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait"):
             raise InvalidConfigError(f'goal_obstacles must be "ignore" or "wait", got {self.goal_obstacles!r}')
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
-        for name in ("look_frames", "known_checks_per_tick"):
+        for name in ("look_frames", "known_checks_per_tick", "relax_steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {v!r}")
-        v = self.known_plan_checks
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise InvalidConfigError(f"known_plan_checks must be an integer >= 1, got {v!r}")
+        for name in ("known_plan_checks", "relax_after"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InvalidConfigError(f"{name} must be an integer >= 1, got {v!r}")
         self.validate_unknown()
 
 
@@ -252,13 +280,14 @@ class OMPLReplanController(Controller):
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
         self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
+        self.relaxed = 0  # safe mode: steps surface_margin has been relaxed by (relax_steps)
+        self.failed_in_row = 0  # plans failed since the last that found a path
         self.fresh = False
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
-        self.stats.update(
-            known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0, goal_blocked=0
-        )
+        self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
+        self.stats.update(goal_blocked=0, relaxed=0, stuck=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -431,22 +460,45 @@ class OMPLReplanController(Controller):
         flat = self.allowed.reshape(-1)
         cells = np.flatnonzero(mark.reshape(-1) & ~flat)
         cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
+        if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
+            self.stats["stuck"] += 1
+            if self.config.dead_end == "replan":
+                self.path, self.known_query, self.looks = None, None, 0
+            return
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
         self.stats["forced"] += 1
         self.looks = 0
         self._limit(self.tau)
 
+    def _margin(self) -> float:
+        """Safe mode: the surface margin [m] now, ``surface_margin`` less the steps relaxed."""
+        c = self.config
+        return c.surface_margin * (1.0 - self.relaxed / c.relax_steps) if c.relax_steps else c.surface_margin
+
+    def _relax(self) -> None:
+        """Safe mode, after a failed plan: one more failure in a row; after ``relax_after`` of them,
+        relax the surface margin one step (the next frame's plan keeps out of fewer hidden cells)."""
+        self.failed_in_row += 1
+        c = self.config
+        if self.relaxed >= c.relax_steps or self.failed_in_row < c.relax_after:
+            return
+        self.relaxed += 1
+        self.failed_in_row = 0
+        self.hidden = None
+        self.stats["relaxed"] = self.relaxed
+
     def _hidden(self) -> np.ndarray:
-        """Safe mode, depth: the frame's unknown cells within ``surface_margin`` of an occupied
-        one (the unseen rest of a seen surface; computed once per frame, when first needed)."""
+        """Safe mode, depth: the frame's unknown cells within the surface margin (``_margin``) of
+        an occupied one (the unseen rest of a seen surface; computed once per frame, when first
+        needed; none at margin 0)."""
         obs = self.observation
         known = obs.grid.known if obs is not None else None
         if obs is None or known is None or self.occupied is None:
             return np.zeros(0, dtype=np.intp)
         if self.hidden is None:
             grid = obs.grid
-            self.hidden = _next_to(self.occupied, grid.shape, self.config.surface_margin / grid.resolution, known)
+            self.hidden = _next_to(self.occupied, grid.shape, self._margin() / grid.resolution, known)
         return self.hidden
 
     # --- planning ---------------------------------------------------------------------------
@@ -457,10 +509,16 @@ class OMPLReplanController(Controller):
         self.known_path, self.known_query = False, None
         checker = self.checker
         safe = self.safe and self.observation is not None and self.observation.grid.known is not None
-        if safe and self.observation is not None and self.observation.scene is None:
+        depth = safe and self.observation is not None and self.observation.scene is None
+        if depth:
             assert self.occupied is not None
             checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q)
-        if not self._plan_once(q, checker) or self.allowed is None or self.body is None:
+        if not self._plan_once(q, checker):
+            if depth:
+                self._relax()
+            return
+        self.failed_in_row = 0
+        if self.allowed is None or self.body is None:
             return
         if getattr(self.planner, "use_checker", None) is None:
             return
