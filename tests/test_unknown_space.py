@@ -266,6 +266,18 @@ def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(fre
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)
 
 
+def _swept_and_cube(free_task, grid, path):
+    """The arm's body on ``grid``, the cells it sweeps along ``path``, the unknown cube on it (False
+    in ``block``), and the known mask: the swept cells grown by one, less the cube."""
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    return body, swept, block, ndimage.binary_dilation(swept) & block
+
+
 def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free_task, open_space):
     """Only the cells the path sweeps are known, a 10 cm cube of them is not, and one occupied cell
     lies 0.3 m off the path: with a surface margin of 0.5 m every unknown cell near the path is the
@@ -274,13 +286,7 @@ def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free
     looks, goes in and reaches the goal, and its body never meets the occupied cell."""
     grid, path = open_space
     robot = free_task.robot
-    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
-    swept = np.zeros(grid.shape, dtype=bool)
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        for u in np.linspace(0.0, 1.0, 5):
-            body.mark(swept, a + u * (b - a))
-    block = _block_on_path(free_task, grid, path, body)
-    known = ndimage.binary_dilation(swept) & block
+    body, swept, block, known = _swept_and_cube(free_task, grid, path)
     centre = grid.origin + (np.argwhere(~block).mean(axis=0) + 0.5) * grid.resolution  # the cube's [m]
     far = ~ndimage.binary_dilation(swept, iterations=4)
     cells = np.argwhere(far)
@@ -331,13 +337,7 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     cube nor meets the cell."""
     grid, path = open_space
     robot = free_task.robot
-    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
-    swept = np.zeros(grid.shape, dtype=bool)
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        for u in np.linspace(0.0, 1.0, 5):
-            body.mark(swept, a + u * (b - a))
-    block = _block_on_path(free_task, grid, path, body)
-    known = ndimage.binary_dilation(swept) & block
+    body, swept, block, known = _swept_and_cube(free_task, grid, path)
     centre = np.argwhere(~block).mean(axis=0)  # the cube's centre [cells]
     far = np.argwhere(~ndimage.binary_dilation(swept, iterations=2))
     cell = tuple(far[int(np.argmin(np.linalg.norm(far - centre, axis=1)))])  # the nearest off the arm's way
