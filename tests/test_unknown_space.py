@@ -144,9 +144,11 @@ def free_task() -> ControlTask:
     return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
 
 
-def _run(task: ControlTask, observation: Observation, ticks: int, **settings):
+def _run(task: ControlTask, observation: Observation | list[tuple[int, Observation]], ticks: int, **settings):
     """``ompl-replan`` driven as the runner drives it (no compute time charged), the same frame
-    delivered every 3 ticks: the configurations after each tick, and the controller."""
+    delivered every 3 ticks (a list of (tick, frame): the last whose tick has come): the
+    configurations after each tick, and the controller."""
+    frames = observation if isinstance(observation, list) else [(0, observation)]
     c = make_controller("ompl-replan", **settings)
     robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
     q = np.array(task.start, dtype=float)
@@ -154,9 +156,10 @@ def _run(task: ControlTask, observation: Observation, ticks: int, **settings):
     c.reset(q.copy(), np.random.default_rng(0))
     qs = [q.copy()]
     for k in range(ticks):
+        seen = [f for when, f in frames if when <= k][-1]
         if k % 3 == 0:
-            c.update(dataclasses.replace(observation, time=k * task.period, frame=k // 3))
-        qd = c.step(k * task.period, q.copy(), observation, task.goal)
+            c.update(dataclasses.replace(seen, time=k * task.period, frame=k // 3))
+        qd = c.step(k * task.period, q.copy(), seen, task.goal)
         q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
         qs.append(q.copy())
     return np.array(qs), c
@@ -312,20 +315,7 @@ def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free
 def _run_frames(task: ControlTask, frames: list[tuple[int, Observation]], ticks: int, **settings):
     """As :func:`_run`, with the frame delivered every 3 ticks the last of ``frames`` (tick, frame)
     whose tick has come."""
-    c = make_controller("ompl-replan", **settings)
-    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
-    q = np.array(task.start, dtype=float)
-    c.setup(task)
-    c.reset(q.copy(), np.random.default_rng(0))
-    qs = [q.copy()]
-    for k in range(ticks):
-        observation = [f for when, f in frames if when <= k][-1]
-        if k % 3 == 0:
-            c.update(dataclasses.replace(observation, time=k * task.period, frame=k // 3))
-        qd = c.step(k * task.period, q.copy(), observation, task.goal)
-        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
-        qs.append(q.copy())
-    return np.array(qs), c
+    return _run(task, frames, ticks, **settings)
 
 
 def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, open_space):
