@@ -74,7 +74,7 @@ from planbench.reactive.body import body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
-from planbench_plugins.controllers.observed import ArmCells, scene_without_touched_in_steps
+from planbench_plugins.controllers.observed import ArmCells, finished, scene_without_touched_in_steps
 from planbench_plugins.controllers.prediction import (
     MotionPredictor,
     PredictionSettings,
@@ -493,11 +493,7 @@ class MatrixFieldGuidedController(Controller):
         """``steps`` (a job built in steps) a slice each where slices are fine, else in one."""
         if self.fine:
             return (yield from steps)
-        while True:
-            try:
-                next(steps)
-            except StopIteration as done:
-                return done.value  # type: ignore[no-any-return]
+        return finished(steps)
 
     def _goal_still_blocked(self, start: np.ndarray) -> Generator[None, None, bool]:
         """Depth, while the arm holds where the last plan was refused for its goal: whether the goal

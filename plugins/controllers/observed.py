@@ -14,6 +14,7 @@ obstacles out of a plan, the same way:
 from __future__ import annotations
 
 from collections.abc import Generator
+from typing import TypeVar
 
 import numpy as np
 
@@ -23,7 +24,9 @@ from planbench.reactive.body import ArmBody
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["ArmCells", "scene_without_touched", "scene_without_touched_in_steps"]
+__all__ = ["ArmCells", "finished", "scene_without_touched", "scene_without_touched_in_steps"]
+
+R = TypeVar("R")
 
 
 class ArmCells:
@@ -83,7 +86,11 @@ class ArmCells:
 def scene_without_touched(robot: Robot, scene: Scene, q: np.ndarray) -> tuple[Scene, CollisionChecker, int]:
     """``scene`` less the obstacles ``robot`` at ``q`` touches, a checker of it, and how many
     obstacles were left out."""
-    steps = scene_without_touched_in_steps(robot, scene, q)
+    return finished(scene_without_touched_in_steps(robot, scene, q))
+
+
+def finished(steps: Generator[None, None, R]) -> R:
+    """What a job built in steps (a generator) returns, its steps run at once."""
     while True:
         try:
             next(steps)

@@ -104,16 +104,20 @@ class SegmentChecker:
         self.n_checks += len(states)
         return -1
 
-    def motion_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """True when every harness check point of the segment ``a -> b`` (``a`` itself excluded) is
-        collision-free."""
-        self.n_motions += 1
+    def motion_states(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The harness's check points of the segment ``a -> b`` (``a`` itself excluded), in the
+        order they are checked (:func:`bisection_order`)."""
         # the same operations as planbench.metrics.densify on the path [a, b]
         d = b - a
         n = max(1, math.ceil(float(np.abs(d).max()) / self.resolution - 1e-12))
         s = (np.arange(1, n + 1) / n)[:, None]
-        states = a + s * d
-        return self.first_hit(states[self._order(n)]) < 0
+        return (a + s * d)[self._order(n)]
+
+    def motion_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """True when every harness check point of the segment ``a -> b`` (``a`` itself excluded) is
+        collision-free."""
+        self.n_motions += 1
+        return self.first_hit(self.motion_states(a, b)) < 0
 
 
 class CertifiedSegments:

@@ -62,7 +62,7 @@ from ompl import util as ou
 
 from planbench.checking.collision import CollisionChecker
 
-from .motion import SegmentChecker, bisection_order
+from .motion import SegmentChecker
 
 __all__ = ["SlicedRRTConnect"]
 
@@ -211,10 +211,7 @@ class SlicedRRTConnect:
         """Whether ``a -> b`` is free at the search's check points (in the same bisection order),
         checking only what the slice has left: None when that ran out first."""
         if self._motion is None:
-            d = b - a
-            n = max(1, math.ceil(float(np.abs(d).max()) / self.segments.resolution - 1e-12))
-            states = a + (np.arange(1, n + 1) / n)[:, None] * d
-            self._motion = states[bisection_order(n)], 0
+            self._motion = self.segments.motion_states(a, b), 0
         states, done = self._motion
         take = min(len(states) - done, self._end - self.checks)
         if self.segments.first_hit(states[done : done + take]) >= 0:
@@ -329,10 +326,7 @@ def _query(
         there); exact: a configuration at a time, each waiting for its slice."""
         if pacer is None:
             return not owner.refusing and segments.motion_free(a, b)
-        d = b - a
-        n = max(1, math.ceil(float(np.abs(d).max()) / segments.resolution - 1e-12))
-        states = a + (np.arange(1, n + 1) / n)[:, None] * d
-        return all(my_turn() and segments.first_hit(q[None]) < 0 for q in states[bisection_order(n)])
+        return all(my_turn() and segments.first_hit(q[None]) < 0 for q in segments.motion_states(a, b))
 
     class Motions(ob.MotionValidator):
         def checkMotion(self, s1: Any, s2: Any, *rest: Any) -> bool:  # noqa: N802 (OMPL's name)
