@@ -316,9 +316,10 @@ def test_a_goal_that_stays_blocked_is_checked_against_the_cells_near_it_then_rea
     assert np.max(np.abs(d.q - goal_q)) < 1e-3 and info["paths"] == 1 and info["blocked_near_goal"] >= 9
 
 
-def test_at_1_khz_a_frames_goal_cells_are_classified_on_the_step_after_next(task):
-    """With slices finer than a 10 ms tick's, the frame's tick carries the update only: the cells
-    near the goal are classified on the step after next, which runs no slice of work."""
+def test_at_1_khz_a_frames_turn_and_the_next_run_no_slice_and_the_goal_cells_are_classified_second(task):
+    """With slices finer than a 10 ms tick's, the frame's turn carries its update only (its step
+    runs no slice), the step after it classifies the cells near the goal (no slice either), and
+    the plan's slices start on the third; at 100 Hz the frame's step runs a slice at once."""
     goal_q = np.asarray(task.goal.q)
     hand = task.robot.frame_pose(goal_q, task.goal.pose.frame).translation
     ball = Scene((Obstacle("ball", "sphere", tuple(hand), radius=0.06),))
@@ -329,10 +330,17 @@ def test_at_1_khz_a_frames_goal_cells_are_classified_on_the_step_after_next(task
     c.update(depth(ball))
     assert c.first_seen is None
     c.step(0.0, q, None, task.goal)
-    assert c.first_seen is None and c.job is not None  # the frame's tick: a slice of the plan, no classification
-    slices = c.info()["slices"]
+    assert c.first_seen is None and c.job is None and c.info()["slices"] == 0  # the frame's turn
     c.step(0.001, q, None, task.goal)
-    assert c.first_seen is not None and c.first_seen.any() and c.info()["slices"] == slices
+    assert c.first_seen is not None and c.first_seen.any() and c.info()["slices"] == 0
+    c.step(0.002, q, None, task.goal)
+    assert c.job is not None and c.info()["slices"] == 1
+    coarse = MatrixFieldGuidedController()
+    coarse.setup(task)
+    coarse.reset(q.copy(), np.random.default_rng(0))
+    coarse.update(depth(ball))
+    coarse.step(0.0, q, None, task.goal)
+    assert coarse.first_seen is not None and coarse.info()["slices"] == 1
 
 
 def test_unknown_cells_near_the_arm_are_obstacles_for_the_plan_with_unknown_occupied(task):

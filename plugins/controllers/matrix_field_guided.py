@@ -298,6 +298,7 @@ class MatrixFieldGuidedController(Controller):
         self.job: Work | None = None
         self.job_kind = ""
         self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
+        self.frame_turn = False  # fine slices: the step of a turn that took in a frame (no slice then)
         # fine slices: a frame's goal cells, classified the step after next (steps to wait, frame, grid)
         self.goal_cells_due: tuple[int, Observation, OccupancyGrid] | None = None
         self.blocked_from: np.ndarray | None = None  # depth: the start of the last plan refused for its goal
@@ -344,6 +345,7 @@ class MatrixFieldGuidedController(Controller):
         self.frame += 1
         self.stats["frames"] += 1
         self.fresh = True
+        self.frame_turn = self.fine  # fine slices: this turn carries the update, its step no slice
         if observation.scene is None:
             if self.fine:  # the step after next does it: a frame's tick carries its update already
                 self.goal_cells_due = (2, observation, self.grid)
@@ -360,6 +362,9 @@ class MatrixFieldGuidedController(Controller):
             if wait <= 1:
                 self._classify_goal_cells(frame, grid)
                 return self._command(t, q)  # no slice of work on this tick
+        if self.frame_turn:
+            self.frame_turn = False
+            return self._command(t, q)  # the frame's update is this turn's work
         if self.grid is not None:
             self._work(q)
         return self._command(t, q)
