@@ -246,3 +246,28 @@ class CollectorState(_ToGoal):
 
             self.tried["frozen"] = gc.get_freeze_count()
         return self.toward_goal(q)
+
+
+WARM_UP_SEEN: list = []
+"""What :class:`PeeksAtWarmUp`'s instances saw before the run (module state outlives the warm-up's
+instance, as a hostile controller's would)."""
+
+
+class PeeksAtWarmUp(_ToGoal):
+    """Asks for the benchmark's warm-up (``compiles``) and keeps what its frames showed in module
+    state, to read it back in the run: the warm-up is uncharged, so it must show nothing of the
+    scenario."""
+
+    compiles = True
+
+    def update(self, observation):
+        names = [o.name for o in observation.scene.obstacles] if observation.scene is not None else None
+        WARM_UP_SEEN.append(names)
+
+    def reset(self, q, rng):
+        self.tried = {"warm_up_frames": [x for x in WARM_UP_SEEN]}
+        self.steps = 0
+
+    def step(self, t, q, observation, goal):
+        self.steps += 1
+        return self.toward_goal(q)

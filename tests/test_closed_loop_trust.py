@@ -82,6 +82,16 @@ def test_patching_clocks_modules_and_the_robot_in_the_controller_process_changes
 
 
 @pytest.mark.slow
+def test_the_uncharged_warm_up_shows_nothing_of_the_scenario(tmp_path):
+    """The warm-up (two frames, before the run, uncharged) is of a scene of its own: a controller
+    that keeps what it saw there learns nothing of the scenario's obstacles."""
+    seen = json.loads(_bench(tmp_path, ["PeeksAtWarmUp"])["PeeksAtWarmUp"]["info"])["controller"]["warm_up_frames"]
+    scenario_obstacles = {o.name for o in load_scenario(SCENARIO).scene_at(0.0).obstacles}
+    assert seen == [["warm-up box"], ["warm-up box"]]
+    assert scenario_obstacles and not scenario_obstacles & {"warm-up box"}
+
+
+@pytest.mark.slow
 def test_a_controller_can_start_no_process_nor_reach_into_the_simulation(tmp_path):
     rows = _bench(tmp_path, ["ChildProcess", "ReachesIntoSimulation"])
     tried = json.loads(rows["ChildProcess"]["info"])["controller"]
