@@ -100,6 +100,24 @@ def test_deliberately_broken_planners_are_flagged_under_the_check_s_name(planner
     assert all(f.check in CHECKS for f in found) and str(found[0]).startswith(f"{found[0].check}: ")
 
 
+class CutByTheClock(Good):
+    """Deterministic steps along the straight line, as many as its (here: simulated) clock allowed."""
+
+    name = "cut-by-the-clock"
+
+    def plan(self, problem, *, time_limit, rng):
+        steps = int(np.random.default_rng().integers(2, 50))  # how far a loaded machine let it get
+        s = np.linspace(0.0, 1.0, 60)[:steps, None]
+        return PlanResult(PlanStatus.TIMEOUT, problem.start + s * (problem.goal.q - problem.start))
+
+
+def test_runs_cut_by_the_time_limit_are_compared_up_to_the_shorter_one():
+    """A deterministic planner cut at different points by a loaded machine is not "unseeded"; one
+    whose cut paths disagree before either ends is (``Unseeded`` above, also cut by the clock)."""
+    assert not [f for f in check_planner(CutByTheClock) if f.check == "non-deterministic"]
+    assert [f for f in check_planner(Unseeded) if f.check == "non-deterministic"]
+
+
 def test_path_not_starting_at_start_is_flagged():
     class Offset(Good):
         name = "offset"
