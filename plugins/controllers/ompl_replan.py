@@ -356,9 +356,9 @@ class OMPLReplanController(Controller):
         self.occupied = np.flatnonzero(grid.data >= 0.5)
         self.allowed = None
         if not self.safe or grid.known is None:
-            self.checker = self._cells_checker(self._obstacles(), q)
+            self.checker = self._cells_checker(self.occupied, q, self.predicted)
             return
-        self.checker = self._cells_checker(self._obstacles(), q)
+        self.checker = self._cells_checker(self.occupied, q, self.predicted)
         self.hidden = None  # the unseen rest of seen surfaces: found when a plan needs them
         if self.config.gate:
             allowed = grid.known.copy()
@@ -393,14 +393,28 @@ class OMPLReplanController(Controller):
             return self.occupied
         return np.union1d(self.occupied, self.predicted)
 
-    def _cells_checker(self, cells: np.ndarray, q: np.ndarray) -> CollisionChecker:
+    def _cells_checker(self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None) -> CollisionChecker:
         """A checker of the cells (flat indices) less those within a cell of the arm at ``q`` and at
-        the goal, when the arm touches them there (counted in ``dropped``)."""
+        the goal, when the arm touches them there (counted in ``dropped``); with ``swept`` (the
+        cells moving clusters sweep), those too, less the ones within a cell of the arm at ``q`` or
+        at the goal, always: an arm in a sweep plans its way out of it, and a sweep near the arm
+        does not drop the static cells it touches."""
+        checker, kept = self._kept(cells, q)
+        if swept is None or not len(swept):
+            return checker if kept is None else self._checker_of(kept)
+        assert self.near_goal is not None
+        near = np.concatenate([self.arm.near(q, 1), self.near_goal])
+        return self._checker_of(np.union1d(cells if kept is None else kept, swept[~np.isin(swept, near)]))
+
+    def _kept(self, cells: np.ndarray, q: np.ndarray) -> tuple[CollisionChecker, np.ndarray | None]:
+        """A checker of the cells (flat indices), and the cells less those within a cell of the
+        arm at ``q`` and at the goal when the arm touches them there (counted in ``dropped``; None
+        when it touches none)."""
         checker = self._checker_of(cells)
         goal_q = self.task.goal.q
         touched = checker.in_collision(q) or (goal_q is not None and checker.in_collision(np.asarray(goal_q)))
         if not touched:
-            return checker
+            return checker, None
         assert self.near_goal is not None
         near_goal = self.near_goal
         on_goal = cells[np.isin(cells, self.arm.at_goal)] if self.config.goal_obstacles == "wait" else cells[:0]
@@ -410,7 +424,7 @@ class OMPLReplanController(Controller):
         near = np.concatenate([self.arm.near(q, 1), near_goal])
         kept = cells[~np.isin(cells, near)]
         self.stats["dropped"] += len(cells) - len(kept)
-        return self._checker_of(kept)
+        return checker, kept
 
     def _checker_of(self, cells: np.ndarray) -> CollisionChecker:
         obs = self.observation
@@ -541,7 +555,7 @@ class OMPLReplanController(Controller):
         depth = safe and self.observation is not None and self.observation.scene is None
         if depth:
             assert self.occupied is not None
-            checker = self._cells_checker(np.union1d(self._obstacles(), self._hidden()), q)
+            checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q, self.predicted)
         if not self._plan_once(q, checker):
             if depth and not len(self.predicted):  # a moving obstacle's sweep is no reason to relax
                 self._relax()
@@ -554,7 +568,7 @@ class OMPLReplanController(Controller):
         assert self.path is not None and self.times is not None and self.occupied is not None
         if not self._enters_unknown(0.0):
             return
-        known = self._cells_checker(self._known_space_obstacles(), q)
+        known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
         goal_q = self.task.goal.q
         if self.config.known_checks_per_tick > 0 and goal_q is not None:
             try:  # in slices, while the arm follows the optimistic path up to the unknown cells
@@ -616,7 +630,7 @@ class OMPLReplanController(Controller):
         open_ = self.allowed.copy()
         open_.reshape(-1)[self.occupied] = False
         blocked = grow_cells(open_, _FRONTIER) & ~self.allowed
-        blocked.reshape(-1)[self._obstacles()] = True
+        blocked.reshape(-1)[self.occupied] = True
         return np.flatnonzero(blocked)
 
     def _plan_once(self, q: np.ndarray, checker: CollisionChecker | None, time_limit: float | None = None) -> bool:
