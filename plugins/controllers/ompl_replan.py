@@ -61,7 +61,10 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
 frame's check of the rest of the path and of its plans, as occupied cells are: a tracked obstacle
 heading across the path drops it (a stop, then a plan around the sweep) before its own cells reach
 it. A plan that fails while cells are swept does not count toward relaxing the surface margin.
-With truth sensing the scene's exact geometry is checked as it is.
+With truth sensing the scene's exact geometry is checked as it is. Off by default: on the 24 fast
+depth scenarios of ``dynamic-tune`` it solved 15 against 19 without (docs/reactive.md, "Prediction
+in ompl-replan"): the frames reach the predictor too sparsely while plans are charged for a track
+to form in most runs, and the differences were mostly in runs where it predicted nothing.
 
 The arm may always enter the unknown cells within ``start_margin`` of its body where the run
 started (the sensor's robot filter blinds it there, so they are never seen until the arm has
