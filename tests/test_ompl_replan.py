@@ -98,3 +98,66 @@ def test_an_obstacle_standing_on_the_goal_is_waited_out_not_driven_into(free_tas
             c.update(_depth(empty, 0.01 * k, k // 3))
         q = q + 0.01 * np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
     assert np.allclose(q, goal_q, atol=1e-3), c.info()
+
+
+def _box_frame(grid: OccupancyGrid, points: np.ndarray, t: float, frame: int) -> Observation:
+    """A depth observation of ``points`` (a box's surface): their cells occupied, every cell known."""
+    data = np.zeros(grid.shape)
+    idx = grid.index_of(points)
+    inside = np.all((idx >= 0) & (idx < np.array(grid.shape)), axis=1)
+    data[tuple(idx[inside].T)] = 1.0
+    seen = OccupancyGrid(data, grid.origin, grid.resolution, known=np.ones(grid.shape, dtype=bool))
+    return Observation(t, seen, frame, points.astype(np.float32))
+
+
+def _cube(centre: np.ndarray, half: float = 0.05, spacing: float = 0.005) -> np.ndarray:
+    """Points [m] on the surface of the cube of half side ``half`` around ``centre``."""
+    u = np.arange(-half, half + 1e-9, spacing)
+    a, b = (x.ravel() for x in np.meshgrid(u, u, indexing="ij"))
+    faces = []
+    for axis in range(3):
+        for side in (-half, half):
+            f = np.zeros((len(a), 3))
+            f[:, axis], f[:, (axis + 1) % 3], f[:, (axis + 2) % 3] = side, a, b
+            faces.append(f)
+    return np.vstack(faces) + centre
+
+
+def _crossing(task: ControlTask, prediction: str) -> tuple[int | None, float, dict]:
+    """Depth: the arm stands at its start with its first plan; a box flies at 1 m/s (30 frames a
+    second) at the hand's place half way along that path. The frame at which the path is dropped
+    (None: never), the box's distance [m] from that place then, and the controller's ``info``."""
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    c = make_controller("ompl-replan", prediction=prediction)
+    c.setup(task)
+    q = np.array(task.start, dtype=float)
+    c.reset(q.copy(), np.random.default_rng(0))
+    c.update(_box_frame(grid, np.zeros((0, 3)), 0.0, 0))
+    c.step(0.0, q, None, task.goal)
+    path = c.path
+    assert path is not None
+    mid = path[len(path) // 2] if len(path) > 2 else 0.5 * (path[0] + path[-1])
+    target = task.robot.frame_pose(mid, task.goal.pose.frame).translation
+    v = np.array([0.0, -1.0, 0.0])
+    for k in range(1, 30):
+        centre = target - v * (0.8 - k / 30.0)
+        c.update(_box_frame(grid, _cube(centre), k / 30.0, k))
+        command = c.step(k / 30.0, q, None, task.goal)
+        if c.info()["invalidated"]:
+            assert np.allclose(command, 0.0)  # the path dropped: a stop first
+            return k, float(np.linalg.norm(centre - target)), c.info()
+    return None, 0.0, c.info()
+
+
+def test_with_prediction_the_path_is_dropped_before_a_crossing_box_reaches_it(free_task):
+    """``prediction = "swept"``: the cells a tracked box sweeps over the next 0.5 s are obstacles
+    of the path's check, so the path is dropped (the arm stopped, a replan next) while the box is
+    still more than 0.4 m from it; without prediction only when the box's own cells reach it,
+    frames later."""
+    late, _, plain = _crossing(free_task, "none")
+    early, distance, predicted = _crossing(free_task, "swept")
+    assert late is not None and early is not None
+    assert plain["predicted_frames"] == 0 and predicted["predicted_frames"] >= 1
+    assert early + 3 <= late and distance > 0.4
+    with pytest.raises(InvalidSettingError, match="prediction"):
+        make_controller("ompl-replan", prediction="ahead")

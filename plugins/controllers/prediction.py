@@ -67,7 +67,7 @@ what the controller sees (module docstring)."""
 @dataclass(frozen=True)
 class PredictionSettings:
     """How a controller predicts obstacle motion (module docstring); a mixin of the configs of
-    ``matrix-field`` and ``matrix-field-guided``."""
+    ``matrix-field``, ``matrix-field-guided`` and ``ompl-replan`` (depth sensing only)."""
 
     prediction: str = "none"
     """``"none"`` or ``"swept"``: the cells moving clusters sweep over ``prediction_horizon``
