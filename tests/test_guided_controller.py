@@ -228,6 +228,28 @@ def test_planning_is_spread_over_ticks_with_at_most_one_slice_each(task, monkeyp
     assert free_along(CollisionChecker(task.robot, board), d.c.reference.waypoints)
 
 
+def test_a_frames_new_cells_are_checked_in_octrees_of_at_most_a_slices_cells(task, monkeypatch):
+    """The check of a frame builds the octrees of the cells it added a slice's worth at a time
+    (``octree_cells``), as a plan does, and still finds the path blocked."""
+    import planbench_plugins.controllers.matrix_field_guided as guided
+
+    sizes: list[int] = []
+    real = guided.cells_octree
+    monkeypatch.setattr(
+        guided, "cells_octree", lambda grid, cells, *a: sizes.append(len(cells)) or real(grid, cells, *a)
+    )
+    d = Driver(task, octree_cells=50, scale_slices=False)
+    d.run(depth(Scene()), 400, until=lambda d: d.c.reference is not None and d.k >= 40)
+    assert d.c.reference is not None
+    ahead = d.c.reference.at(0.5 * (d.c.t_ref + d.c.reference.duration))[0]
+    hand = task.robot.frame_pose(ahead, task.goal.pose.frame).translation
+    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.12, 0.12, 0.12)),))
+    sizes.clear()
+    d.run(depth(box), 40, until=lambda d: d.c.reference is None)
+    assert d.c.reference is None and d.c.info()["replans"]["invalidated"] == 1
+    assert len(sizes) >= 3 and max(sizes) <= 50  # the box's 216 cells in pieces of 50 at most
+
+
 @pytest.mark.parametrize("observe", [truth, depth])
 def test_it_replans_when_an_obstacle_appears_on_its_path(task, observe):
     d = Driver(task)

@@ -479,14 +479,24 @@ class MatrixFieldGuidedController(Controller):
         if len(close):
             kept = self._without_touched(kept, close, start, None)
             yield
-        pieces = []
-        for k in range(0, len(kept), self.slice_cells):
-            assert self.grid is not None  # the latest frame's: every frame has the same cells
-            pieces.append(cells_octree(self.grid, kept[k : k + self.slice_cells], f"cells-{k}"))
-            yield
-        checker = yield from self._in_steps(pieces_checker_in_steps(robot, pieces))
+        checker = yield from self._cells_checker(kept, pause_after_last=True)
         yield
         return checker
+
+    def _cells_checker(self, cells: np.ndarray, pause_after_last: bool) -> Generator[None, None, CollisionChecker]:
+        """Depth: a checker of ``cells`` (flat indices), built over slices: an octree of at most
+        :attr:`slice_cells` cells a slice (one of 4,000 costs 2-4 ms; one of every cell a frame
+        added could cost several times that in one tick), then their checker, in the last octree's
+        slice unless ``pause_after_last`` (a plan's checker of many octrees gets a slice of its own)."""
+        pieces = []
+        for k in range(0, len(cells), self.slice_cells):
+            if k:
+                yield
+            assert self.grid is not None  # the latest frame's: every frame has the same cells
+            pieces.append(cells_octree(self.grid, cells[k : k + self.slice_cells], f"cells-{k}"))
+        if pause_after_last and pieces:
+            yield
+        return (yield from self._in_steps(pieces_checker_in_steps(self.task.robot, pieces)))
 
     def _pause(self) -> Generator[None, None, None]:
         """A slice boundary only where slices are finer than a 10 ms tick's (``scale_slices``
@@ -616,16 +626,14 @@ class MatrixFieldGuidedController(Controller):
             if not len(new):
                 return
             yield
-            assert self.grid is not None
-            checker = pieces_checker(robot, [cells_octree(self.grid, new)])
+            checker = yield from self._cells_checker(new, pause_after_last=False)
             if len(close):
                 kept = self._without_touched(new, close, q, checker)
                 if len(kept) < len(new):
                     if not len(kept):
                         return
                     yield
-                    assert self.grid is not None
-                    checker = pieces_checker(robot, [cells_octree(self.grid, kept)])
+                    checker = yield from self._cells_checker(kept, pause_after_last=False)
         yield
         rest = self._rest()
         per = self.slice_checks
