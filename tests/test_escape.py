@@ -132,3 +132,46 @@ def test_draws_cycle_through_the_radii_in_pairs():
     rng = np.random.default_rng(1)
     before = [np.clip(q + rng.normal(0.0, 0.7, size=6), limits[0], limits[1]) for _ in range(9)]
     assert np.array_equal(np.array(one), np.array(before))
+
+
+def test_an_escape_without_a_target_rewinds_further_along_the_path():
+    """``escape_backtrack``: where no target is found, the loop rewinds ``escape_backtrack_window``
+    further back, then twice as far each time, and tries again from there; the path is cut at the
+    configuration the escape left from, so the trajectory stays continuous."""
+    from planbench_plugins.matrix_field import MatrixFieldPlanner
+
+    class Refusing(MatrixFieldPlanner):
+        """Finds no escape target before its ``refusals``-th try (records where each try started)."""
+
+        def __init__(self, refusals: int, **settings):
+            super().__init__(**settings)
+            self.refusals, self.tries = refusals, []
+
+        def _escape(self, q, rng, checker, inputs, path, diag, k, n_max):
+            self.tries.append((k, q.copy()))
+            if len(self.tries) <= self.refusals:
+                return 0, False
+            return super()._escape(q, rng, checker, inputs, path, diag, k, n_max)
+
+    problem = planbench.load_problems("mbm:table_under_pick/0011")[0]
+    plain = Refusing(refusals=10**6, escape_backtrack=0)  # as before issue 32
+    ended = planbench.plan(problem, plain, seed=0)
+    assert ended.status is PlanStatus.COLLISION and ended.info["escapes"] == 0 and len(plain.tries) == 1
+    frm = plain.tries[0][0]
+    assert frm >= 40  # the first collision is late enough for three rewinds (table_under_pick: link 5)
+    wedged = Refusing(refusals=10**6, escape_backtrack=3, escape_backtrack_window=0.1)
+    planbench.plan(problem, wedged, seed=0)
+    assert [k for k, _ in wedged.tries] == [frm, frm - 10, frm - 20, frm - 40]  # 0.1, 0.2, 0.4 s back
+    for k, q in wedged.tries:
+        assert np.array_equal(q, ended.path[k])  # each try starts on the path as planned
+    far = Refusing(refusals=10**6, escape_backtrack=5, escape_backtrack_window=frm * 0.006)
+    planbench.plan(problem, far, seed=0)
+    assert [k for k, _ in far.tries] == [frm, frm - round(frm * 0.6), 0]  # never before the start
+    freed = Refusing(refusals=2, escape_backtrack=3, escape_backtrack_window=0.1)
+    result = planbench.plan(problem, freed, seed=0)
+    assert result.info["escapes"] >= 1 and result.info["escape_steps"][0] == frm - 20
+    assert np.array_equal(result.path[: frm - 20 + 1], ended.path[: frm - 20 + 1])  # cut where it left
+    assert planbench.evaluate(problem, result).max_velocity_ratio <= 1.0 + 1e-9
+    for bad in ({"escape_backtrack": -1}, {"escape_backtrack_window": 0.0}):
+        with pytest.raises(InvalidConfigError, match=next(iter(bad))):
+            MatrixFieldConfig(**bad)

@@ -474,16 +474,29 @@ class IKLoopPlanner(Planner):
         since = 0  # the step the last escape ended on: stalls are judged from there
         verified = False  # the path so far certified free (by a check before an escape could fire)
         k = 0  # the step (bound before escape, which rebinds it)
+        back_window = max(1, int(round(cfg.escape_backtrack_window / dt)))
+        # how far each try of an escape rewinds beyond the previous one, in steps: 0, w, w, 2w, 4w...
+        backtrack_steps = [0] + [back_window * 2 ** max(0, i - 1) for i in range(cfg.escape_backtrack)]
 
         def escape(after: str, frm: int) -> bool:
-            """Rewind to step ``frm`` and escape from there (:meth:`_escape`); False when no escape
-            is left or none was found (the loop then ends as it would have)."""
+            """Rewind to step ``frm`` and escape from there (:meth:`_escape`); when no target is
+            found there, rewind further, ``escape_backtrack`` times, each twice as far back as the
+            last (from ``escape_backtrack_window`` before ``frm``, never before step 0), and try
+            again from each. False when no escape is left or none was found (the loop then ends as
+            it would have)."""
             nonlocal k, best_k, since, status, message
             if checker is None or len(escapes) >= cfg.escape_attempts:
                 return False
             saved = q.copy()
-            q[:] = path[frm]
-            moved, toward = self._escape(q, rng, checker, inputs, path, diag, frm, n_max)
+            moved, toward = 0, False
+            for back in backtrack_steps:
+                if back and (frm == 0 or time.perf_counter() - t_start > time_limit):
+                    break
+                frm = max(0, frm - back)
+                q[:] = path[frm]
+                moved, toward = self._escape(q, rng, checker, inputs, path, diag, frm, n_max)
+                if moved:
+                    break
             if not moved:
                 q[:] = saved
                 return False
