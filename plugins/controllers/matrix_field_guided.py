@@ -299,8 +299,8 @@ class MatrixFieldGuidedController(Controller):
         self.job_kind = ""
         self.wait_frame = -1  # no plan before a frame newer than this (a plan refused on this one)
         self.frame_turn = False  # fine slices: the step of a turn that took in a frame (no slice then)
-        # fine slices: a frame's goal cells, classified the step after next (steps to wait, frame, grid)
-        self.goal_cells_due: tuple[int, Observation, OccupancyGrid] | None = None
+        # fine slices: a frame's goal cells, classified on the step after the frame's turn (frame, grid)
+        self.goal_cells_due: tuple[Observation, OccupancyGrid] | None = None
         self.blocked_from: np.ndarray | None = None  # depth: the start of the last plan refused for its goal
         self.start_near: tuple[np.ndarray, np.ndarray] | None = None  # depth: a plan's start, cells near the arm there
         self.stats: dict[str, Any] = {
@@ -347,8 +347,8 @@ class MatrixFieldGuidedController(Controller):
         self.fresh = True
         self.frame_turn = self.fine  # fine slices: this turn carries the update, its step no slice
         if observation.scene is None:
-            if self.fine:  # the step after next does it: a frame's tick carries its update already
-                self.goal_cells_due = (2, observation, self.grid)
+            if self.fine:  # the step after the frame's turn does it (that turn carries the update)
+                self.goal_cells_due = (observation, self.grid)
             else:
                 self._classify_goal_cells(observation, self.grid)
 
@@ -356,15 +356,14 @@ class MatrixFieldGuidedController(Controller):
         """The tracking law from ``q`` [rad] (module docstring) after at most one slice of work."""
         q = np.asarray(q, dtype=float)
         self._ticks += 1
-        if self.goal_cells_due is not None:
-            wait, frame, grid = self.goal_cells_due
-            self.goal_cells_due = None if wait <= 1 else (wait - 1, frame, grid)
-            if wait <= 1:
-                self._classify_goal_cells(frame, grid)
-                return self._command(t, q)  # no slice of work on this tick
         if self.frame_turn:
             self.frame_turn = False
             return self._command(t, q)  # the frame's update is this turn's work
+        if self.goal_cells_due is not None:
+            frame, grid = self.goal_cells_due
+            self.goal_cells_due = None
+            self._classify_goal_cells(frame, grid)
+            return self._command(t, q)  # no slice of work on this tick
         if self.grid is not None:
             self._work(q)
         return self._command(t, q)
