@@ -161,3 +161,73 @@ def test_with_prediction_the_path_is_dropped_before_a_crossing_box_reaches_it(fr
     assert early + 3 <= late and distance > 0.4
     with pytest.raises(InvalidSettingError, match="prediction"):
         make_controller("ompl-replan", prediction="ahead")
+
+
+def test_depth_frames_after_the_first_check_only_new_cells_and_still_see_an_obstacle_arrive(free_task):
+    """Depth: the first frame on a path checks it against every occupied cell, later frames only
+    against cells no check of it held. A box that fills cells on the rest of the path after
+    several frames of the path being clear still invalidates it, and the new plan goes around it."""
+    robot = free_task.robot
+    c = make_controller("ompl-replan", unknown="free")
+    c.setup(free_task)
+    c.reset(np.array(free_task.start), np.random.default_rng(0))
+    q = np.array(free_task.start)
+    empty = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    post = Scene((Obstacle("post", "box", (0.9, 0.9, 0.1), size=(0.1, 0.1, 0.2)),))  # far from the arm
+    static = OccupancyGrid.from_scene(post, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
+    for k in range(12):  # frames every 30 ms while the arm follows its first plan
+        if k % 3 == 0:
+            c.update(_depth(static, 0.01 * k, k // 3))
+        q = q + 0.01 * c.step(0.01 * k, q, None, free_task.goal)
+    info = c.info()
+    assert info["plans"] == 1 and info["invalidated"] == 0 and c.verified is not None and c.verified.any()
+    first = c.path.copy()
+    mid = first[len(first) // 2] if len(first) > 2 else 0.5 * (q + first[-1])
+    hand = robot.frame_pose(mid).translation
+    box = Scene((*post.obstacles, Obstacle("box", "box", tuple(hand), size=(0.12, 0.12, 0.12))))
+    grid = OccupancyGrid.from_scene(box, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
+    checker = CollisionChecker(robot, box)
+    assert not checker.in_collision(q) and not checker.in_collision(np.asarray(free_task.goal.q))
+    c.update(_depth(grid, 0.12, 4))
+    assert np.allclose(c.step(0.12, q, None, free_task.goal), 0.0)  # a stop: the path is dropped
+    c.step(0.13, q, None, free_task.goal)
+    info = c.info()
+    assert info["invalidated"] == 1 and info["plans"] == 2 and info["failed_plans"] == 0
+    new = np.vstack([q, c.path])
+    dense = [a + u * (b - a) for a, b in zip(new[:-1], new[1:], strict=True) for u in np.linspace(0, 1, 20)]
+    assert not any(checker.in_collision(x) for x in dense)
+
+
+def test_the_boxes_around_the_links_hold_every_cell_the_arm_touches(free_task):
+    """``LinkBoxes``: a cell that coal finds touching the arm at a configuration lies in the mask
+    of the path's cells and its (configuration, object) pair is among those ``touching`` gives, so
+    ruling cells and configurations out by the boxes never misses a collision."""
+    from planbench_plugins.controllers.observed import LinkBoxes
+    from planbench_plugins.ompl_planners import cells_checker
+
+    robot = free_task.robot
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.04)
+    rng = np.random.default_rng(3)
+    lo, hi = robot.model.lowerPositionLimit, robot.model.upperPositionLimit
+    qs = lo + rng.random((6, len(lo))) * (hi - lo)
+    reach = LinkBoxes(robot).along(qs, grid)
+    alone = cells_checker(robot, grid, np.zeros(0, dtype=np.intp))
+    found = 0
+    for i, q in enumerate(qs):
+        if alone.in_collision_all_pairs(q):  # the arm touches itself: not the cell's doing
+            continue
+        body = robot.collision_model
+        for _ in range(40):  # cells near the arm's links: a link origin, moved by up to 8 cm
+            frame = rng.integers(len(body.geometryObjects))
+            near = reach.placements[i, frame][:3, 3] + rng.uniform(-0.08, 0.08, 3)
+            idx = np.floor((near - grid.origin) / grid.resolution).astype(int)
+            if np.any(idx < 0) or np.any(idx >= grid.shape):
+                continue
+            cell = np.array([np.ravel_multi_index(tuple(idx), grid.shape)])
+            if not cells_checker(robot, grid, cell).in_collision_all_pairs(q):
+                continue
+            found += 1
+            assert reach.near(cell).size == 1
+            rows, objects = reach.touching(cell)
+            assert i in rows and reach.collides(cell, rows[rows == i], objects[rows == i])
+    assert found >= 20

@@ -13,10 +13,13 @@ obstacles out of a plan, the same way:
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Generator
-from typing import TypeVar
+from typing import Any, TypeVar
 
+import coal
 import numpy as np
+import pinocchio as pin
 
 from planbench.checking.collision import CollisionChecker
 from planbench.geometry.occupancy import OccupancyGrid, grow_cells
@@ -24,7 +27,7 @@ from planbench.reactive.body import ArmBody
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["ArmCells", "finished", "scene_without_touched", "scene_without_touched_in_steps"]
+__all__ = ["ArmCells", "LinkBoxes", "PathBoxes", "finished", "scene_without_touched", "scene_without_touched_in_steps"]
 
 R = TypeVar("R")
 
@@ -81,6 +84,110 @@ class ArmCells:
         block[tuple((hit - lo).T)] = True
         idx = np.argwhere(grow_cells(block, cells)) + lo
         return np.ravel_multi_index(tuple(idx.T), body.shape)
+
+
+class LinkBoxes:
+    """World-axis-aligned boxes around each of the arm's collision objects. A box holds its object,
+    so a cell outside every box of a configuration cannot touch the arm there: a cheap way to rule
+    out most cells, and most configurations, before an exact check of a path."""
+
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        corners = []
+        for obj in robot.collision_model.geometryObjects:
+            geometry = obj.geometry
+            geometry.computeLocalAABB()
+            box = geometry.aabb_local
+            lo, hi = np.asarray(box.min_, dtype=float), np.asarray(box.max_, dtype=float)
+            corners.append(np.array(list(itertools.product(*zip(lo, hi, strict=True)))))
+        self.corners = np.stack(corners)  # (objects, 8, 3), each in its object's frame
+        self.geometries = [obj.geometry for obj in robot.collision_model.geometryObjects]
+        self.data = robot.model.createData()
+        self.geometry_data = pin.GeometryData(robot.collision_model)
+
+    def placements(self, q: np.ndarray) -> np.ndarray:
+        """Each object's placement in the world at ``q`` [rad], (objects, 4, 4)."""
+        pin.updateGeometryPlacements(self.robot.model, self.data, self.robot.collision_model, self.geometry_data, q)
+        return np.array([M.homogeneous for M in self.geometry_data.oMg])  # one call per object: the cheapest read
+
+    def boxes(self, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper corners (objects, 3) [m] of each object's world box at placements ``h``."""
+        world = np.einsum("gij,gkj->gki", h[:, :3, :3], self.corners) + h[:, None, :3, 3]
+        return world.min(axis=1), world.max(axis=1)
+
+    def along(self, configurations: np.ndarray, grid: OccupancyGrid) -> PathBoxes:
+        """The boxes at each of ``configurations`` (n, nq) [rad], and the cells of ``grid`` they
+        overlap (a cell more on every side: a cell that only touches a face)."""
+        n, objects = len(configurations), len(self.corners)
+        lower, upper = np.empty((n, objects, 3)), np.empty((n, objects, 3))
+        placements = np.empty((n, objects, 4, 4))
+        for i, q in enumerate(configurations):
+            placements[i] = self.placements(q)
+            lower[i], upper[i] = self.boxes(placements[i])
+        mask = np.zeros(grid.shape, dtype=bool)
+        shape = np.asarray(grid.shape)
+        res = grid.resolution
+        first = np.clip(np.floor((lower - grid.origin) / res).astype(int) - 1, 0, shape).reshape(-1, 3)
+        last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape).reshape(-1, 3)
+        for a, b in zip(first, last, strict=True):
+            mask[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = True
+        return PathBoxes(lower - res, upper + res, mask, grid.origin.copy(), res, placements, self.geometries)
+
+
+class PathBoxes:
+    """:meth:`LinkBoxes.along`: the boxes at a path's configurations, grown by a cell, and the
+    cells they overlap."""
+
+    def __init__(
+        self,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        mask: np.ndarray,
+        origin: np.ndarray,
+        resolution: float,
+        placements: np.ndarray,
+        geometries: list[Any],
+    ) -> None:
+        self.lower, self.upper = lower, upper  # (configurations, objects, 3) [m]
+        self.mask = mask  # bool, the grid's shape
+        self.origin, self.resolution = origin, resolution
+        self.placements = placements  # (configurations, objects, 4, 4)
+        self.geometries = geometries  # the objects' coal geometries
+
+    def near(self, cells: np.ndarray) -> np.ndarray:
+        """Of the flat indices ``cells``, those inside the mask (cells a box may touch)."""
+        return cells[self.mask.reshape(-1)[cells]]
+
+    def touching(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (configuration, object) pairs, as two index arrays sorted by configuration, whose
+        box holds the centre of one of ``cells`` (flat indices; the boxes grown by a cell hold
+        every cell that touches them)."""
+        idx = np.column_stack(np.unravel_index(cells, self.mask.shape))
+        centres = self.origin + (idx + 0.5) * self.resolution
+        # the box around all of a configuration's boxes first, then its objects' own boxes
+        lo, hi = self.lower.min(axis=1), self.upper.max(axis=1)
+        cell, row = np.nonzero(np.all((centres[:, None, :] >= lo) & (centres[:, None, :] <= hi), axis=-1))
+        c = centres[cell][:, None, :]
+        inside = np.all((c >= self.lower[row]) & (c <= self.upper[row]), axis=-1)  # (pairs, objects)
+        k, obj = np.nonzero(inside)
+        pairs = np.unique(row[k] * len(self.geometries) + obj)
+        return pairs // len(self.geometries), pairs % len(self.geometries)
+
+    def collides(self, cells: np.ndarray, rows: np.ndarray, objects: np.ndarray) -> bool:
+        """Whether one of ``objects`` at its configuration of ``rows`` (:meth:`touching`) touches
+        one of ``cells`` (flat indices, as one octree): coal's exact test, object by object."""
+        if not len(rows):
+            return False
+        idx = np.column_stack(np.unravel_index(cells, self.mask.shape))
+        octree = coal.makeOctree((idx + 0.5) * self.resolution, self.resolution)
+        at = coal.Transform3s(np.eye(3), np.asarray(self.origin, dtype=float))
+        request = coal.CollisionRequest()
+        for i, g in zip(rows, objects, strict=True):
+            h = self.placements[i, g]
+            result = coal.CollisionResult()
+            if coal.collide(self.geometries[g], coal.Transform3s(h[:3, :3], h[:3, 3]), octree, at, request, result):
+                return True
+        return False
 
 
 def scene_without_touched(robot: Robot, scene: Scene, q: np.ndarray) -> tuple[Scene, CollisionChecker, int]:

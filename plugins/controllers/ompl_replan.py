@@ -14,8 +14,10 @@ observed cells lie up to a cell beyond the true surface, so an arm a centimetre 
 body fills at the goal are occupied, an obstacle stands on the goal, and those are kept: no plan
 reaches the goal, and the arm waits until it leaves, ``goal_blocked`` in ``info``). The follower
 moves along the path at ``speed_scale`` of every joint's velocity limit. On every new frame the
-rest of the path (from the arm's configuration) is checked against the new observation every
-``check_resolution`` rad; when it collides, the controller commands a stop in that tick and
+rest of the path is checked against the new observation every ``check_resolution`` rad (with
+depth sensing, after the first frame on a path, only against the cells no earlier check of it held,
+and only where the boxes around the links reach them: :meth:`OMPLReplanController._rest_collides`);
+when it collides, the controller commands a stop in that tick and
 replans in the next, so that the command the runner holds while the planning time is charged (as
 on a robot) is the stop, not the old path's velocity. A failed plan leaves the arm
 still until the next frame.
@@ -91,7 +93,7 @@ from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
-from planbench_plugins.controllers.observed import ArmCells, scene_without_touched
+from planbench_plugins.controllers.observed import ArmCells, LinkBoxes, PathBoxes, scene_without_touched
 from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_checker
@@ -270,6 +272,7 @@ class OMPLReplanController(Controller):
         self.vmax = self.config.speed_scale * np.asarray(task.robot.velocity_limit, dtype=float)
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
+        self.link_boxes = LinkBoxes(task.robot)
         self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
         if self.predictor is not None:
             warm_up(self.config, lambda block: None)  # scipy's k-d tree and graph code loaded, untimed
@@ -287,7 +290,12 @@ class OMPLReplanController(Controller):
         self.known_path = False  # safe mode: the path was planned in known space
         self.known_query: SlicedRRTConnect | None = None  # safe mode: the plan in known space, in slices
         self.observation: Observation | None = None
-        self.checker: CollisionChecker | None = None  # the frame's obstacles, less what the arm touches
+        self.checker: CollisionChecker | None = None  # truth: the frame's scene, less what the arm touches
+        self.reach: PathBoxes | None = None  # depth: the path's boxes, from the first frame on it
+        self.reach_times = np.zeros(0)  # [s] along the path of the configurations it was built from
+        self.reach_q = np.zeros((0, len(q)))  # those configurations
+        self.verified: np.ndarray | None = None  # depth: the cells (flat, bool) the path's rest was checked clear of
+        self.scan_clear = -math.inf  # safe mode: [s] along the path up to which the scans found only allowed cells
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
         self.occupied: np.ndarray | None = None  # depth: the frame's occupied cells (flat indices)
         self.body: ArmBody | None = None
@@ -307,6 +315,7 @@ class OMPLReplanController(Controller):
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
+        self.stats.update(rest_checks=0)
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -315,7 +324,7 @@ class OMPLReplanController(Controller):
             if len(self.predicted):
                 self.stats["predicted_frames"] += 1
                 self.stats["predicted_cells_max"] = max(self.stats["predicted_cells_max"], len(self.predicted))
-        self.checker = None  # built in the step (it needs the arm's configuration)
+        self.checker = None  # truth: built in the step (it needs the arm's configuration)
         self.fresh = True
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
@@ -357,11 +366,9 @@ class OMPLReplanController(Controller):
         grid = obs.grid
         self._geometry(grid)
         self.occupied = np.flatnonzero(grid.data >= 0.5)
-        self.allowed = None
+        before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
-            self.checker = self._cells_checker(self.occupied, q, self.predicted)
             return
-        self.checker = self._cells_checker(self.occupied, q, self.predicted)
         self.hidden = None  # the unseen rest of seen surfaces: found when a plan needs them
         if self.config.gate:
             allowed = grid.known.copy()
@@ -370,6 +377,8 @@ class OMPLReplanController(Controller):
             flat[self.own] = True
             flat[self.through] = True
             flat[self.near_goal] = True
+            if before is None or before.shape != allowed.shape or np.any(before > allowed):
+                self.scan_clear = -math.inf  # a cell the scans allowed may not be entered now
             self.allowed = allowed
 
     def _geometry(self, grid: OccupancyGrid) -> None:
@@ -377,6 +386,7 @@ class OMPLReplanController(Controller):
         and, in safe mode, where it started."""
         if not self.arm.fit(grid):
             return
+        self.reach = None  # another grid: its cells are not those checked
         self.body = self.arm.body
         self.near_goal = self.arm.near_goal
         goal_q = self.task.goal.q
@@ -402,12 +412,19 @@ class OMPLReplanController(Controller):
         cells moving clusters sweep), those too, less the ones within a cell of the arm at ``q`` or
         at the goal, always: an arm in a sweep plans its way out of it, and a sweep near the arm
         does not drop the static cells it touches."""
+        return self._cells_and_checker(cells, q, swept)[1]
+
+    def _cells_and_checker(
+        self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None
+    ) -> tuple[np.ndarray, CollisionChecker]:
+        """:meth:`_cells_checker`, and the cells (flat indices) its checker holds."""
         checker, kept = self._kept(cells, q)
         if swept is None or not len(swept):
-            return checker if kept is None else self._checker_of(kept)
+            return (cells, checker) if kept is None else (kept, self._checker_of(kept))
         assert self.near_goal is not None
         near = np.concatenate([self.arm.near(q, 1), self.near_goal])
-        return self._checker_of(np.union1d(cells if kept is None else kept, swept[~np.isin(swept, near)]))
+        held = np.union1d(cells if kept is None else kept, swept[~np.isin(swept, near)])
+        return held, self._checker_of(held)
 
     def _kept(self, cells: np.ndarray, q: np.ndarray) -> tuple[CollisionChecker, np.ndarray | None]:
         """A checker of the cells (flat indices), and the cells less those within a cell of the
@@ -474,17 +491,68 @@ class OMPLReplanController(Controller):
                 out.append((ta + u * (tb - ta), a + u * (b - a)))
         return out
 
+    def _rest_collides(self, q: np.ndarray) -> bool:
+        """Whether the rest of the path collides with the frame's obstacles. Truth: the rest from
+        ``q``, against the frame's scene. Depth: the path's own configurations from where the
+        follower is on it (``_samples``, a grid fixed along the path), checked only
+
+        - against the cells no earlier frame's check of this path held (``verified``): the rest
+          only shrinks, and a path clear of a cell stays clear of it;
+        - against those of them inside the boxes around the links at one of the configurations
+          (:class:`~.observed.PathBoxes`, built on the first frame), and only the (configuration,
+          link) pairs whose box holds one, with coal's exact test of that link.
+
+        A frame costs milliseconds where an octree of every occupied cell and a check of the
+        whole arm at every configuration cost 20-40 ms (over the 10 ms period: a missed deadline
+        on most frames, docs/reactive.md)."""
+        assert self.times is not None
+        obs = self.observation
+        assert obs is not None
+        if obs.scene is not None:
+            assert self.checker is not None
+            return any(self.checker.in_collision(x) for _, x in self._rest(q, self.tau))
+        if self.reach is None:  # the first frame on this path: its configurations and their boxes
+            stamps = self._samples(self.tau, float(self.times[-1]))
+            self.reach_times = np.array([when for when, _ in stamps])
+            self.reach_q = np.array([x for _, x in stamps])
+            self.reach = self.link_boxes.along(self.reach_q, obs.grid)
+            self.verified = np.zeros(obs.grid.data.size, dtype=bool)
+        assert self.verified is not None
+        cells, swept = (c[~self.verified[c]] for c in self._obstacle_cells())
+        near_cells, near_swept = self.reach.near(cells), self.reach.near(swept)
+        held = np.zeros(0, dtype=np.intp)
+        if len(near_cells) or len(near_swept):
+            held, _ = self._cells_and_checker(near_cells, q, near_swept)
+            if len(held):
+                rows, objects = self.reach.touching(held)
+                rest = self.reach_times[rows] >= self.tau - 1e-9  # the rest only
+                self.stats["rest_checks"] += int(np.count_nonzero(rest))
+                if self.reach.collides(held, rows[rest], objects[rest]):
+                    return True
+        self.verified[cells] = True
+        self.verified[swept] = True
+        self.verified[near_cells] = False  # not the cells dropped next to the arm: checked again
+        self.verified[near_swept] = False
+        self.verified[held] = True
+        return False
+
+    def _obstacle_cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """Depth: the frame's occupied cells, and the swept ones (``prediction``) that are not
+        occupied (flat indices, each sorted and unique)."""
+        assert self.occupied is not None
+        swept = np.setdiff1d(self.predicted, self.occupied) if len(self.predicted) else self.predicted
+        return self.occupied, swept
+
     def _check_rest(self, q: np.ndarray) -> None:
         """On a new frame: drop the path if its rest collides with the frame's obstacles; in safe
         mode, set where the follower stops short of unknown cells and, when the arm has waited
         there ``look_frames`` frames, let it into the next ``scan_horizon`` of them."""
-        assert self.checker is not None and self.times is not None
-        for _, x in self._rest(q, self.tau):
-            if self.checker.in_collision(x):
-                self.stats["invalidated"] += 1
-                self.path = None
-                self.known_query = None  # the next plan starts over
-                return
+        assert self.times is not None
+        if self._rest_collides(q):
+            self.stats["invalidated"] += 1
+            self.path = None
+            self.known_query = None  # the next plan starts over
+            return
         if self.allowed is None:
             return
         block = self._limit(self.tau)
@@ -553,12 +621,17 @@ class OMPLReplanController(Controller):
         may not enter, plan again in known space (every unknown cell an obstacle but those it may
         enter) and follow that path instead if there is one."""
         self.known_path, self.known_query = False, None
-        checker = self.checker
-        safe = self.safe and self.observation is not None and self.observation.grid.known is not None
-        depth = safe and self.observation is not None and self.observation.scene is None
+        obs = self.observation
+        assert obs is not None
+        checker = self.checker  # truth: the frame's scene
+        safe = self.safe and obs.grid.known is not None
+        depth = safe and obs.scene is None
         if depth:
             assert self.occupied is not None
             checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q, self.predicted)
+        elif obs.scene is None:
+            assert self.occupied is not None
+            checker = self._cells_checker(self.occupied, q, self.predicted)
         if not self._plan_once(q, checker):
             if depth and not len(self.predicted):  # a moving obstacle's sweep is no reason to relax
                 self._relax()
@@ -673,6 +746,8 @@ class OMPLReplanController(Controller):
         """Follow ``path`` from its start, timed at the scaled velocity limits."""
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
+        self.reach = None  # the next frame checks the new path against every cell
+        self.scan_clear = -math.inf
         self.tau, self.tau_limit, self.looks, self.t_follow = 0.0, math.inf, 0, None
         self._limit(0.0)
 
@@ -698,9 +773,12 @@ class OMPLReplanController(Controller):
         assert self.times is not None
         horizon = tau + self.config.scan_horizon
         for when, x in self._samples(tau, horizon):
+            if when <= self.scan_clear:  # found in allowed cells by an earlier scan; none has left them since
+                continue
             if self.body.in_unknown(x, self.allowed):
                 self.tau_limit = when - self.config.lookahead
                 return when
+            self.scan_clear = when
         if horizon < self.times[-1]:
             self.tau_limit = horizon - self.config.lookahead
         return None
