@@ -218,6 +218,26 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
         self.validate_prediction()
 
 
+def _ball(radius: float) -> np.ndarray:
+    """The cell offsets (n, 3) within ``radius`` cells of a cell (centre to centre), itself apart."""
+    r = int(math.floor(radius))
+    span = np.arange(-r, r + 1)
+    offsets = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)
+    return offsets[(np.sum(offsets**2, axis=1) <= radius * radius) & np.any(offsets != 0, axis=1)]
+
+
+def _near_any(cells: np.ndarray, mask: np.ndarray, radius: float) -> np.ndarray:
+    """For each of ``cells`` (flat indices into ``mask``'s grid), whether a cell of ``mask``
+    (bool) lies within ``radius`` cells of it: :func:`_next_to` asked of a few cells."""
+    if not len(cells) or radius < 1:
+        return np.zeros(len(cells), dtype=bool)
+    idx = np.column_stack(np.unravel_index(cells, mask.shape))[:, None, :] + _ball(radius)[None, :, :]
+    inside = np.all((idx >= 0) & (idx < np.asarray(mask.shape)), axis=-1)
+    hit = np.zeros(inside.shape, dtype=bool)
+    hit[inside] = mask[tuple(idx[inside].T)]
+    return np.asarray(hit.any(axis=1), dtype=bool)
+
+
 def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np.ndarray) -> np.ndarray:
     """Flat indices of the unknown cells (``known`` False) whose centres lie within ``radius``
     cells of one of ``cells`` (flat indices into a grid of ``shape``); a few milliseconds for
@@ -225,9 +245,7 @@ def _next_to(cells: np.ndarray, shape: tuple[int, ...], radius: float, known: np
     r = int(math.floor(radius))
     if not len(cells) or r < 1:
         return np.zeros(0, dtype=np.intp)
-    span = np.arange(-r, r + 1)
-    offsets = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)
-    offsets = offsets[(np.sum(offsets**2, axis=1) <= radius * radius) & np.any(offsets != 0, axis=1)]
+    offsets = _ball(radius)
     dims = np.asarray(shape)
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     idx = np.column_stack(np.unravel_index(cells, shape))
@@ -296,6 +314,8 @@ class OMPLReplanController(Controller):
         self.reach_q = np.zeros((0, len(q)))  # those configurations
         self.verified: np.ndarray | None = None  # depth: the cells (flat, bool) the path's rest was checked clear of
         self.scan_clear = -math.inf  # safe mode: [s] along the path up to which the scans found only allowed cells
+        self.stretch: tuple[float, np.ndarray] | None = None  # safe mode: a look's start [s], its cells
+        self.occupied_mask: np.ndarray | None = None  # depth: the frame's occupied cells (bool, grid shape)
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
         self.occupied: np.ndarray | None = None  # depth: the frame's occupied cells (flat indices)
         self.body: ArmBody | None = None
@@ -365,7 +385,8 @@ class OMPLReplanController(Controller):
             return
         grid = obs.grid
         self._geometry(grid)
-        self.occupied = np.flatnonzero(grid.data >= 0.5)
+        self.occupied_mask = grid.data >= 0.5
+        self.occupied = np.flatnonzero(self.occupied_mask)
         before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
             return
@@ -386,7 +407,7 @@ class OMPLReplanController(Controller):
         and, in safe mode, where it started."""
         if not self.arm.fit(grid):
             return
-        self.reach = None  # another grid: its cells are not those checked
+        self.reach, self.stretch = None, None  # another grid: its cells are not those checked
         self.body = self.arm.body
         self.near_goal = self.arm.near_goal
         goal_q = self.task.goal.q
@@ -567,13 +588,16 @@ class OMPLReplanController(Controller):
     def _go_through(self, block: float) -> None:
         """Let the arm into the unknown cells its body fills over ``scan_horizon`` from ``block``
         [s] along the path (``forced``: the only way on goes through space no frame has seen)."""
-        assert self.body is not None and self.allowed is not None
-        mark = np.zeros(self.body.shape, dtype=bool)
-        for _, x in self._samples(block, block + self.config.scan_horizon):
-            self.body.mark(mark, x)
+        assert self.body is not None and self.allowed is not None and self.occupied_mask is not None
+        if self.stretch is None or self.stretch[0] != block:  # the body's cells from there, kept per path
+            mark = np.zeros(self.body.shape, dtype=bool)
+            for _, x in self._samples(block, block + self.config.scan_horizon):
+                self.body.mark(mark, x)
+            self.stretch = (block, np.flatnonzero(mark))
         flat = self.allowed.reshape(-1)
-        cells = np.flatnonzero(mark.reshape(-1) & ~flat)
-        cells = cells[~np.isin(cells, self._hidden())]  # never the unseen rest of a seen surface
+        cells = self.stretch[1][~flat[self.stretch[1]]]
+        res = self.observation.grid.resolution  # type: ignore[union-attr]
+        cells = cells[~_near_any(cells, self.occupied_mask, self._margin() / res)]  # never the unseen rest of a surface
         if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
             self.stats["stuck"] += 1
             if self.config.dead_end == "replan":
@@ -748,6 +772,7 @@ class OMPLReplanController(Controller):
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
         self.reach = None  # the next frame checks the new path against every cell
         self.scan_clear = -math.inf
+        self.stretch = None
         self.tau, self.tau_limit, self.looks, self.t_follow = 0.0, math.inf, 0, None
         self._limit(0.0)
 
