@@ -142,3 +142,11 @@ def test_hand_only_maps_the_last_joints_points_and_contact_keeps_the_larger_push
     both = contact.map(F, np.empty_like(F))
     assert np.allclose(both[:, 2], np.maximum(F[:, 2], mapped[:, 2]))
     assert both[0, 2] == pytest.approx(0.1) and both[2, 2] > 1.0  # linear far out, Khatib's close in
+
+
+def test_the_controller_refuses_the_planners_push_setting():
+    from planbench_plugins.controllers import MatrixFieldController
+
+    with pytest.raises(InvalidConfigError, match="field_push"):
+        MatrixFieldController(field_push="khatib")
+    assert MatrixFieldController().config.field_push == "linear"
