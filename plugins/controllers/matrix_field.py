@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from planbench.errors import InvalidConfigError
 from planbench.field.full import full_field
 from planbench.field.kernels import Kernels, KernelSpec
 from planbench.field.scene_field import FieldRepulsion, standoff_gain
@@ -89,6 +90,11 @@ class MatrixFieldControllerConfig(MatrixFieldConfig, UnknownSettings, Prediction
         super().validate()
         self.validate_unknown()
         self.validate_prediction()
+        if self.field_push != "linear":  # the planner's setting only (issue 32: measured there, not kept)
+            raise InvalidConfigError(
+                f"field_push {self.field_push!r} is a setting of the matrix-field planner; the controller "
+                'pushes with the field as specified ("linear")'
+            )
 
 
 class GridField:

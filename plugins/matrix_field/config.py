@@ -15,9 +15,10 @@ from planbench.errors import InvalidConfigError
 from planbench.field.scene_field import FIELD_MODES, FieldSettings
 from planbench_plugins.ik_loop import IKLoopConfig, check_number
 
-__all__ = ["MatrixFieldConfig", "FIELD_KINDS", "FIELD_MODES"]
+__all__ = ["MatrixFieldConfig", "FIELD_KINDS", "FIELD_MODES", "FIELD_PUSHES"]
 
 FIELD_KINDS = ("matrix", "calibrated")
+FIELD_PUSHES = ("linear", "khatib", "khatib-hand", "contact")
 
 
 @dataclass(frozen=True)
@@ -47,17 +48,25 @@ class MatrixFieldConfig(FieldSettings, IKLoopConfig):
     """``field_kind="calibrated"``: the Gaussian's standard deviation [m]: the distance is exact at
     a flat face, up to ``0.67 sigma`` too large at a convex edge and ``1.15 sigma`` at a corner."""
     distance_floor: float = 0.01
-    """``field_kind="calibrated"``: the distance is floored here [m] so that the push stays finite
-    in contact (``edt-field``'s setting)."""
+    """``field_kind="calibrated"`` and ``field_push="khatib"``: the distance is floored here [m] so
+    that the push stays finite in contact (``edt-field``'s setting)."""
+    field_push: str = "linear"
+    """``field_kind="matrix"``: ``"linear"``, the push ``k_rep F`` (the method as specified);
+    ``"khatib"``, the same direction with the magnitude of Khatib's profile at the distance of a
+    flat wall giving that field (:mod:`planbench_plugins.matrix_field.wall_push`); ``"khatib-hand"``,
+    that only at the points the arm's last joint carries (the hand and fingers); ``"contact"``, the
+    larger of the two magnitudes (linear beyond the stand-off at a flat wall, Khatib's inside it)."""
 
     def validate(self) -> None:
         IKLoopConfig.validate(self)
         self.validate_field()
         if self.field_kind not in FIELD_KINDS:
             raise InvalidConfigError(f"field_kind must be one of {FIELD_KINDS}, got {self.field_kind!r}")
+        if self.field_push not in FIELD_PUSHES:
+            raise InvalidConfigError(f"field_push must be one of {FIELD_PUSHES}, got {self.field_push!r}")
         for name in ("field_sigma", "distance_floor"):
             check_number(self, name, lambda v: v > 0, "finite and > 0")
-        if self.field_kind == "calibrated" and self.distance_floor >= self.standoff:
+        if (self.field_kind == "calibrated" or self.field_push != "linear") and self.distance_floor >= self.standoff:
             raise InvalidConfigError(
                 f"distance_floor {self.distance_floor} m must be below standoff {self.standoff} m "
                 "(it only keeps the push finite at contact); use e.g. 0.01"

@@ -16,6 +16,7 @@ from planbench.problem import Problem
 from planbench_plugins.ik_loop import ControlPoints, IKLoopPlanner, Repulsion, ZeroRepulsion
 from planbench_plugins.matrix_field.calibrated import CalibratedRepulsion, calibrated_repulsion
 from planbench_plugins.matrix_field.config import MatrixFieldConfig
+from planbench_plugins.matrix_field.wall_push import WallKhatibRepulsion, wall_khatib
 
 __all__ = ["MatrixFieldPlanner"]
 
@@ -55,12 +56,15 @@ class MatrixFieldPlanner(IKLoopPlanner):
         """Voxelize the scene, build the kernels and (full mode) the whole field; derive the gain."""
         if self.config.field_kind == "calibrated":
             return calibrated_repulsion(problem, self.config) or ZeroRepulsion()
-        return scene_repulsion(problem, self.config) or ZeroRepulsion()
+        rep = scene_repulsion(problem, self.config)
+        if rep is None:
+            return ZeroRepulsion()
+        return wall_khatib(rep, self.config) if self.config.field_push != "linear" else rep
 
     def field_at(self, points: np.ndarray) -> np.ndarray:
         """Field (N, 3) at world points [m] for the prepared problem (zeros without obstacles)."""
         rep = self.stepper.repulsion
         rep = getattr(rep, "inner", rep)  # under the self-collision push
-        if not isinstance(rep, (FieldRepulsion, CalibratedRepulsion)):
+        if not isinstance(rep, (FieldRepulsion, CalibratedRepulsion, WallKhatibRepulsion)):
             return np.zeros((len(points), 3))
         return rep.field_at(points)
