@@ -201,7 +201,8 @@ def test_depth_frames_after_the_first_check_only_new_cells_and_still_see_an_obst
 def test_the_boxes_around_the_links_hold_every_cell_the_arm_touches(free_task):
     """``LinkBoxes``: a cell that coal finds touching the arm at a configuration lies in the mask
     of the path's cells and its (configuration, object) pair is among those ``touching`` gives, so
-    ruling cells and configurations out by the boxes never misses a collision."""
+    ruling cells and configurations out by the boxes never misses a collision; ``touches`` answers
+    as a checker of the cells does."""
     from planbench_plugins.controllers.observed import LinkBoxes
     from planbench_plugins.ompl_planners import cells_checker
 
@@ -224,7 +225,11 @@ def test_the_boxes_around_the_links_hold_every_cell_the_arm_touches(free_task):
             if np.any(idx < 0) or np.any(idx >= grid.shape):
                 continue
             cell = np.array([np.ravel_multi_index(tuple(idx), grid.shape)])
-            if not cells_checker(robot, grid, cell).in_collision_all_pairs(q):
+            mask = np.zeros(grid.shape, dtype=bool)
+            mask.flat[cell] = True
+            touching = cells_checker(robot, grid, cell).in_collision_all_pairs(q)
+            assert LinkBoxes(robot).touches(q, mask, grid) == touching  # the same answer as coal's
+            if not touching:
                 continue
             found += 1
             assert reach.near(cell).size == 1

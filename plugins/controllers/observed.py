@@ -115,6 +115,28 @@ class LinkBoxes:
         world = np.einsum("gij,gkj->gki", h[:, :3, :3], self.corners) + h[:, None, :3, 3]
         return world.min(axis=1), world.max(axis=1)
 
+    def touches(self, q: np.ndarray, occupied: np.ndarray, grid: OccupancyGrid) -> bool:
+        """Whether the arm at ``q`` [rad] touches one of the cells ``occupied`` (bool, ``grid``'s
+        shape) marks: coal's exact test of each object against the cells its box (grown by a
+        cell) overlaps, as an octree; the arm with itself is not asked."""
+        h = self.placements(q)
+        lower, upper = self.boxes(h)
+        res = grid.resolution
+        shape = np.asarray(grid.shape)
+        first = np.clip(np.floor((lower - grid.origin) / res).astype(int) - 1, 0, shape)
+        last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape)
+        request = coal.CollisionRequest()
+        at = coal.Transform3s(np.eye(3), np.asarray(grid.origin, dtype=float))
+        for g, (a, b) in enumerate(zip(first, last, strict=True)):
+            idx = np.argwhere(occupied[a[0] : b[0], a[1] : b[1], a[2] : b[2]])
+            if not len(idx):
+                continue
+            octree = coal.makeOctree((idx + a + 0.5) * res, res)
+            place = coal.Transform3s(h[g, :3, :3], h[g, :3, 3])
+            if coal.collide(self.geometries[g], place, octree, at, request, coal.CollisionResult()):
+                return True
+        return False
+
     def along(self, configurations: np.ndarray, grid: OccupancyGrid) -> PathBoxes:
         """The boxes at each of ``configurations`` (n, nq) [rad], and the cells of ``grid`` they
         overlap (a cell more on every side: a cell that only touches a face)."""

@@ -436,10 +436,11 @@ class OMPLReplanController(Controller):
         return self._cells_and_checker(cells, q, swept)[1]
 
     def _cells_and_checker(
-        self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None
+        self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None, touched: bool | None = None
     ) -> tuple[np.ndarray, CollisionChecker]:
-        """:meth:`_cells_checker`, and the cells (flat indices) its checker holds."""
-        checker, kept = self._kept(cells, q)
+        """:meth:`_cells_checker`, and the cells (flat indices) its checker holds; ``touched``:
+        whether the arm touches the frame's cells, when ``cells`` are only some of them."""
+        checker, kept = self._kept(cells, q, touched)
         if swept is None or not len(swept):
             return (cells, checker) if kept is None else (kept, self._checker_of(kept))
         assert self.near_goal is not None
@@ -447,18 +448,25 @@ class OMPLReplanController(Controller):
         held = np.union1d(cells if kept is None else kept, swept[~np.isin(swept, near)])
         return held, self._checker_of(held)
 
-    def _kept(self, cells: np.ndarray, q: np.ndarray) -> tuple[CollisionChecker, np.ndarray | None]:
+    def _kept(
+        self, cells: np.ndarray, q: np.ndarray, touched: bool | None = None
+    ) -> tuple[CollisionChecker, np.ndarray | None]:
         """A checker of the cells (flat indices), and the cells less those within a cell of the
         arm at ``q`` and at the goal when the arm touches them there (counted in ``dropped``; None
-        when it touches none)."""
+        when it touches none). ``touched`` given: whether it touches the frame's occupied cells
+        (``cells`` being some of them)."""
         checker = self._checker_of(cells)
         goal_q = self.task.goal.q
-        touched = checker.in_collision(q) or (goal_q is not None and checker.in_collision(np.asarray(goal_q)))
+        every = cells  # where an obstacle on the goal is looked for
+        if touched is None:
+            touched = checker.in_collision(q) or (goal_q is not None and checker.in_collision(np.asarray(goal_q)))
+        elif self.occupied is not None:
+            every = self.occupied  # ``cells`` are some of the frame's: all of them
         if not touched:
             return checker, None
         assert self.near_goal is not None
         near_goal = self.near_goal
-        on_goal = cells[np.isin(cells, self.arm.at_goal)] if self.config.goal_obstacles == "wait" else cells[:0]
+        on_goal = every[np.isin(every, self.arm.at_goal)] if self.config.goal_obstacles == "wait" else cells[:0]
         if len(on_goal) > _CONTACT_CELLS:  # an obstacle on the goal: planned around, waited out
             near_goal = near_goal[~np.isin(near_goal, on_goal)]
             self.stats["goal_blocked"] += 1
@@ -543,7 +551,7 @@ class OMPLReplanController(Controller):
         near_cells, near_swept = self.reach.near(cells), self.reach.near(swept)
         held = np.zeros(0, dtype=np.intp)
         if len(near_cells) or len(near_swept):
-            held, _ = self._cells_and_checker(near_cells, q, near_swept)
+            held, _ = self._cells_and_checker(near_cells, q, near_swept, self._touches(q))
             if len(held):
                 rows, objects = self.reach.touching(held)
                 rest = self.reach_times[rows] >= self.tau - 1e-9  # the rest only
@@ -556,6 +564,16 @@ class OMPLReplanController(Controller):
         self.verified[near_swept] = False
         self.verified[held] = True
         return False
+
+    def _touches(self, q: np.ndarray) -> bool:
+        """Depth: whether the arm at ``q`` or at the goal touches the frame's occupied cells (the
+        question :meth:`_kept` asks of its cells, asked of all of them without an octree of all)."""
+        obs = self.observation
+        assert obs is not None and self.occupied_mask is not None
+        goal_q = self.task.goal.q
+        return self.link_boxes.touches(q, self.occupied_mask, obs.grid) or (
+            goal_q is not None and self.link_boxes.touches(np.asarray(goal_q), self.occupied_mask, obs.grid)
+        )
 
     def _obstacle_cells(self) -> tuple[np.ndarray, np.ndarray]:
         """Depth: the frame's occupied cells, and the swept ones (``prediction``) that are not
