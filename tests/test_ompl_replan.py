@@ -180,7 +180,7 @@ def test_depth_frames_after_the_first_check_only_new_cells_and_still_see_an_obst
             c.update(_depth(static, 0.01 * k, k // 3))
         q = q + 0.01 * c.step(0.01 * k, q, None, free_task.goal)
     info = c.info()
-    assert info["plans"] == 1 and info["invalidated"] == 0 and c.verified is not None and c.verified.any()
+    assert info["plans"] == 1 and info["invalidated"] == 0 and c.reach is not None  # the path's boxes: built
     first = c.path.copy()
     mid = first[len(first) // 2] if len(first) > 2 else 0.5 * (q + first[-1])
     hand = robot.frame_pose(mid).translation
@@ -225,10 +225,10 @@ def test_the_boxes_around_the_links_hold_every_cell_the_arm_touches(free_task):
             if np.any(idx < 0) or np.any(idx >= grid.shape):
                 continue
             cell = np.array([np.ravel_multi_index(tuple(idx), grid.shape)])
-            mask = np.zeros(grid.shape, dtype=bool)
-            mask.flat[cell] = True
+            data = np.zeros(grid.shape)
+            data.flat[cell] = 1.0
             touching = cells_checker(robot, grid, cell).in_collision_all_pairs(q)
-            assert LinkBoxes(robot).touches(q, mask, grid) == touching  # the same answer as coal's
+            assert LinkBoxes(robot).touches(q, OccupancyGrid(data, grid.origin, grid.resolution)) == touching
             if not touching:
                 continue
             found += 1

@@ -115,10 +115,10 @@ class LinkBoxes:
         world = np.einsum("gij,gkj->gki", h[:, :3, :3], self.corners) + h[:, None, :3, 3]
         return world.min(axis=1), world.max(axis=1)
 
-    def touches(self, q: np.ndarray, occupied: np.ndarray, grid: OccupancyGrid) -> bool:
-        """Whether the arm at ``q`` [rad] touches one of the cells ``occupied`` (bool, ``grid``'s
-        shape) marks: coal's exact test of each object against the cells its box (grown by a
-        cell) overlaps, as an octree; the arm with itself is not asked."""
+    def touches(self, q: np.ndarray, grid: OccupancyGrid) -> bool:
+        """Whether the arm at ``q`` [rad] touches one of the occupied cells of ``grid`` (data >=
+        0.5): coal's exact test of each object against the cells its box (grown by a cell)
+        overlaps, as an octree; the arm with itself is not asked."""
         h = self.placements(q)
         lower, upper = self.boxes(h)
         res = grid.resolution
@@ -128,7 +128,7 @@ class LinkBoxes:
         request = coal.CollisionRequest()
         at = coal.Transform3s(np.eye(3), np.asarray(grid.origin, dtype=float))
         for g, (a, b) in enumerate(zip(first, last, strict=True)):
-            idx = np.argwhere(occupied[a[0] : b[0], a[1] : b[1], a[2] : b[2]])
+            idx = np.argwhere(grid.data[a[0] : b[0], a[1] : b[1], a[2] : b[2]] >= 0.5)
             if not len(idx):
                 continue
             octree = coal.makeOctree((idx + a + 0.5) * res, res)
@@ -153,7 +153,8 @@ class LinkBoxes:
         last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape).reshape(-1, 3)
         for a, b in zip(first, last, strict=True):
             mask[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = True
-        return PathBoxes(lower - res, upper + res, mask, grid.origin.copy(), res, placements, self.geometries)
+        region = (first.min(axis=0), last.max(axis=0)) if n else (np.zeros(3, int), np.zeros(3, int))
+        return PathBoxes(lower - res, upper + res, mask, region, grid.origin.copy(), res, placements, self.geometries)
 
 
 class PathBoxes:
@@ -165,6 +166,7 @@ class PathBoxes:
         lower: np.ndarray,
         upper: np.ndarray,
         mask: np.ndarray,
+        region: tuple[np.ndarray, np.ndarray],
         origin: np.ndarray,
         resolution: float,
         placements: np.ndarray,
@@ -172,9 +174,18 @@ class PathBoxes:
     ) -> None:
         self.lower, self.upper = lower, upper  # (configurations, objects, 3) [m]
         self.mask = mask  # bool, the grid's shape
+        self.region = tuple(slice(int(a), int(b)) for a, b in zip(*region, strict=True))  # the mask's bounds
         self.origin, self.resolution = origin, resolution
         self.placements = placements  # (configurations, objects, 4, 4)
         self.geometries = geometries  # the objects' coal geometries
+
+    def fresh(self, grid: OccupancyGrid, checked: np.ndarray) -> np.ndarray:
+        """Flat indices of the occupied cells of ``grid`` (data >= 0.5) inside the mask and not
+        ``checked`` (bool, flat): read in the mask's bounds only, not the whole grid."""
+        r = self.region
+        sub = (grid.data[r] >= 0.5) & self.mask[r] & ~checked.reshape(self.mask.shape)[r]
+        idx = np.argwhere(sub) + np.array([x.start for x in r])
+        return np.ravel_multi_index(tuple(idx.T), self.mask.shape).astype(np.intp)
 
     def near(self, cells: np.ndarray) -> np.ndarray:
         """Of the flat indices ``cells``, those inside the mask (cells a box may touch)."""

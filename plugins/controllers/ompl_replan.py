@@ -226,15 +226,16 @@ def _ball(radius: float) -> np.ndarray:
     return offsets[(np.sum(offsets**2, axis=1) <= radius * radius) & np.any(offsets != 0, axis=1)]
 
 
-def _near_any(cells: np.ndarray, mask: np.ndarray, radius: float) -> np.ndarray:
-    """For each of ``cells`` (flat indices into ``mask``'s grid), whether a cell of ``mask``
-    (bool) lies within ``radius`` cells of it: :func:`_next_to` asked of a few cells."""
+def _near_any(cells: np.ndarray, occupancy: np.ndarray, radius: float) -> np.ndarray:
+    """For each of ``cells`` (flat indices into the grid of ``occupancy``), whether an occupied
+    cell (``occupancy`` >= 0.5) lies within ``radius`` cells of it: :func:`_next_to` asked of a
+    few cells."""
     if not len(cells) or radius < 1:
         return np.zeros(len(cells), dtype=bool)
-    idx = np.column_stack(np.unravel_index(cells, mask.shape))[:, None, :] + _ball(radius)[None, :, :]
-    inside = np.all((idx >= 0) & (idx < np.asarray(mask.shape)), axis=-1)
+    idx = np.column_stack(np.unravel_index(cells, occupancy.shape))[:, None, :] + _ball(radius)[None, :, :]
+    inside = np.all((idx >= 0) & (idx < np.asarray(occupancy.shape)), axis=-1)
     hit = np.zeros(inside.shape, dtype=bool)
-    hit[inside] = mask[tuple(idx[inside].T)]
+    hit[inside] = occupancy[tuple(idx[inside].T)] >= 0.5
     return np.asarray(hit.any(axis=1), dtype=bool)
 
 
@@ -315,9 +316,8 @@ class OMPLReplanController(Controller):
         self.verified: np.ndarray | None = None  # depth: the cells (flat, bool) the path's rest was checked clear of
         self.scan_clear = -math.inf  # safe mode: [s] along the path up to which the scans found only allowed cells
         self.stretch: tuple[float, np.ndarray] | None = None  # safe mode: a look's start [s], its cells
-        self.occupied_mask: np.ndarray | None = None  # depth: the frame's occupied cells (bool, grid shape)
+        self.occupied_cells: np.ndarray | None = None  # depth: the frame's occupied cells, once asked (``occupied``)
         self.scene: Scene | None = None  # truth: the frame's scene, less what the arm touches
-        self.occupied: np.ndarray | None = None  # depth: the frame's occupied cells (flat indices)
         self.body: ArmBody | None = None
         self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
@@ -385,8 +385,7 @@ class OMPLReplanController(Controller):
             return
         grid = obs.grid
         self._geometry(grid)
-        self.occupied_mask = grid.data >= 0.5
-        self.occupied = np.flatnonzero(self.occupied_mask)
+        self.occupied_cells = None  # found when first asked: a frame whose check reads only the path's cells never does
         before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
             return
@@ -457,15 +456,15 @@ class OMPLReplanController(Controller):
         (``cells`` being some of them)."""
         checker = self._checker_of(cells)
         goal_q = self.task.goal.q
-        every = cells  # where an obstacle on the goal is looked for
+        some = touched is not None  # ``cells`` are some of the frame's
         if touched is None:
             touched = checker.in_collision(q) or (goal_q is not None and checker.in_collision(np.asarray(goal_q)))
-        elif self.occupied is not None:
-            every = self.occupied  # ``cells`` are some of the frame's: all of them
         if not touched:
             return checker, None
         assert self.near_goal is not None
         near_goal = self.near_goal
+        every = self.occupied if some and self.config.goal_obstacles == "wait" else cells
+        assert every is not None
         on_goal = every[np.isin(every, self.arm.at_goal)] if self.config.goal_obstacles == "wait" else cells[:0]
         if len(on_goal) > _CONTACT_CELLS:  # an obstacle on the goal: planned around, waited out
             near_goal = near_goal[~np.isin(near_goal, on_goal)]
@@ -547,40 +546,40 @@ class OMPLReplanController(Controller):
             self.reach = self.link_boxes.along(self.reach_q, obs.grid)
             self.verified = np.zeros(obs.grid.data.size, dtype=bool)
         assert self.verified is not None
-        cells, swept = (c[~self.verified[c]] for c in self._obstacle_cells())
-        near_cells, near_swept = self.reach.near(cells), self.reach.near(swept)
-        held = np.zeros(0, dtype=np.intp)
-        if len(near_cells) or len(near_swept):
-            held, _ = self._cells_and_checker(near_cells, q, near_swept, self._touches(q))
-            if len(held):
-                rows, objects = self.reach.touching(held)
-                rest = self.reach_times[rows] >= self.tau - 1e-9  # the rest only
-                self.stats["rest_checks"] += int(np.count_nonzero(rest))
-                if self.reach.collides(held, rows[rest], objects[rest]):
-                    return True
-        self.verified[cells] = True
-        self.verified[swept] = True
-        self.verified[near_cells] = False  # not the cells dropped next to the arm: checked again
-        self.verified[near_swept] = False
-        self.verified[held] = True
+        cells = self.reach.fresh(obs.grid, self.verified)  # occupied, in the boxes, not yet checked
+        swept = self.predicted
+        if len(swept):  # swept, not occupied, in the boxes, not yet checked
+            swept = swept[~self.verified[swept] & (obs.grid.data.reshape(-1)[swept] < 0.5)]
+            swept = self.reach.near(swept)
+        if not len(cells) and not len(swept):
+            return False
+        held, _ = self._cells_and_checker(cells, q, swept, self._touches(q))
+        if len(held):
+            rows, objects = self.reach.touching(held)
+            rest = self.reach_times[rows] >= self.tau - 1e-9  # the rest only
+            self.stats["rest_checks"] += int(np.count_nonzero(rest))
+            if self.reach.collides(held, rows[rest], objects[rest]):
+                return True
+        self.verified[held] = True  # not the cells dropped next to the arm: checked again
         return False
 
     def _touches(self, q: np.ndarray) -> bool:
         """Depth: whether the arm at ``q`` or at the goal touches the frame's occupied cells (the
         question :meth:`_kept` asks of its cells, asked of all of them without an octree of all)."""
         obs = self.observation
-        assert obs is not None and self.occupied_mask is not None
+        assert obs is not None
         goal_q = self.task.goal.q
-        return self.link_boxes.touches(q, self.occupied_mask, obs.grid) or (
-            goal_q is not None and self.link_boxes.touches(np.asarray(goal_q), self.occupied_mask, obs.grid)
+        return self.link_boxes.touches(q, obs.grid) or (
+            goal_q is not None and self.link_boxes.touches(np.asarray(goal_q), obs.grid)
         )
 
-    def _obstacle_cells(self) -> tuple[np.ndarray, np.ndarray]:
-        """Depth: the frame's occupied cells, and the swept ones (``prediction``) that are not
-        occupied (flat indices, each sorted and unique)."""
-        assert self.occupied is not None
-        swept = np.setdiff1d(self.predicted, self.occupied) if len(self.predicted) else self.predicted
-        return self.occupied, swept
+    @property
+    def occupied(self) -> np.ndarray | None:
+        """Depth: the frame's occupied cells (flat indices), found on first use in a frame."""
+        obs = self.observation
+        if self.occupied_cells is None and obs is not None and obs.scene is None:
+            self.occupied_cells = np.flatnonzero(obs.grid.data >= 0.5)
+        return self.occupied_cells
 
     def _check_rest(self, q: np.ndarray) -> None:
         """On a new frame: drop the path if its rest collides with the frame's obstacles; in safe
@@ -606,7 +605,7 @@ class OMPLReplanController(Controller):
     def _go_through(self, block: float) -> None:
         """Let the arm into the unknown cells its body fills over ``scan_horizon`` from ``block``
         [s] along the path (``forced``: the only way on goes through space no frame has seen)."""
-        assert self.body is not None and self.allowed is not None and self.occupied_mask is not None
+        assert self.body is not None and self.allowed is not None and self.observation is not None
         if self.stretch is None or self.stretch[0] != block:  # the body's cells from there, kept per path
             mark = np.zeros(self.body.shape, dtype=bool)
             for _, x in self._samples(block, block + self.config.scan_horizon):
@@ -614,8 +613,8 @@ class OMPLReplanController(Controller):
             self.stretch = (block, np.flatnonzero(mark))
         flat = self.allowed.reshape(-1)
         cells = self.stretch[1][~flat[self.stretch[1]]]
-        res = self.observation.grid.resolution  # type: ignore[union-attr]
-        cells = cells[~_near_any(cells, self.occupied_mask, self._margin() / res)]  # never the unseen rest of a surface
+        grid = self.observation.grid
+        cells = cells[~_near_any(cells, grid.data, self._margin() / grid.resolution)]  # never a hidden surface
         if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
             self.stats["stuck"] += 1
             if self.config.dead_end == "replan":
