@@ -380,18 +380,25 @@ class OutputFile:
         with contextlib.suppress(OSError):
             os.truncate(self.path, 0)
 
-    def bound(self) -> None:
+    def bound(self, group: int | None = None) -> None:
         """Cut the file back to its last :data:`OUTPUT_KEEP_BYTES` once it passes :data:`OUTPUT_MAX_BYTES`.
 
-        The worker writes with ``O_APPEND``, so its next write lands at the new end; what it writes
-        while the tail is copied may be lost, which is acceptable for output that is being cut.
+        The worker writes with ``O_APPEND``, so its next write lands at the new end. What it wrote
+        between the copy of the tail and the cut would be lost (a flooding planner's last words,
+        under load), so with ``group`` (the worker's process group) the group is stopped for the
+        cut (``SIGSTOP``, then ``SIGCONT``): only a planner that has printed more than
+        :data:`OUTPUT_MAX_BYTES` pauses, for the milliseconds of the copy.
         """
         try:
-            size = os.stat(self.path).st_size
-            if size <= OUTPUT_MAX_BYTES:
+            if os.stat(self.path).st_size <= OUTPUT_MAX_BYTES:
                 return
+        except OSError:
+            return
+        stopped = group is not None and _stop_group(group)
+        try:
+            size = os.stat(self.path).st_size
             with open(self.path, "r+b") as f:
-                f.seek(size - OUTPUT_KEEP_BYTES)
+                f.seek(max(0, size - OUTPUT_KEEP_BYTES))
                 tail = f.read(OUTPUT_KEEP_BYTES)
                 f.seek(0)
                 f.truncate(0)
@@ -399,6 +406,10 @@ class OutputFile:
             self.dropped += size - len(tail)
         except OSError:
             pass
+        finally:
+            if stopped:
+                with contextlib.suppress(OSError):
+                    os.killpg(group, signal.SIGCONT)  # type: ignore[arg-type]
 
     def tail(self, limit: int = TAIL_BYTES) -> str:
         """The last ``limit`` bytes as text, with a note of how much came before ("" when empty)."""
@@ -414,6 +425,26 @@ class OutputFile:
         before = self.dropped + max(0, size - limit)
         text = data.decode("utf-8", errors="replace").replace("\x00", "\\x00")
         return (f"[... {before} bytes before this]\n" if before else "") + text
+
+
+def _stop_group(group: int, wait: float = 0.5) -> bool:
+    """Stop the process group ``group`` (``SIGSTOP``) and wait up to ``wait`` [s] until its leader
+    is stopped (a write in progress completes first); False if it could not be signalled."""
+    try:
+        os.killpg(group, signal.SIGSTOP)
+    except OSError:
+        return False
+    end = time.monotonic() + wait
+    while time.monotonic() < end:
+        try:
+            with open(f"/proc/{group}/stat", "rb") as f:
+                state = f.read().rsplit(b")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            break  # no /proc (not Linux) or gone: cut as before
+        if state in (b"T", b"t", b"Z", b"X"):
+            break
+        time.sleep(0.0005)
+    return True
 
 
 @contextlib.contextmanager

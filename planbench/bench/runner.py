@@ -396,7 +396,7 @@ class Runner:
 
     def _service(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         """Everything one slot needs after a wait: messages, deadlines, dead processes."""
-        slot.worker.output.bound()
+        slot.worker.output.bound(slot.worker.proc.pid)  # its own session: the group is its pid
         finished = self._drain_worker(slot) or self._drain_validator(slot)
         if finished is not None:
             self._finish(slot, finished, on_record)
