@@ -227,6 +227,14 @@ class _Slot:
         return kind_of(self.task.kind)
 
 
+def _pid(child: _Child) -> int | None:
+    """The child's pid, None once its process object is closed."""
+    try:
+        return child.proc.pid  # type: ignore[no-any-return]
+    except ValueError:  # closed
+        return None
+
+
 class _ChildFailed(Exception):
     """A child's message could not be read (too long, stalled, malformed); the child is killed."""
 
@@ -396,7 +404,7 @@ class Runner:
 
     def _service(self, slot: _Slot, on_record: Callable[[RunTask, Record], None], more: bool) -> None:
         """Everything one slot needs after a wait: messages, deadlines, dead processes."""
-        slot.worker.output.bound(slot.worker.proc.pid)  # its own session: the group is its pid
+        slot.worker.output.bound(_pid(slot.worker))  # its own session: the group is its pid
         finished = self._drain_worker(slot) or self._drain_validator(slot)
         if finished is not None:
             self._finish(slot, finished, on_record)
