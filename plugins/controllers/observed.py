@@ -122,9 +122,7 @@ class LinkBoxes:
         h = self.placements(q)
         lower, upper = self.boxes(h)
         res = grid.resolution
-        shape = np.asarray(grid.shape)
-        first = np.clip(np.floor((lower - grid.origin) / res).astype(int) - 1, 0, shape)
-        last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape)
+        first, last = _cell_span(lower, upper, grid)
         request = coal.CollisionRequest()
         at = coal.Transform3s(np.eye(3), np.asarray(grid.origin, dtype=float))
         for g, (a, b) in enumerate(zip(first, last, strict=True)):
@@ -147,14 +145,21 @@ class LinkBoxes:
             placements[i] = self.placements(q)
             lower[i], upper[i] = self.boxes(placements[i])
         mask = np.zeros(grid.shape, dtype=bool)
-        shape = np.asarray(grid.shape)
         res = grid.resolution
-        first = np.clip(np.floor((lower - grid.origin) / res).astype(int) - 1, 0, shape).reshape(-1, 3)
-        last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape).reshape(-1, 3)
+        first, last = (x.reshape(-1, 3) for x in _cell_span(lower, upper, grid))
         for a, b in zip(first, last, strict=True):
             mask[a[0] : b[0], a[1] : b[1], a[2] : b[2]] = True
         region = (first.min(axis=0), last.max(axis=0)) if n else (np.zeros(3, int), np.zeros(3, int))
         return PathBoxes(lower - res, upper + res, mask, region, grid.origin.copy(), res, placements, self.geometries)
+
+
+def _cell_span(lower: np.ndarray, upper: np.ndarray, grid: OccupancyGrid) -> tuple[np.ndarray, np.ndarray]:
+    """The first and one-past-last cell indices (..., 3) of ``grid`` that boxes with corners
+    ``lower`` and ``upper`` [m] overlap, a cell more on every side, clipped to the grid."""
+    shape, res = np.asarray(grid.shape), grid.resolution
+    first = np.clip(np.floor((lower - grid.origin) / res).astype(int) - 1, 0, shape)
+    last = np.clip(np.floor((upper - grid.origin) / res).astype(int) + 2, 0, shape)
+    return first, last
 
 
 class PathBoxes:
