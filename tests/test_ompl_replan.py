@@ -100,6 +100,47 @@ def test_an_obstacle_standing_on_the_goal_is_waited_out_not_driven_into(free_tas
     assert np.allclose(q, goal_q, atol=1e-3), c.info()
 
 
+def test_an_obstacle_that_appears_on_the_goal_blocks_it_and_one_seen_from_the_start_does_not(free_task):
+    """Depth, ``goal_obstacles = "appeared"``: a box that arrives on the goal after frames saw it
+    free is waited out (no plan goes there, the arm never moves into it, the failed plans do not
+    relax the surface margin) and the arm reaches the goal once it leaves; a box that stands there
+    from the first frame is the static scene the goal touches, left out of plans, so the arm drives
+    to the goal."""
+    robot, goal_q = free_task.robot, np.asarray(free_task.goal.q)
+    empty = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    hand = robot.frame_pose(goal_q, free_task.goal.pose.frame).translation
+    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.1, 0.1, 0.1)),))
+    blocked = OccupancyGrid.from_scene(box, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
+    checker = CollisionChecker(robot, box)
+    vmax = np.asarray(robot.velocity_limit)
+
+    def run(frames, ticks, c, q):
+        """The configurations of ``ticks`` ticks from ``q``, a frame of ``frames(k)`` every 3."""
+        qs = []
+        for k in ticks:
+            if k % 3 == 0:
+                c.update(_depth(frames(k), 0.01 * k, k // 3))
+            q = q + 0.01 * np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
+            qs.append(q)
+        return qs
+
+    c = make_controller("ompl-replan", goal_obstacles="appeared")
+    c.setup(free_task)
+    c.reset(np.array(free_task.start, dtype=float), np.random.default_rng(0))
+    qs = run(lambda k: empty if k < 3 else blocked, range(300), c, np.array(free_task.start, dtype=float))
+    assert not any(checker.in_collision(x) for x in qs)  # the box arrived at 30 ms: never driven into
+    info = c.info()
+    assert info["goal_blocked"] > 0 and info["plans"] > 1 and info["relaxed"] == 0
+    q = run(lambda k: empty, range(300, 900), c, qs[-1])[-1]  # the box has left
+    assert np.allclose(q, goal_q, atol=1e-3), c.info()
+
+    static = make_controller("ompl-replan", goal_obstacles="appeared")
+    static.setup(free_task)
+    static.reset(np.array(free_task.start, dtype=float), np.random.default_rng(0))
+    q = run(lambda k: blocked, range(600), static, np.array(free_task.start, dtype=float))[-1]
+    assert np.allclose(q, goal_q, atol=1e-3) and static.info()["goal_blocked"] == 0
+
+
 def _box_frame(grid: OccupancyGrid, points: np.ndarray, t: float, frame: int) -> Observation:
     """A depth observation of ``points`` (a box's surface): their cells occupied, every cell known."""
     data = np.zeros(grid.shape)

@@ -74,7 +74,7 @@ from planbench.reactive.body import body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
-from planbench_plugins.controllers.observed import ArmCells, finished, scene_without_touched_in_steps
+from planbench_plugins.controllers.observed import ArmCells, GoalCells, finished, scene_without_touched_in_steps
 from planbench_plugins.controllers.prediction import (
     MotionPredictor,
     PredictionSettings,
@@ -283,9 +283,7 @@ class MatrixFieldGuidedController(Controller):
         self.frame = 0  # frames taken in
         self.fresh = False  # a frame not yet checked against the path
         self.counted: np.ndarray | None = None  # unknown cells read as occupied last frame
-        self.first_seen: np.ndarray | None = None  # depth: near-goal cells a frame knew (bool, per cell)
-        self.static_goal: np.ndarray | None = None  # depth: those occupied when first known
-        self.blocked_since: np.ndarray | None = None  # depth: [s] since when the others are occupied (NaN: not)
+        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth: near-goal cells left out or blocking
         self.goal_out: np.ndarray | None = None  # depth: near-goal cells left out (static, or blocking too long)
         self.hold = np.array(q, dtype=float)  # the reference held while there is no path
         self.reference: Reference | None = None
@@ -586,25 +584,9 @@ class MatrixFieldGuidedController(Controller):
 
     def _classify_goal_cells(self, observation: Observation, grid: OccupancyGrid) -> None:
         """Depth: which cells near the arm's body at the goal are left out of plans and checks
-        (:attr:`goal_out`): those occupied the first time a frame knew them, and those occupied
-        since a frame saw them free for longer than ``goal_block_time`` (module docstring)."""
+        (:attr:`goal_out`, :class:`.observed.GoalCells`)."""
         self.cells.fit(grid)
-        near = self.cells.near_goal
-        if self.first_seen is None or len(self.first_seen) != len(near):
-            self.first_seen = np.zeros(len(near), dtype=bool)
-            self.static_goal = np.zeros(len(near), dtype=bool)
-            self.blocked_since = np.full(len(near), np.nan)
-        assert self.static_goal is not None and self.blocked_since is not None
-        occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
-        if not self.first_seen.all():  # the mask's bits of these cells only: no bool per cell of the grid
-            new = grid.known_at(near) & ~self.first_seen
-            self.static_goal[new] = occupied[new]
-            self.first_seen |= new
-        blocker = occupied & self.first_seen & ~self.static_goal
-        self.blocked_since[~blocker] = np.nan
-        self.blocked_since[blocker & np.isnan(self.blocked_since)] = observation.time
-        stale = observation.time - self.blocked_since > self.config.goal_block_time  # False where NaN
-        self.goal_out = self.static_goal | stale
+        self.goal_out = self.goal_cells.classify(observation.time, grid, self.cells.near_goal)
 
     def _check(self, q: np.ndarray) -> Work:
         """The rest of the path against the latest frame, a slice per ``yield``; drops the path at

@@ -27,7 +27,15 @@ from planbench.reactive.body import ArmBody
 from planbench.robot import Robot
 from planbench.scene import Scene
 
-__all__ = ["ArmCells", "LinkBoxes", "PathBoxes", "finished", "scene_without_touched", "scene_without_touched_in_steps"]
+__all__ = [
+    "ArmCells",
+    "GoalCells",
+    "LinkBoxes",
+    "PathBoxes",
+    "finished",
+    "scene_without_touched",
+    "scene_without_touched_in_steps",
+]
 
 R = TypeVar("R")
 
@@ -84,6 +92,39 @@ class ArmCells:
         block[tuple((hit - lo).T)] = True
         idx = np.argwhere(grow_cells(block, cells)) + lo
         return np.ravel_multi_index(tuple(idx.T), body.shape)
+
+
+class GoalCells:
+    """Which occupied cells near the arm's body at the goal a plan leaves out (:meth:`classify`):
+    those occupied the first time a frame knew them (the static scene a grasp touches: observed
+    cells lie up to a cell beyond the true surface), and those that appeared after a frame saw them
+    free but have stayed longer than ``block_time`` [s] (what a map keeps where no ray passes any
+    more: an obstacle that left in the arm's shadow). The others are an obstacle standing on the
+    goal: kept, so that no plan reaches the goal while it is there."""
+
+    def __init__(self, block_time: float) -> None:
+        self.block_time = block_time
+        self.first_seen = np.zeros(0, dtype=bool)  # the cells a frame knew
+        self.static = np.zeros(0, dtype=bool)  # those occupied when first known
+        self.since = np.zeros(0)  # [s] since when the others are occupied (NaN: not)
+
+    def classify(self, time: float, grid: OccupancyGrid, near: np.ndarray) -> np.ndarray:
+        """The frame at ``time`` [s]: for each of the cells ``near`` (flat indices into ``grid``,
+        the same cells every frame until they change, which starts over), whether it is left out."""
+        if len(self.first_seen) != len(near):
+            self.first_seen = np.zeros(len(near), dtype=bool)
+            self.static = np.zeros(len(near), dtype=bool)
+            self.since = np.full(len(near), np.nan)
+        occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
+        if not self.first_seen.all():  # the mask's bits of these cells only: no bool per cell of the grid
+            new = grid.known_at(near) & ~self.first_seen
+            self.static[new] = occupied[new]
+            self.first_seen |= new
+        blocker = occupied & self.first_seen & ~self.static
+        self.since[~blocker] = np.nan
+        self.since[blocker & np.isnan(self.since)] = time
+        stale = time - self.since > self.block_time  # False where NaN
+        return np.asarray(self.static | stale, dtype=bool)
 
 
 class LinkBoxes:

@@ -93,7 +93,7 @@ from planbench.reactive.controller import Controller, ControlTask, Observation
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
-from planbench_plugins.controllers.observed import ArmCells, LinkBoxes, PathBoxes, scene_without_touched
+from planbench_plugins.controllers.observed import ArmCells, GoalCells, LinkBoxes, PathBoxes, scene_without_touched
 from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_checker
@@ -173,13 +173,18 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
     """Safe mode: plan in known space first and stop short of unknown cells on a path that enters
     them (else only the hidden cells next to occupied ones, ``surface_margin``, are kept out of)."""
     goal_obstacles: str = "ignore"
-    """Depth: what an obstacle standing on the goal is (more than a contact's few of the cells the
-    arm's body fills at the goal occupied): ``"ignore"`` (the default) leaves those cells out of
-    plans and checks, as it does every cell within a cell of the body at the goal; ``"wait"`` keeps
-    them, so that no plan reaches the goal and the arm waits until they are seen free again. On
-    ``dynamic-tune`` ``"wait"`` lost 6 of 25 runs that ``"ignore"`` solved: a moving obstacle that
-    passes the goal where no camera sees leaves cells in the map that nothing clears
-    (docs/reactive.md)."""
+    """Depth: what occupied cells on the goal are (those within a cell of the arm's body there):
+    ``"ignore"`` (the default) leaves them out of plans and checks, as a surface the goal touches;
+    ``"wait"`` keeps them when more than a contact's few of the cells the body fills at the goal
+    are occupied (an obstacle standing on it), so that no plan reaches the goal until they are seen
+    free again; ``"appeared"`` keeps the cells that a frame saw free and that are occupied since,
+    for at most ``goal_block_time`` (:class:`~.observed.GoalCells`, as ``matrix-field-guided``
+    does), and leaves out those occupied when first seen. On ``dynamic-tune`` ``"wait"`` lost 6 of
+    25 runs that ``"ignore"`` solved: a moving obstacle that passes the goal where no camera sees
+    leaves cells in the map that nothing clears (docs/reactive.md)."""
+    goal_block_time: float = 6.0
+    """[s] Depth, ``goal_obstacles = "appeared"``: how long cells that appeared on the goal block
+    it at most (then they are taken for what the map keeps where no ray passes, and left out)."""
     start_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
@@ -194,6 +199,7 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
             "scan_horizon",
             "start_margin",
             "surface_margin",
+            "goal_block_time",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -202,8 +208,10 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
-        if self.goal_obstacles not in ("ignore", "wait"):
-            raise InvalidConfigError(f'goal_obstacles must be "ignore" or "wait", got {self.goal_obstacles!r}')
+        if self.goal_obstacles not in ("ignore", "wait", "appeared"):
+            raise InvalidConfigError(
+                f'goal_obstacles must be "ignore", "wait" or "appeared", got {self.goal_obstacles!r}'
+            )
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
         for name in ("look_frames", "known_checks_per_tick", "relax_steps"):
@@ -321,6 +329,9 @@ class OMPLReplanController(Controller):
         self.body: ArmBody | None = None
         self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
+        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth, "appeared": which of them are left out
+        self.goal_out: np.ndarray | None = None  # depth, "appeared": the near-goal cells left out (bool)
+        self.goal_refused = False  # the last plan failed because the goal is in collision
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
         self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
@@ -385,6 +396,8 @@ class OMPLReplanController(Controller):
             return
         grid = obs.grid
         self._geometry(grid)
+        if self.config.goal_obstacles == "appeared" and self.near_goal is not None:
+            self.goal_out = self.goal_cells.classify(obs.time, grid, self.near_goal)
         self.occupied_cells = None  # found when first asked: a frame whose check reads only the path's cells never does
         before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
@@ -469,6 +482,11 @@ class OMPLReplanController(Controller):
         if len(on_goal) > _CONTACT_CELLS:  # an obstacle on the goal: planned around, waited out
             near_goal = near_goal[~np.isin(near_goal, on_goal)]
             self.stats["goal_blocked"] += 1
+        out = self.goal_out
+        if self.config.goal_obstacles == "appeared" and out is not None and len(out) == len(near_goal):
+            if np.isin(near_goal[~out], cells).any():  # cells that appeared on the goal: kept
+                self.stats["goal_blocked"] += 1
+            near_goal = near_goal[out]
         near = np.concatenate([self.arm.near(q, 1), near_goal])
         kept = cells[~np.isin(cells, near)]
         self.stats["dropped"] += len(cells) - len(kept)
@@ -674,7 +692,7 @@ class OMPLReplanController(Controller):
             assert self.occupied is not None
             checker = self._cells_checker(self.occupied, q, self.predicted)
         if not self._plan_once(q, checker):
-            if depth and not len(self.predicted):  # a moving obstacle's sweep is no reason to relax
+            if depth and not len(self.predicted) and not self.goal_refused:  # nor is a sweep or a blocked goal
                 self._relax()
             return
         self.failed_in_row = 0
@@ -777,6 +795,7 @@ class OMPLReplanController(Controller):
         result = self.planner.plan(problem, time_limit=limit, rng=self.rng)
         self.stats["plans"] += 1
         self.stats["plan_times"].append(time.perf_counter() - t0)
+        self.goal_refused = result.status is PlanStatus.INVALID_GOAL
         if result.status is not PlanStatus.SUCCESS or result.path is None or len(result.path) < 1:
             self.stats["failed_plans"] += 1
             return False
