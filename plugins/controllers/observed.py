@@ -107,10 +107,13 @@ class GoalCells:
         self.first_seen = np.zeros(0, dtype=bool)  # the cells a frame knew
         self.static = np.zeros(0, dtype=bool)  # those occupied when first known
         self.since = np.zeros(0)  # [s] since when the others are occupied (NaN: not)
+        self.blocking = np.zeros(0, dtype=bool)
+        """The cells that block the goal in the frame last classified: appeared, not yet stale."""
 
     def classify(self, time: float, grid: OccupancyGrid, near: np.ndarray) -> np.ndarray:
         """The frame at ``time`` [s]: for each of the cells ``near`` (flat indices into ``grid``,
-        the same cells every frame until they change, which starts over), whether it is left out."""
+        the same cells every frame until they change, which starts over), whether it is left out
+        (the cells no frame has known are neither left out nor :attr:`blocking`)."""
         if len(self.first_seen) != len(near):
             self.first_seen = np.zeros(len(near), dtype=bool)
             self.static = np.zeros(len(near), dtype=bool)
@@ -124,6 +127,7 @@ class GoalCells:
         self.since[~blocker] = np.nan
         self.since[blocker & np.isnan(self.since)] = time
         stale = time - self.since > self.block_time  # False where NaN
+        self.blocking = blocker & ~stale
         return np.asarray(self.static | stale, dtype=bool)
 
 

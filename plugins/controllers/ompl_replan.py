@@ -330,7 +330,7 @@ class OMPLReplanController(Controller):
         self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
         self.goal_cells = GoalCells(self.config.goal_block_time)  # depth, "appeared": which of them are left out
-        self.goal_out: np.ndarray | None = None  # depth, "appeared": the near-goal cells left out (bool)
+        self.goal_out: np.ndarray | None = None  # depth, "appeared": the near-goal cells left out (all but blockers)
         self.goal_refused = False  # the last plan failed because the goal is in collision
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
@@ -397,7 +397,8 @@ class OMPLReplanController(Controller):
         grid = obs.grid
         self._geometry(grid)
         if self.config.goal_obstacles == "appeared" and self.near_goal is not None:
-            self.goal_out = self.goal_cells.classify(obs.time, grid, self.near_goal)
+            self.goal_cells.classify(obs.time, grid, self.near_goal)
+            self.goal_out = ~self.goal_cells.blocking  # the rest near the goal is left out as with "ignore"
         self.occupied_cells = None  # found when first asked: a frame whose check reads only the path's cells never does
         before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
