@@ -277,3 +277,30 @@ def test_the_boxes_around_the_links_hold_every_cell_the_arm_touches(free_task):
             rows, objects = reach.touching(cell)
             assert i in rows and reach.collides(cell, rows[rows == i], objects[rows == i])
     assert found >= 20
+
+
+def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest():
+    """``GoalCells``: a cell occupied when first known is static (left out); one seen free and then
+    occupied blocks the goal until ``block_time`` has passed (then stale, left out); one no frame
+    has known is neither left out nor blocking; a blocker seen free again blocks no more."""
+    from planbench_plugins.controllers.observed import GoalCells
+
+    near = np.array([0, 1, 2, 3])  # flat indices into a 1x1x4 grid
+
+    def frame(occupied, known):
+        return OccupancyGrid(
+            np.array(occupied, dtype=float).reshape(1, 1, 4), np.zeros(3), 0.02, known=np.array(known).reshape(1, 1, 4)
+        )
+
+    g = GoalCells(block_time=1.0)
+    out = g.classify(0.0, frame([1, 0, 0, 0], [True, True, False, True]), near)
+    assert out.tolist() == [True, False, False, False] and not g.blocking.any()
+    out = g.classify(0.5, frame([1, 1, 1, 0], [True, True, True, True]), near)
+    # cell 1 was seen free: it appeared; cell 2 was unknown before: occupied when first known
+    assert out.tolist() == [True, False, True, False] and g.blocking.tolist() == [False, True, False, False]
+    g.classify(1.4, frame([1, 1, 1, 0], [True] * 4), near)
+    assert g.blocking.tolist() == [False, True, False, False]  # 0.9 s: still blocking
+    out = g.classify(1.6, frame([1, 1, 1, 0], [True] * 4), near)
+    assert out[1] and not g.blocking.any()  # 1.1 s: taken for what the map keeps, left out
+    g.classify(1.7, frame([1, 0, 1, 1], [True] * 4), near)
+    assert g.blocking.tolist() == [False, False, False, True]  # cell 1 seen free again; cell 3 appeared
