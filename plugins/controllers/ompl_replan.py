@@ -332,8 +332,7 @@ class OMPLReplanController(Controller):
         self.body: ArmBody | None = None
         self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
-        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth, "appeared": which of them are left out
-        self.goal_out: np.ndarray | None = None  # depth, "appeared": the near-goal cells left out (all but blockers)
+        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth, "appeared": which of them block the goal
         self.goal_refused = False  # the last plan failed because the goal is in collision
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
@@ -400,8 +399,7 @@ class OMPLReplanController(Controller):
         grid = obs.grid
         self._geometry(grid)
         if self.config.goal_obstacles == "appeared" and self.near_goal is not None:
-            self.goal_cells.classify(obs.time, grid, self.near_goal)
-            self.goal_out = ~self.goal_cells.blocking  # the rest near the goal is left out as with "ignore"
+            self.goal_cells.classify(obs.time, grid, self.near_goal)  # its ``blocking`` cells are kept
         self.occupied_cells = None  # found when first asked: a frame whose check reads only the path's cells never does
         before, self.allowed = self.allowed, None
         if not self.safe or grid.known is None:
@@ -486,11 +484,11 @@ class OMPLReplanController(Controller):
         if len(on_goal) > _CONTACT_CELLS:  # an obstacle on the goal: planned around, waited out
             near_goal = near_goal[~np.isin(near_goal, on_goal)]
             self.stats["goal_blocked"] += 1
-        out = self.goal_out
-        if self.config.goal_obstacles == "appeared" and out is not None and len(out) == len(near_goal):
-            if np.isin(near_goal[~out], cells).any():  # cells that appeared on the goal: kept
+        blocking = self.goal_cells.blocking  # the rest near the goal is left out as with "ignore"
+        if self.config.goal_obstacles == "appeared" and len(blocking) == len(near_goal):
+            if np.isin(near_goal[blocking], cells).any():  # cells that appeared on the goal: kept
                 self.stats["goal_blocked"] += 1
-            near_goal = near_goal[out]
+            near_goal = near_goal[~blocking]
         near = np.concatenate([self.arm.near(q, 1), near_goal])
         kept = cells[~np.isin(cells, near)]
         self.stats["dropped"] += len(cells) - len(kept)
