@@ -121,6 +121,7 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"relax_steps": -1},
         {"relax_after": 0},
         {"dead_end": "jump"},
+        {"known_plan_at": "later"},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -218,21 +219,29 @@ def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBo
     raise AssertionError("no place for the block")
 
 
-@pytest.mark.parametrize("per_tick", [50, 0])
-def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick):
+@pytest.mark.parametrize(("per_tick", "at"), [(50, "start"), (0, "start"), (0, "stop")])
+def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick, at):
     """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
     seen. The default follows its path through it; the safe mode plans in known space around it, in
     slices while the arm follows the first path up to the cube (``known_checks_per_tick`` > 0), or
-    at once, the arm held still (the default), and the arm's body is never in one of its cells."""
+    at once, the arm held still (the default), or once the arm, following the first path, has
+    stopped short of the cube and looked (``known_plan_at = "stop"``); the arm's body is never in
+    one of the cube's cells."""
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
     through, _ = _run(free_task, _seeing(grid, known), 400, unknown="free")
     assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
-    qs, c = _run(free_task, _seeing(grid, known), 600, unknown="occupied", known_checks_per_tick=per_tick)
+    qs, c = _run(
+        free_task, _seeing(grid, known), 600, unknown="occupied", known_checks_per_tick=per_tick, known_plan_at=at
+    )
     info = c.info()
     assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
     assert info["known_plans"] >= 1 and info["forced"] == 0
+    if at == "stop":  # planned round only after it had stopped short of the cube and looked
+        assert info["looks"] > 3, info
+    elif not per_tick:  # planned round at once: never held short of the cube
+        assert info["looks"] == 0, info
     if per_tick:  # the plan took ticks, and the arm moved meanwhile
         assert info["known_slices"] > 1
         assert np.linalg.norm(qs[info["known_slices"] // 2] - qs[0]) > 0.01, info

@@ -119,6 +119,14 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
     """Safe mode: time limit [s] of the plan in known space, made when a plan's path enters cells
     the arm may not enter (with ``known_checks_per_tick`` 0: the plan is made at once, the arm
     held still meanwhile)."""
+    known_plan_at: str = "start"
+    """Safe mode, with ``known_checks_per_tick`` 0: when the plan in known space is made.
+    ``"start"``: at once after the optimistic plan whose path enters cells the arm may not enter,
+    the arm held still meanwhile; ``"stop"``: only when the follower, stopped short of such cells,
+    has looked ``look_frames`` frames and the cells are still unknown, before it would go into
+    them. With ``"stop"`` the arm sets off along the optimistic path at once (as with truth
+    sensing), and a stretch of unknown cells that the frames on the way show (the shadow of a
+    moving obstacle moves on) costs no plan at all."""
     known_checks_per_tick: int = 0
     """Safe mode: 0 (the default): the plan in known space is made at once, the arm held still for
     up to ``known_plan_time``; > 0: in slices of this many collision checks, one per tick (50: about
@@ -209,6 +217,8 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
         if not 0 < self.speed_scale <= 1:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
+        if self.known_plan_at not in ("start", "stop"):
+            raise InvalidConfigError(f'known_plan_at must be "start" or "stop", got {self.known_plan_at!r}')
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait", "appeared"):
@@ -319,6 +329,7 @@ class OMPLReplanController(Controller):
         self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
         self.known_path = False  # safe mode: the path was planned in known space
         self.known_query: SlicedRRTConnect | None = None  # safe mode: the plan in known space, in slices
+        self.known_pending = False  # safe mode, known_plan_at "stop": the path's plan in known space is yet to be made
         self.observation: Observation | None = None
         self.checker: CollisionChecker | None = None  # truth: the frame's scene, less what the arm touches
         self.reach: PathBoxes | None = None  # depth: the path's boxes, from the first frame on it
@@ -620,6 +631,10 @@ class OMPLReplanController(Controller):
         self.looks += 1  # held short of unknown cells: look, then go on
         self.stats["looks"] += 1
         if self.looks > self.config.look_frames and self.known_query is None:  # not while a way round is sought
+            if self.known_pending:  # known_plan_at "stop": a way round in known space, before going in
+                self.known_pending = False
+                if self._plan_known(q):
+                    return
             self._go_through(block)
 
     def _go_through(self, block: float) -> None:
@@ -681,7 +696,7 @@ class OMPLReplanController(Controller):
         """Plan from ``q`` as the default does; in safe mode, when that path enters cells the arm
         may not enter, plan again in known space (every unknown cell an obstacle but those it may
         enter) and follow that path instead if there is one."""
-        self.known_path, self.known_query = False, None
+        self.known_path, self.known_query, self.known_pending = False, None, False
         obs = self.observation
         assert obs is not None
         checker = self.checker  # truth: the frame's scene
@@ -705,21 +720,32 @@ class OMPLReplanController(Controller):
         assert self.path is not None and self.times is not None and self.occupied is not None
         if not self._enters_unknown(0.0):
             return
-        known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
         goal_q = self.task.goal.q
         if self.config.known_checks_per_tick > 0 and goal_q is not None:
+            known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
             try:  # in slices, while the arm follows the optimistic path up to the unknown cells
                 self.known_query = SlicedRRTConnect(known, q, np.asarray(goal_q), seed=int(self.rng.integers(2**31)))
             except ValueError:  # the start or the goal touches the cells that stand for unknown space
                 self.known_query = None
             return
-        optimistic = (self.path, self.times, self.tau_limit)
+        if self.config.known_plan_at == "stop":  # made if the follower is still held short of them
+            self.known_pending = True
+            return
+        self._plan_known(q)
+
+    def _plan_known(self, q: np.ndarray) -> bool:
+        """Safe mode: plan from ``q`` in known space (every unknown cell an obstacle but those the
+        arm may enter) within ``known_plan_time``, the arm held still; True when it found a path
+        (then followed), else the path followed so far stays, from where the arm is on it."""
+        assert self.occupied is not None
+        known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
+        kept = (self.path, self.times, self.tau_limit, self.tau, self.looks, self.t_follow)
         if self._plan_once(q, known, self.config.known_plan_time):
             self.known_path = True
             self.stats["known_plans"] += 1
-            return
-        self.path, self.times, self.tau_limit = optimistic
-        self.tau, self.looks, self.t_follow = 0.0, 0, None
+            return True
+        self.path, self.times, self.tau_limit, self.tau, self.looks, self.t_follow = kept
+        return False
 
     def _known_slice(self, q: np.ndarray) -> None:
         """Safe mode: one slice of the plan in known space; once it has a path, switch to it from
