@@ -59,7 +59,8 @@ def main() -> None:
     parser.add_argument("--near", type=float, default=2.0, help="inner radius [cells], exclusive (default 2)")
     parser.add_argument("--far", type=float, default=6.0, help="outer radius [cells] (default 6)")
     args = parser.parse_args()
-    print(f"| scenario | unknown {args.near:g}-{args.far:g} cells from the arm at the start | seen with the arm at its goal |")
+    shell = f"{args.near:g}-{args.far:g} cells"
+    print(f"| scenario | unknown {shell} from the arm at the start | seen with the arm at its goal |")
     print("|---|---|---|")
     for name in args.scenarios:
         unknown, seen = shadow(name, args.near, args.far)
