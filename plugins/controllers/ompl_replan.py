@@ -736,16 +736,14 @@ class OMPLReplanController(Controller):
     def _plan_known(self, q: np.ndarray) -> bool:
         """Safe mode: plan from ``q`` in known space (every unknown cell an obstacle but those the
         arm may enter) within ``known_plan_time``, the arm held still; True when it found a path
-        (then followed), else the path followed so far stays, from where the arm is on it."""
+        (then followed), else the path followed so far stays (a failed plan leaves it as it was)."""
         assert self.occupied is not None
         known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
-        kept = (self.path, self.times, self.tau_limit, self.tau, self.looks, self.t_follow)
-        if self._plan_once(q, known, self.config.known_plan_time):
-            self.known_path = True
-            self.stats["known_plans"] += 1
-            return True
-        self.path, self.times, self.tau_limit, self.tau, self.looks, self.t_follow = kept
-        return False
+        if not self._plan_once(q, known, self.config.known_plan_time):
+            return False
+        self.known_path = True
+        self.stats["known_plans"] += 1
+        return True
 
     def _known_slice(self, q: np.ndarray) -> None:
         """Safe mode: one slice of the plan in known space; once it has a path, switch to it from
