@@ -30,6 +30,7 @@ from planbench.planner import EmptyConfig, build_config
 if TYPE_CHECKING:
     from planbench.geometry.occupancy import OccupancyGrid
     from planbench.problem import Goal, Tolerances
+    from planbench.reactive.scenario import CameraSettings
     from planbench.robot import Robot
     from planbench.scene import Scene
 
@@ -39,7 +40,7 @@ __all__ = ["BadCommand", "ControlTask", "Controller", "Observation", "as_command
 @dataclass(frozen=True, eq=False)
 class ControlTask:
     """What a controller knows before it runs: the robot, its start and goal, the tolerances of
-    success, and the control period [s]."""
+    success, the control period [s] and, with depth sensing, where its cameras are."""
 
     robot: Robot
     start: np.ndarray
@@ -47,6 +48,13 @@ class ControlTask:
     tolerances: Tolerances
     period: float
     id: str = "task"
+    cameras: tuple[CameraSettings, ...] = ()
+    """The depth cameras (pose in the robot's base frame and image model, as a robot's transform
+    tree and camera info give them; empty with truth sensing): what hides an unknown cell can be
+    told from them (:mod:`planbench.reactive.shadows`)."""
+    robot_margin: float = 0.0
+    """[m] Depth sensing: how far from the arm's surface the sensor's robot filter removes points
+    (every ray stops this short of the arm)."""
 
 
 @dataclass(frozen=True, eq=False)

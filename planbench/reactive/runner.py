@@ -205,7 +205,10 @@ def ticks_of(scenario: Scenario) -> int:
 def control_task(scenario: Scenario) -> ControlTask:
     """What the controller of ``scenario`` is told before it runs."""
     p = scenario.problem
-    return ControlTask(p.robot, p.start, p.goal, p.tolerances, scenario.period, scenario.name)
+    depth = scenario.sensing.model == "depth"
+    cameras = tuple(scenario.sensing.cameras) if depth else ()
+    margin = scenario.sensing.robot_margin if depth else 0.0
+    return ControlTask(p.robot, p.start, p.goal, p.tolerances, scenario.period, scenario.name, cameras, margin)
 
 
 def control_rng_of(seed: int) -> np.random.Generator:

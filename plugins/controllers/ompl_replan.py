@@ -91,6 +91,7 @@ from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
 from planbench.reactive.body import ArmBody, body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.reactive.shadows import ARM, occluders
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
@@ -200,6 +201,14 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
     (0.03 m) of the arm, so these are never seen until the arm has moved; the same at the goal."""
+
+    arm_shadow: bool = False
+    """Safe mode, depth: a path's unknown cells that the arm's own body hides from a camera (the
+    line of sight from the camera, :attr:`~planbench.reactive.controller.ControlTask.cameras`, meets
+    the arm before any occupied cell; :mod:`planbench.reactive.shadows`) may be entered without a
+    plan in known space or a look, as the cells near the start may (``start_margin``): looking from
+    a standstill never shows them, moving the arm does. Never those within ``surface_margin`` of an
+    occupied cell."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -359,7 +368,8 @@ class OMPLReplanController(Controller):
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
-        self.stats.update(rest_checks=0)
+        self.stats.update(rest_checks=0, arm_shadow=0)
+        self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -403,6 +413,7 @@ class OMPLReplanController(Controller):
         cells the arm may enter."""
         obs = self.observation
         assert obs is not None
+        self.frame_q = np.array(q, dtype=float)
         if obs.scene is not None:  # truth: the exact geometry
             self.scene, self.checker = self._around(obs.scene, q)
             self.allowed = None
@@ -718,6 +729,8 @@ class OMPLReplanController(Controller):
         if getattr(self.planner, "use_checker", None) is None:
             return
         assert self.path is not None and self.times is not None and self.occupied is not None
+        if self.config.arm_shadow:
+            self._admit_arm_shadow()
         if not self._enters_unknown(0.0):
             return
         goal_q = self.task.goal.q
@@ -775,6 +788,32 @@ class OMPLReplanController(Controller):
         self._take(path)
         self.known_path = True
         self.stats["known_plans"] += 1
+
+    def _admit_arm_shadow(self) -> None:
+        """Safe mode, depth: let the arm into the unknown cells its body fills along the new path
+        that the arm itself hides from a camera (``arm_shadow``)."""
+        obs, body = self.observation, self.body
+        cameras = self.task.cameras
+        if obs is None or body is None or self.allowed is None or not cameras or self.times is None:
+            return
+        grid = obs.grid
+        mark = np.zeros(body.shape, dtype=bool)
+        for _, x in self._samples(0.0, float(self.times[-1])):
+            body.mark(mark, x)
+        flat = self.allowed.reshape(-1)
+        cells = np.flatnonzero(mark.reshape(-1) & ~flat)
+        cells = cells[~_near_any(cells, grid.data, self._margin() / grid.resolution)]
+        if not len(cells):
+            return
+        grow = math.ceil(self.task.robot_margin / grid.resolution) + 1
+        arm = np.zeros(body.shape, dtype=bool)
+        arm.reshape(-1)[self.arm.near(self.frame_q, grow)] = True
+        cells = cells[occluders(cells, grid, arm, cameras) == ARM]
+        if not len(cells):
+            return
+        self.through = np.union1d(self.through, cells)
+        flat[cells] = True
+        self.stats["arm_shadow"] += len(cells)
 
     def _enters_unknown(self, tau: float) -> bool:
         """Safe mode: the path from ``tau`` [s] along it to its end fills a cell the arm may not enter."""
