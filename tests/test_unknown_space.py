@@ -17,6 +17,8 @@ from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.body import ArmBody
 from planbench.reactive.conformance import conformance_task
 from planbench.reactive.controller import ControlTask, Observation
+from planbench.reactive.scenario import CameraSettings
+from planbench.reactive.shadows import ARM, occluders
 from planbench.registry import make_controller
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
@@ -248,6 +250,36 @@ def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free
     else:
         assert info["known_slices"] == 0
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info  # around it to the goal
+
+
+def test_ompl_replan_goes_through_cells_only_its_own_arm_hides(free_task, open_space):
+    """The 10 cm cube no camera saw lies where the one camera's lines of sight to it pass through
+    the arm at the start (the camera just behind the arm): moving the arm shows it. With
+    ``arm_shadow`` the safe mode follows its first path through it, without a plan in known space or
+    a look; without, it plans around it as before."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    known = _block_on_path(free_task, grid, path, body)
+    cube = np.flatnonzero(~known)
+    centre = grid.origin + (np.column_stack(np.unravel_index(cube, grid.shape)).mean(axis=0) + 0.5) * grid.resolution
+    arm_cells = body.cells(path[0])
+    points = grid.origin + (np.column_stack(np.unravel_index(arm_cells, grid.shape)) + 0.5) * grid.resolution
+    near = points[np.argmin(np.linalg.norm(points - centre, axis=1))]
+    away = (near - centre) / np.linalg.norm(near - centre)
+    up = (0.0, 0.0, 1.0) if abs(away[2]) < 0.9 else (1.0, 0.0, 0.0)
+    camera = CameraSettings(position=tuple(near + 0.12 * away), look_at=tuple(centre), up=up)
+    task = dataclasses.replace(free_task, cameras=(camera,), robot_margin=0.03)
+    arm = np.zeros(grid.shape, dtype=bool)
+    arm.reshape(-1)[arm_cells] = True
+    arm = ndimage.binary_dilation(arm, iterations=3)
+    assert (occluders(cube, grid, arm, [camera]) == ARM).mean() > 0.9  # the arm hides the cube
+    qs, c = _run(task, _seeing(grid, known), 400, unknown="occupied", arm_shadow=True)
+    info = c.info()
+    assert info["arm_shadow"] > 0 and info["known_plans"] == 0 and info["looks"] == 0, info
+    assert any(body.in_unknown(q, known) for q in qs)  # through the cube
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+    _, c = _run(task, _seeing(grid, known), 400, unknown="occupied")
+    assert c.info()["arm_shadow"] == 0 and c.info()["known_plans"] >= 1
 
 
 def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(free_task, open_space):

@@ -729,10 +729,12 @@ class OMPLReplanController(Controller):
         if getattr(self.planner, "use_checker", None) is None:
             return
         assert self.path is not None and self.times is not None and self.occupied is not None
-        if self.config.arm_shadow:
-            self._admit_arm_shadow()
         if not self._enters_unknown(0.0):
             return
+        if self.config.arm_shadow:  # cells the arm hides are let in: maybe no plan in known space is needed
+            self._admit_arm_shadow()
+            if not self._enters_unknown(0.0):
+                return
         goal_q = self.task.goal.q
         if self.config.known_checks_per_tick > 0 and goal_q is not None:
             known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
