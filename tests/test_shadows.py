@@ -4,6 +4,7 @@ surface, nothing, or no camera has it in view; and the cameras a controller is t
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import planbench
 from planbench.geometry.occupancy import OccupancyGrid
@@ -67,3 +68,17 @@ def test_a_controller_is_told_its_depth_cameras_and_none_with_truth():
     assert task.cameras == tuple(depth.sensing.cameras) and len(task.cameras) >= 1
     assert task.robot_margin == depth.sensing.robot_margin
     assert control_task(truth).cameras == () and control_task(truth).robot_margin == 0.0
+
+
+def test_the_compiled_walk_and_numpy_agree():
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(3)
+    grid = _grid()
+    grid.data[...] = rng.random(grid.shape) < 0.01
+    arm = rng.random(grid.shape) < 0.01
+    cells = rng.choice(grid.data.size, 3000, replace=False)
+    other = CameraSettings(position=(0.2, 0.4, 1.5), look_at=(0.2, 0.0, 0.3))
+    a = occluders(cells, grid, arm, [CAMERA, other], backend="numba")
+    b = occluders(cells, grid, arm, [CAMERA, other], backend="numpy")
+    assert np.array_equal(a, b)
+    assert len(set(a.tolist())) == 4  # every answer occurs

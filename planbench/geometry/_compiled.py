@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["mark_seen"]
+__all__ = ["first_blocked", "mark_seen"]
 
 
 @njit(cache=True)
@@ -113,3 +113,28 @@ def above(log_odds, threshold, out):  # type: ignore[no-untyped-def]
     """``out[n] = 1.0`` where ``log_odds[n] > threshold``, else 0.0 (flat arrays)."""
     for n in range(log_odds.shape[0]):
         out[n] = 1.0 if log_odds[n] > threshold else 0.0
+
+
+@njit(cache=True)
+def first_blocked(origin, units, steps, step, lower, resolution, shape, arm, occupied, out):  # type: ignore[no-untyped-def]
+    """For each line ``n`` from ``origin`` along ``units[n]``, sampled at ``k * step`` for ``k = 1
+    .. steps[n]``: 1 when the first sample in a marked cell is in ``arm``, 2 when in ``occupied``
+    (flat bool grids of ``shape``), else -1 (``planbench.reactive.shadows``; the arm first where a
+    cell is both)."""
+    n0, n1, n2 = shape[0], shape[1], shape[2]
+    for n in range(units.shape[0]):
+        out[n] = -1
+        for k in range(1, steps[n] + 1):
+            s = k * step
+            i = math.floor(((origin[0] + units[n, 0] * s) - lower[0]) / resolution)
+            j = math.floor(((origin[1] + units[n, 1] * s) - lower[1]) / resolution)
+            m = math.floor(((origin[2] + units[n, 2] * s) - lower[2]) / resolution)
+            if i < 0 or j < 0 or m < 0 or i >= n0 or j >= n1 or m >= n2:
+                continue
+            flat = (i * n1 + j) * n2 + m
+            if arm[flat]:
+                out[n] = 1
+                break
+            if occupied[flat]:
+                out[n] = 2
+                break

@@ -24,6 +24,7 @@ import numpy as np
 
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.scenario import CameraSettings
+from planbench.runtime import backend as _backend
 
 __all__ = ["ARM", "NOT_IN_VIEW", "OPEN", "SURFACE", "occluders"]
 
@@ -55,21 +56,23 @@ def occluders(
     grid: OccupancyGrid,
     arm: np.ndarray,
     cameras: Sequence[CameraSettings],
+    backend: str = "auto",
 ) -> np.ndarray:
     """For each of ``cells`` (flat indices into ``grid``), what hides it from ``cameras``:
     :data:`ARM`, :data:`SURFACE`, :data:`OPEN` or :data:`NOT_IN_VIEW` (int8, module docstring).
 
     ``arm``: the cells of the arm as the frame saw it (bool, the grid's shape; grow the body by the
     robot filter's margin). The arm wins over a surface: a cell one camera cannot see for the arm is
-    shown by moving the arm, whatever the other cameras see."""
+    shown by moving the arm, whatever the other cameras see. ``backend``: ``"numba"`` (a compiled walk
+    that stops at each line's first blocked cell), ``"numpy"`` or ``"auto"``; the same answers."""
     cells = np.asarray(cells, dtype=np.intp)
     out = np.full(len(cells), NOT_IN_VIEW, dtype=np.int8)
     if not len(cells) or not len(cameras):
         return out
-    shape = np.array(grid.shape)
     res = grid.resolution
     centres = grid.origin + (np.column_stack(np.unravel_index(cells, grid.shape)) + 0.5) * res
-    occupied = grid.data > 0.5
+    occupied = np.ascontiguousarray(grid.data > 0.5).reshape(-1)
+    arm_flat = np.ascontiguousarray(arm, dtype=bool).reshape(-1)
     seen_arm = np.zeros(len(cells), dtype=bool)
     seen_open = np.zeros(len(cells), dtype=bool)
     seen_surface = np.zeros(len(cells), dtype=bool)
@@ -86,31 +89,56 @@ def occluders(
         if not len(idx):
             continue
         # samples from the optical centre to 1.5 cells short of each cell's centre, every half cell
-        n = np.maximum(np.floor((length[idx] - 1.5 * res) / step).astype(int), 0)
-        steps = int(n.max()) if len(n) else 0
-        first = np.full(len(idx), -1, dtype=np.int8)  # -1: nothing yet; 1: arm; 2: surface
-        if steps:
-            s = (np.arange(1, steps + 1) * step)[None, :]  # (1, steps) [m] along the line
-            unit = d[idx] / length[idx, None]
-            for lo in range(0, len(idx), 512):  # a slab of cells at a time: (cells, steps, 3) floats
-                sl = slice(lo, lo + 512)
-                pts = origin + unit[sl, None, :] * s[..., None]
-                ijk = np.floor((pts - grid.origin) / res).astype(np.intp)
-                inside = np.all((ijk >= 0) & (ijk < shape), axis=2) & (np.arange(steps)[None, :] < n[sl, None])
-                ijk = np.where(inside[..., None], ijk, 0)
-                flat = np.ravel_multi_index(tuple(np.moveaxis(ijk, 2, 0)), grid.shape)
-                hit_arm = inside & arm.reshape(-1)[flat]
-                hit_surface = inside & occupied.reshape(-1)[flat]
-                blocked = hit_arm | hit_surface
-                any_block = blocked.any(axis=1)
-                k = np.argmax(blocked, axis=1)
-                rows = np.arange(len(k))
-                kind = np.where(hit_arm[rows, k], 1, 2).astype(np.int8)
-                first[sl] = np.where(any_block, kind, -1)
+        steps = np.maximum(np.floor((length[idx] - 1.5 * res) / step).astype(np.intp), 0)
+        units = np.ascontiguousarray(d[idx] / length[idx, None])
+        first = _first_blocked(origin, units, steps, step, grid, arm_flat, occupied, backend)
         seen_arm[idx[first == 1]] = True
         seen_surface[idx[first == 2]] = True
         seen_open[idx[first == -1]] = True
     out[seen_surface] = SURFACE
     out[seen_open] = OPEN
     out[seen_arm] = ARM
+    return out
+
+
+def _first_blocked(
+    origin: np.ndarray,
+    units: np.ndarray,
+    steps: np.ndarray,
+    step: float,
+    grid: OccupancyGrid,
+    arm: np.ndarray,
+    occupied: np.ndarray,
+    backend: str,
+) -> np.ndarray:
+    """Per line (``units``, from ``origin``, ``steps`` samples every ``step`` [m]): 1 when its first
+    sample in an arm or occupied cell is the arm's, 2 when occupied, -1 when none is (compiled
+    with numba, or in numpy a slab of lines at a time: the same arithmetic, the same answers)."""
+    out = np.full(len(units), -1, dtype=np.int8)
+    if not len(units):
+        return out
+    lower = np.ascontiguousarray(grid.origin, dtype=np.float64)
+    shape = np.array(grid.shape, dtype=np.intp)
+    res = float(grid.resolution)
+    if _backend.resolve(backend) == "numba":
+        from planbench.geometry import _compiled  # on use: numba is optional
+
+        _compiled.first_blocked(
+            origin, units, steps.astype(np.intp), float(step), lower, res, shape, arm, occupied, out
+        )
+        return out
+    most = int(steps.max())
+    if not most:
+        return out
+    s = np.arange(1, most + 1) * step  # [m] along the line
+    for lo in range(0, len(units), 256):  # (lines, samples, 3) floats a slab at a time
+        sl = slice(lo, lo + 256)
+        ijk = np.floor(((origin + units[sl, None, :] * s[None, :, None]) - lower) / res).astype(np.intp)
+        valid = np.all((ijk >= 0) & (ijk < shape), axis=2) & (np.arange(most)[None, :] < steps[sl, None])
+        flat = np.ravel_multi_index(tuple(np.moveaxis(np.where(valid[..., None], ijk, 0), 2, 0)), grid.shape)
+        hit_arm = valid & arm[flat]
+        blocked = hit_arm | (valid & occupied[flat])
+        k = np.argmax(blocked, axis=1)
+        rows = np.arange(len(k))
+        out[sl] = np.where(blocked[rows, k], np.where(hit_arm[rows, k], 1, 2), -1)
     return out

@@ -322,6 +322,9 @@ class OMPLReplanController(Controller):
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
         self.link_boxes = LinkBoxes(task.robot)
+        if self.config.arm_shadow and task.cameras:  # the compiled line walk loaded (or compiled), untimed
+            tiny = OccupancyGrid.empty(np.zeros(3), np.full(3, 0.1), 0.05)
+            occluders(np.arange(2), tiny, np.zeros(tiny.shape, dtype=bool), task.cameras[:1])
         self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
         if self.predictor is not None:
             warm_up(self.config, lambda block: None)  # scipy's k-d tree and graph code loaded, untimed
