@@ -71,7 +71,11 @@ to form in most runs, and the differences were mostly in runs where it predicted
 
 The arm may always enter the unknown cells within ``start_margin`` of its body where the run
 started (the sensor's robot filter blinds it there, so they are never seen until the arm has
-moved) and at the goal (which the task asserts free).
+moved) and at the goal (which the task asserts free). With ``arm_shadow``, when a new path enters
+unknown cells, those of them that the arm's own body hides from a camera (the task's cameras,
+:mod:`planbench.reactive.shadows`; never those within the surface margin of an occupied cell) may
+be entered too, before the plan in known space is asked for: a look from a standstill never shows
+them, and moving the arm does.
 """
 
 from __future__ import annotations
