@@ -18,7 +18,7 @@ from planbench.reactive.body import ArmBody
 from planbench.reactive.conformance import conformance_task
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.reactive.scenario import CameraSettings
-from planbench.reactive.shadows import ARM, occluders
+from planbench.reactive.shadows import ARM, SURFACE, occluders
 from planbench.registry import make_controller
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
@@ -124,6 +124,7 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"relax_after": 0},
         {"dead_end": "jump"},
         {"known_plan_at": "later"},
+        {"surface_shadow": "never"},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -308,6 +309,54 @@ def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(fre
     assert runs.max() >= 8  # still for 3 frames (9 ticks) just before it went in (the lookahead after)
     assert c.info()["forced"] >= 1
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)
+
+
+def test_ompl_replan_never_goes_into_cells_a_surface_hides_with_surface_shadow_avoid(free_task, open_space):
+    """The cube it cannot avoid (above) lies behind an observed plate from the one camera, 0.25 m
+    in front of it: no look from a standstill shows it. With ``surface_shadow = "avoid"`` the arm
+    stops short of it and never goes in (a dead end, ``stuck``); by default it goes in after its
+    looks, as into any unknown cell."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    known = ndimage.binary_dilation(swept) & _block_on_path(free_task, grid, path, body)
+    cube = np.flatnonzero(~_block_on_path(free_task, grid, path, body))
+    centre = grid.origin + (np.column_stack(np.unravel_index(cube, grid.shape)).mean(axis=0) + 0.5) * grid.resolution
+    near_path = ndimage.binary_dilation(swept, iterations=2)
+
+    def clear(direction):  # the camera's line from the cube meets the arm's way nowhere beyond 0.15 m
+        pts = centre + np.linspace(0.15, 0.7, 60)[:, None] * direction
+        ijk = np.floor((pts - grid.origin) / grid.resolution).astype(int)
+        ok = np.all((ijk >= 0) & (ijk < grid.shape), axis=1)
+        return not near_path[tuple(ijk[ok].T)].any()
+
+    grid_directions = np.array(
+        [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (1, 0, -1) if (i, j, k) != (0, 0, 0)]
+    )
+    away = next(d / np.linalg.norm(d) for d in grid_directions.astype(float) if clear(d / np.linalg.norm(d)))
+    up = (0.0, 0.0, 1.0) if abs(away[2]) < 0.9 else (1.0, 0.0, 0.0)
+    camera = CameraSettings(position=tuple(centre + 0.7 * away), look_at=tuple(centre), up=up)
+    data = grid.data.copy()
+    plate = np.floor((centre + 0.25 * away - grid.origin) / grid.resolution).astype(int)
+    lo, hi = plate - 4, plate + 5
+    lo[np.argmax(np.abs(away))], hi[np.argmax(np.abs(away))] = (
+        plate[np.argmax(np.abs(away))],
+        plate[np.argmax(np.abs(away))] + 1,
+    )
+    data[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = 1.0
+    seen = OccupancyGrid(data, grid.origin, grid.resolution, known=known | (data > 0.5))
+    task = dataclasses.replace(free_task, cameras=(camera,), robot_margin=0.03)
+    assert (occluders(cube, seen, np.zeros(grid.shape, dtype=bool), [camera]) == SURFACE).mean() > 0.9
+    frame = Observation(0.0, seen)
+    qs, c = _run(task, frame, 400, unknown="occupied", surface_shadow="avoid")
+    info = c.info()
+    assert not any(body.in_unknown(q, known) for q in qs[60:]), info  # never into the cube
+    assert info["stuck"] > 0 and info["forced"] == 0, info
+    qs, c = _run(task, frame, 600, unknown="occupied")
+    assert c.info()["forced"] >= 1 and np.allclose(qs[-1], free_task.goal.q, atol=1e-6), c.info()
 
 
 def _swept_and_cube(free_task, grid, path):

@@ -95,7 +95,7 @@ from planbench.planner import PlanStatus
 from planbench.problem import Goal, Problem
 from planbench.reactive.body import ArmBody, body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
-from planbench.reactive.shadows import ARM, occluders
+from planbench.reactive.shadows import ARM, SURFACE, occluders
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
@@ -214,6 +214,13 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
     a standstill never shows them, moving the arm does. Never those within ``surface_margin`` of an
     occupied cell."""
 
+    surface_shadow: str = "enter"
+    """Safe mode, depth: after its looks, whether the arm goes into unknown cells that an observed
+    surface hides from every camera that has them in view (the task's cameras,
+    :mod:`planbench.reactive.shadows`): ``"enter"`` (the default: as into any other unknown cell)
+    or ``"avoid"`` (never: they are a dead end, as the unseen rest of a surface is; the cameras do
+    not move, so no look shows them). Without cameras in the task, ``"avoid"`` avoids nothing."""
+
     def __post_init__(self) -> None:
         for name in (
             "plan_time",
@@ -230,6 +237,8 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
                 raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
         if not 0 < self.speed_scale <= 1:
             raise InvalidConfigError(f"speed_scale must be in (0, 1], got {self.speed_scale!r}")
+        if self.surface_shadow not in ("enter", "avoid"):
+            raise InvalidConfigError(f'surface_shadow must be "enter" or "avoid", got {self.surface_shadow!r}')
         if self.known_plan_at not in ("start", "stop"):
             raise InvalidConfigError(f'known_plan_at must be "start" or "stop", got {self.known_plan_at!r}')
         if self.dead_end not in ("wait", "replan"):
@@ -326,7 +335,8 @@ class OMPLReplanController(Controller):
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
         self.link_boxes = LinkBoxes(task.robot)
-        if self.config.arm_shadow and task.cameras:  # the compiled line walk loaded (or compiled), untimed
+        shadows = self.config.arm_shadow or self.config.surface_shadow == "avoid"
+        if shadows and task.cameras:  # the compiled line walk loaded (or compiled), untimed
             tiny = OccupancyGrid.empty(np.zeros(3), np.full(3, 0.1), 0.05)
             occluders(np.arange(2), tiny, np.zeros(tiny.shape, dtype=bool), task.cameras[:1])
         self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
@@ -668,6 +678,8 @@ class OMPLReplanController(Controller):
         cells = self.stretch[1][~flat[self.stretch[1]]]
         grid = self.observation.grid
         cells = cells[~_near_any(cells, grid.data, self._margin() / grid.resolution)]  # never a hidden surface
+        if self.config.surface_shadow == "avoid" and len(cells):
+            cells = cells[self._occluders(cells) != SURFACE]  # nor what a surface hides from every camera
         if not len(cells):  # every cell in the way is the unseen rest of a surface: a dead end
             self.stats["stuck"] += 1
             if self.config.dead_end == "replan":
@@ -814,15 +826,24 @@ class OMPLReplanController(Controller):
         cells = cells[~_near_any(cells, grid.data, self._margin() / grid.resolution)]
         if not len(cells):
             return
-        grow = math.ceil(self.task.robot_margin / grid.resolution) + 1
-        arm = np.zeros(body.shape, dtype=bool)
-        arm.reshape(-1)[self.arm.near(self.frame_q, grow)] = True
-        cells = cells[occluders(cells, grid, arm, cameras) == ARM]
+        cells = cells[self._occluders(cells) == ARM]
         if not len(cells):
             return
         self.through = np.union1d(self.through, cells)
         flat[cells] = True
         self.stats["arm_shadow"] += len(cells)
+
+    def _occluders(self, cells: np.ndarray) -> np.ndarray:
+        """What hides each of ``cells`` (flat) from the task's cameras in the latest frame, the arm
+        taken where it was when the frame came, grown by the robot filter's margin
+        (:func:`~planbench.reactive.shadows.occluders`)."""
+        obs, body = self.observation, self.body
+        assert obs is not None and body is not None
+        grid = obs.grid
+        grow = math.ceil(self.task.robot_margin / grid.resolution) + 1
+        arm = np.zeros(body.shape, dtype=bool)
+        arm.reshape(-1)[self.arm.near(self.frame_q, grow)] = True
+        return occluders(cells, grid, arm, self.task.cameras)
 
     def _enters_unknown(self, tau: float) -> bool:
         """Safe mode: the path from ``tau`` [s] along it to its end fills a cell the arm may not enter."""
