@@ -311,19 +311,26 @@ def test_ompl_replan_safe_mode_stops_before_an_unknown_block_it_cannot_avoid(fre
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6)
 
 
+def _swept_and_cube(free_task, grid, path):
+    """The arm's body on ``grid``, the cells it sweeps along ``path``, the unknown cube on it (False
+    in ``block``), and the known mask: the swept cells grown by one, less the cube."""
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    swept = np.zeros(grid.shape, dtype=bool)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        for u in np.linspace(0.0, 1.0, 5):
+            body.mark(swept, a + u * (b - a))
+    block = _block_on_path(free_task, grid, path, body)
+    return body, swept, block, ndimage.binary_dilation(swept) & block
+
+
 def test_ompl_replan_never_goes_into_cells_a_surface_hides_with_surface_shadow_avoid(free_task, open_space):
     """The cube it cannot avoid (above) lies behind an observed plate from the one camera, 0.25 m
     in front of it: no look from a standstill shows it. With ``surface_shadow = "avoid"`` the arm
     stops short of it and never goes in (a dead end, ``stuck``); by default it goes in after its
     looks, as into any unknown cell."""
     grid, path = open_space
-    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
-    swept = np.zeros(grid.shape, dtype=bool)
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        for u in np.linspace(0.0, 1.0, 5):
-            body.mark(swept, a + u * (b - a))
-    known = ndimage.binary_dilation(swept) & _block_on_path(free_task, grid, path, body)
-    cube = np.flatnonzero(~_block_on_path(free_task, grid, path, body))
+    body, swept, block, known = _swept_and_cube(free_task, grid, path)
+    cube = np.flatnonzero(~block)
     centre = grid.origin + (np.column_stack(np.unravel_index(cube, grid.shape)).mean(axis=0) + 0.5) * grid.resolution
     near_path = ndimage.binary_dilation(swept, iterations=2)
 
@@ -357,18 +364,6 @@ def test_ompl_replan_never_goes_into_cells_a_surface_hides_with_surface_shadow_a
     assert info["stuck"] > 0 and info["forced"] == 0, info
     qs, c = _run(task, frame, 600, unknown="occupied")
     assert c.info()["forced"] >= 1 and np.allclose(qs[-1], free_task.goal.q, atol=1e-6), c.info()
-
-
-def _swept_and_cube(free_task, grid, path):
-    """The arm's body on ``grid``, the cells it sweeps along ``path``, the unknown cube on it (False
-    in ``block``), and the known mask: the swept cells grown by one, less the cube."""
-    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
-    swept = np.zeros(grid.shape, dtype=bool)
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        for u in np.linspace(0.0, 1.0, 5):
-            body.mark(swept, a + u * (b - a))
-    block = _block_on_path(free_task, grid, path, body)
-    return body, swept, block, ndimage.binary_dilation(swept) & block
 
 
 def test_ompl_replan_safe_mode_relaxes_a_surface_margin_that_leaves_no_plan(free_task, open_space):

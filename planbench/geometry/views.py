@@ -11,15 +11,19 @@ footprint (beyond 2.3 m for 2 cm cells and the default camera's 0.5 degree pixel
 
 With numba (:mod:`planbench.runtime.backend`), one compiled loop over the cells; without it, the
 same arithmetic in numpy, one slab of cells at a time. Both mark the same cells.
+
+:func:`first_blocked` walks lines of sight the other way, from a camera to cells, and says what
+each meets first: the arm's cells or occupied ones (:mod:`planbench.reactive.shadows`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.runtime import backend as _backend
 
-__all__ = ["mark_seen"]
+__all__ = ["first_blocked", "mark_seen"]
 
 
 def mark_seen(
@@ -85,3 +89,48 @@ def _mark_seen_numpy(
             inside = (z > 0.0) & (col >= 0) & (col < width) & (row >= 0) & (row < height)
             at = np.where(inside, row * width + col, 0).astype(np.int64)
             out[i] |= inside & (vx * vx + vy * vy + vz * vz <= free2[at])
+
+
+def first_blocked(
+    origin: np.ndarray,
+    units: np.ndarray,
+    steps: np.ndarray,
+    step: float,
+    grid: OccupancyGrid,
+    arm: np.ndarray,
+    occupied: np.ndarray,
+    backend: str,
+) -> np.ndarray:
+    """Per line (unit direction ``units[n]`` from ``origin`` [m], sampled at ``k * step`` [m] for
+    ``k = 1 .. steps[n]``) through ``grid``'s cells: 1 when its first sample in a cell of ``arm``
+    or ``occupied`` (flat bool arrays of the grid's cells) is the arm's, 2 when occupied, -1 when
+    none is (int8; :mod:`planbench.reactive.shadows`). Compiled with numba, or in numpy a slab of
+    lines at a time: the same arithmetic, the same answers."""
+    out = np.full(len(units), -1, dtype=np.int8)
+    if not len(units):
+        return out
+    lower = np.ascontiguousarray(grid.origin, dtype=np.float64)
+    shape = np.array(grid.shape, dtype=np.intp)
+    res = float(grid.resolution)
+    if _backend.resolve(backend) == "numba":
+        from planbench.geometry import _compiled  # on use: numba is optional
+
+        _compiled.first_blocked(
+            origin, units, steps.astype(np.intp), float(step), lower, res, shape, arm, occupied, out
+        )
+        return out
+    most = int(steps.max())
+    if not most:
+        return out
+    s = np.arange(1, most + 1) * step  # [m] along the line
+    for lo in range(0, len(units), 256):  # (lines, samples, 3) floats a slab at a time
+        sl = slice(lo, lo + 256)
+        ijk = np.floor(((origin + units[sl, None, :] * s[None, :, None]) - lower) / res).astype(np.intp)
+        valid = np.all((ijk >= 0) & (ijk < shape), axis=2) & (np.arange(most)[None, :] < steps[sl, None])
+        flat = np.ravel_multi_index(tuple(np.moveaxis(np.where(valid[..., None], ijk, 0), 2, 0)), grid.shape)
+        hit_arm = valid & arm[flat]
+        blocked = hit_arm | (valid & occupied[flat])
+        k = np.argmax(blocked, axis=1)
+        rows = np.arange(len(k))
+        out[sl] = np.where(blocked[rows, k], np.where(hit_arm[rows, k], 1, 2), -1)
+    return out

@@ -17,14 +17,14 @@ cell from that camera. A cell outside a camera's image or beyond its range is no
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from planbench.geometry.occupancy import OccupancyGrid
+from planbench.geometry.views import first_blocked
 from planbench.reactive.scenario import CameraSettings
-from planbench.runtime import backend as _backend
+from planbench.reactive.sensing import camera_frame
 
 __all__ = ["ARM", "NOT_IN_VIEW", "OPEN", "SURFACE", "occluders"]
 
@@ -37,18 +37,6 @@ SURFACE = 2
 OPEN = 3
 """A camera has it in view with nothing occupied or of the arm in front (unknown for another reason:
 between two pixels' rays, a dropped pixel, or the cell came into view since the frame)."""
-
-
-def _frame(camera: CameraSettings) -> tuple[np.ndarray, np.ndarray, float, float]:
-    origin = np.asarray(camera.position, dtype=float)
-    forward = np.asarray(camera.look_at, dtype=float) - origin
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(camera.up, dtype=float))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    half_h = math.tan(math.radians(camera.fov) / 2.0)
-    half_w = half_h * int(camera.width) / int(camera.height)
-    return origin, np.stack([forward, right, up]), half_w, half_h
 
 
 def occluders(
@@ -78,7 +66,8 @@ def occluders(
     seen_surface = np.zeros(len(cells), dtype=bool)
     step = res / 2.0
     for camera in cameras:
-        origin, axes, half_w, half_h = _frame(camera)
+        origin, axes, pixel = camera_frame(camera)
+        half_w, half_h = pixel * int(camera.width) / 2.0, pixel * int(camera.height) / 2.0
         d = centres - origin
         depth = d @ axes[0]
         length = np.linalg.norm(d, axis=1)
@@ -91,54 +80,11 @@ def occluders(
         # samples from the optical centre to 1.5 cells short of each cell's centre, every half cell
         steps = np.maximum(np.floor((length[idx] - 1.5 * res) / step).astype(np.intp), 0)
         units = np.ascontiguousarray(d[idx] / length[idx, None])
-        first = _first_blocked(origin, units, steps, step, grid, arm_flat, occupied, backend)
+        first = first_blocked(origin, units, steps, step, grid, arm_flat, occupied, backend)
         seen_arm[idx[first == 1]] = True
         seen_surface[idx[first == 2]] = True
         seen_open[idx[first == -1]] = True
     out[seen_surface] = SURFACE
     out[seen_open] = OPEN
     out[seen_arm] = ARM
-    return out
-
-
-def _first_blocked(
-    origin: np.ndarray,
-    units: np.ndarray,
-    steps: np.ndarray,
-    step: float,
-    grid: OccupancyGrid,
-    arm: np.ndarray,
-    occupied: np.ndarray,
-    backend: str,
-) -> np.ndarray:
-    """Per line (``units``, from ``origin``, ``steps`` samples every ``step`` [m]): 1 when its first
-    sample in an arm or occupied cell is the arm's, 2 when occupied, -1 when none is (compiled
-    with numba, or in numpy a slab of lines at a time: the same arithmetic, the same answers)."""
-    out = np.full(len(units), -1, dtype=np.int8)
-    if not len(units):
-        return out
-    lower = np.ascontiguousarray(grid.origin, dtype=np.float64)
-    shape = np.array(grid.shape, dtype=np.intp)
-    res = float(grid.resolution)
-    if _backend.resolve(backend) == "numba":
-        from planbench.geometry import _compiled  # on use: numba is optional
-
-        _compiled.first_blocked(
-            origin, units, steps.astype(np.intp), float(step), lower, res, shape, arm, occupied, out
-        )
-        return out
-    most = int(steps.max())
-    if not most:
-        return out
-    s = np.arange(1, most + 1) * step  # [m] along the line
-    for lo in range(0, len(units), 256):  # (lines, samples, 3) floats a slab at a time
-        sl = slice(lo, lo + 256)
-        ijk = np.floor(((origin + units[sl, None, :] * s[None, :, None]) - lower) / res).astype(np.intp)
-        valid = np.all((ijk >= 0) & (ijk < shape), axis=2) & (np.arange(most)[None, :] < steps[sl, None])
-        flat = np.ravel_multi_index(tuple(np.moveaxis(np.where(valid[..., None], ijk, 0), 2, 0)), grid.shape)
-        hit_arm = valid & arm[flat]
-        blocked = hit_arm | (valid & occupied[flat])
-        k = np.argmax(blocked, axis=1)
-        rows = np.arange(len(k))
-        out[sl] = np.where(blocked[rows, k], np.where(hit_arm[rows, k], 1, 2), -1)
     return out
