@@ -16,6 +16,7 @@ paired, scenario by scenario.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from planbench.errors import PlanbenchError
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> None:
                 except PlanbenchError as e:  # no valid draw of this behaviour on this problem
                     print(f"left out: {e}")
                     break
-                s = s.__class__(**{**s.__dict__, "name": s.name.replace("dynamic:", "tune:")})
+                s = dataclasses.replace(s, name=s.name.replace("dynamic:", "tune:"))
                 s.save(out / f"{s.name.split(':', 1)[1].replace('/', '_')}.json")
                 n += 1
     print(f"{n} scenarios in {out}")
