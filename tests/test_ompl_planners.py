@@ -152,6 +152,32 @@ def test_settings_are_checked():
     assert OMPLAnyConfig().planner == "RRTConnect"
 
 
+def test_the_time_limit_counts_the_chosen_clock(blocked, monkeypatch):
+    # a search that can never connect (every motion blocked) ends when the "cpu" clock passes the
+    # deadline, whatever the elapsed time: the clock here is a counter that jumps after 40 reads
+    import time
+
+    from planbench_plugins.ompl_planners import base
+    from planbench_plugins.ompl_planners.motion import SegmentChecker
+
+    reads = []
+
+    def fake_cpu() -> float:
+        reads.append(1)
+        return 0.0 if len(reads) <= 40 else 1e9
+
+    monkeypatch.setitem(base.CLOCKS, "cpu", fake_cpu)
+    monkeypatch.setattr(SegmentChecker, "motion_free", lambda self, a, b: False)
+    t0 = time.perf_counter()
+    result = planbench.plan(blocked, RRTConnectPlanner, seed=3, time_limit=60.0, clock="cpu")
+    assert result.status is PlanStatus.TIMEOUT and result.info["clock"] == "cpu"
+    assert len(reads) > 40  # OMPL's search read the clock until it jumped
+    assert time.perf_counter() - t0 < 30.0  # not the 60 s of elapsed time
+    with pytest.raises(InvalidConfigError, match="clock"):
+        RRTConnectPlanner(clock="thread")
+    assert RRTConnectPlanner().config.clock == "wall"
+
+
 def test_pose_only_goal_uses_ik_samples(panda, blocked):
     problem = Problem.create(panda, blocked.scene, blocked.start, goal_pose=blocked.goal.pose, id="test:pose")
     result = solved(problem, RRTConnectPlanner, time_limit=5.0)

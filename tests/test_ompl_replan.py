@@ -8,7 +8,7 @@ import pytest
 
 import planbench
 from planbench.checking.collision import CollisionChecker
-from planbench.errors import InvalidSettingError
+from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.conformance import check_controller
 from planbench.reactive.controller import ControlTask, Observation
@@ -31,6 +31,20 @@ def test_ompl_replan_conforms_and_refuses_bad_settings():
     assert check_controller("ompl-replan") == []
     with pytest.raises(InvalidSettingError, match="speed_scale"):
         make_controller("ompl-replan", speed_scale=2.0)
+
+
+def test_its_plans_count_the_cpu_time_that_is_charged(free_task):
+    c = make_controller("ompl-replan")
+    c.setup(free_task)
+    assert c.config.plan_clock == "cpu" and c.planner.config.clock == "cpu"
+    wall = make_controller("ompl-replan", plan_clock="wall")
+    wall.setup(free_task)
+    assert wall.planner.config.clock == "wall"
+    with pytest.raises(InvalidSettingError, match="plan_clock"):
+        make_controller("ompl-replan", plan_clock="thread")
+    timeless = make_controller("ompl-replan", planner="straight-line")  # a planner with no clock setting
+    with pytest.raises(InvalidConfigError, match="plan_clock='wall'"):
+        timeless.setup(free_task)
 
 
 def test_it_follows_its_path_and_replans_around_an_obstacle_that_appears_on_it(free_task):

@@ -11,7 +11,9 @@ How a query runs (all inside ``plan()``, so all of it is timed by the harness):
    configuration outside the limits, clipped to them, is the sampler's first initial guess).
 2. OMPL's random generator is reseeded from the ``rng`` handed in (see *Seeding* below), then a fresh
    state space (the joint limits as bounds), ``SimpleSetup``, planner and problem are built.
-3. ``solve`` runs for what is left of the time limit. Only an exact solution counts.
+3. ``solve`` runs for what is left of the time limit. Only an exact solution counts. The limit
+   counts elapsed time (``clock = "wall"``) or this process's CPU time (``"cpu"``: what the closed
+   loop charges a controller, so a controller's plan does as much work on a loaded machine).
 4. The path is simplified (``simplify=True``, OMPL's ``PathSimplifier`` via ``simplifySolution``)
    for at most what is left of the time limit; its time is reported apart in ``info``.
 5. The path is certified as the harness certifies it (``verify=True``,
@@ -111,6 +113,8 @@ from .motion import CertifiedSegments, SegmentChecker, make_motion_validator
 __all__ = ["OMPLConfig", "OMPLAnyConfig", "OMPLPlanner", "geometric_planners", "planner_parameters"]
 
 COLLISION_MODES = ("primitives", "grid")
+CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.process_time}
+"""What a time limit counts (``OMPLConfig.clock``): elapsed time, or this process's CPU time."""
 LOG_LEVELS = ("none", "error", "warn", "info", "debug")
 MOTION_CHECKS = ("sampled", "certified")
 DETOUR_RADII = (0.02, 0.05, 0.1, 0.2)  # [rad] standard deviations of a repair's random waypoint
@@ -160,6 +164,11 @@ class OMPLConfig:
     """Pose-only goals: share of the time limit the IK sampler may use [-]."""
     log_level: str = "none"
     """OMPL's own log output (process-wide): none, error, warn, info or debug."""
+    clock: str = "wall"
+    """What the time limit counts: ``"wall"``, elapsed time (OMPL's and the benchmark's convention);
+    ``"cpu"``, this process's CPU time (:data:`CLOCKS`), which is what the closed loop charges a
+    controller, so that a controller's plan gets the same compute on a loaded machine as on an idle
+    one (``ompl-replan``'s ``plan_clock``)."""
     progress_interval: float = 0.05
     """Anytime planners (those reporting a best cost): record OMPL's progress properties (best cost,
     iterations) every ``progress_interval`` [s] of the search into ``info["progress"]`` (see the
@@ -170,6 +179,10 @@ class OMPLConfig:
             raise InvalidConfigError(f"collision must be one of {COLLISION_MODES}, got {self.collision!r}")
         if self.grid_geometry not in ("octree", "boxes"):
             raise InvalidConfigError(f"grid_geometry must be 'octree' or 'boxes', got {self.grid_geometry!r}")
+        if self.clock not in CLOCKS:
+            raise InvalidConfigError(
+                f"clock must be one of {tuple(CLOCKS)} (what the time limit counts), got {self.clock!r}"
+            )
         if self.log_level not in LOG_LEVELS:
             raise InvalidConfigError(f"log_level must be one of {LOG_LEVELS}, got {self.log_level!r}")
         for name in ("grid_resolution", "resolution"):
@@ -316,9 +329,10 @@ class OMPLPlanner(Planner):
 
     # --- plan (timed) ------------------------------------------------------------------------
     def plan(self, problem: Problem, *, time_limit: float, rng: np.random.Generator) -> PlanResult:
-        t_start = time.perf_counter()
-        deadline = t_start + time_limit
         c = self.config
+        now = CLOCKS[c.clock]
+        t_start = now()
+        deadline = t_start + time_limit
         robot = problem.robot
         checker = self._checker_for(problem)
         motions = self._segments_for(checker, c.resolution)
@@ -326,7 +340,12 @@ class OMPLPlanner(Planner):
         counted: list[Any] = [checker, motions]
         checks_before = sum(x.n_checks for x in counted)
         params = {**self.default_params, **c.params}
-        info: dict[str, Any] = {"ompl_planner": self.planner_name, "collision": c.collision, "ompl_params": params}
+        info: dict[str, Any] = {
+            "ompl_planner": self.planner_name,
+            "collision": c.collision,
+            "ompl_params": params,
+            "clock": c.clock,
+        }
 
         def result(status: PlanStatus, path: Any = None, message: str = "") -> PlanResult:
             info["collision_checks"] = sum(x.n_checks for x in counted) - checks_before
@@ -355,7 +374,13 @@ class OMPLPlanner(Planner):
         else:
             t_ik = time.perf_counter()
             goals = sample_goal_configurations(
-                problem, checker.in_collision, rng, c.ik_goals, c.ik_time_fraction * time_limit, seeds=seeds
+                problem,
+                checker.in_collision,
+                rng,
+                c.ik_goals,
+                c.ik_time_fraction * time_limit,
+                seeds=seeds,
+                clock=now,
             )
             info["ik_time"] = time.perf_counter() - t_ik
             info["ik_goals"] = len(goals)
@@ -384,6 +409,7 @@ class OMPLPlanner(Planner):
             seed,
             (t_start, deadline),
             finish,
+            now,
         )
         info.update(extra)
         info["ompl_status"] = status_text
@@ -472,6 +498,15 @@ class Progress:
         return out
 
 
+def _until(deadline: float, now: Callable[[], float]) -> Any:
+    """OMPL's termination condition at ``deadline`` [s] on ``now``'s clock: OMPL's own timer for
+    elapsed time, else a condition that reads the clock (a Python call each time OMPL asks, about
+    a microsecond against a motion check's tens)."""
+    if now is time.perf_counter:
+        return ob.timedPlannerTerminationCondition(max(deadline - now(), 0.0))
+    return ob.PlannerTerminationCondition(lambda: now() >= deadline)
+
+
 def _solve(
     planner_name: str,
     c: OMPLConfig,
@@ -484,11 +519,12 @@ def _solve(
     seed: int,
     clock: tuple[float, float],
     finish: Callable[[np.ndarray], np.ndarray],
+    now: Callable[[], float] = time.perf_counter,
 ) -> tuple[np.ndarray | None, str, dict[str, Any]]:
-    """One OMPL query; every OMPL object is created and freed here. ``clock``: the ``perf_counter``
-    times [s] when ``plan`` began and its deadline. Returns the first path of simplified, reduced,
-    raw that ``accept`` takes (``info["path_source"]``; ``"none"`` and the raw path when it takes
-    none)."""
+    """One OMPL query; every OMPL object is created and freed here. ``clock``: the times [s] on
+    ``now``'s clock (:data:`CLOCKS`) when ``plan`` began and its deadline. Returns the first path
+    of simplified, reduced, raw that ``accept`` takes (``info["path_source"]``; ``"none"`` and the
+    raw path when it takes none)."""
     t_plan, deadline = clock
 
     ou.setLogLevel(getattr(ou, _LOG_LEVEL_NAMES[c.log_level]))
@@ -550,15 +586,13 @@ def _solve(
         return np.array([[path.getState(k)[i] for i in index] for k in range(path.getStateCount())])
 
     info: dict[str, Any] = {}
-    remaining = deadline - time.perf_counter()
-    if remaining <= 0:
+    if deadline - now() <= 0:
         return None, "Timeout", info
     t0 = time.perf_counter()
     if c.progress_interval > 0 and hasattr(planner, "bestCost"):
-        progress = Progress(planner, t_plan, c.progress_interval)
-        stop = ob.plannerOrTerminationCondition(
-            ob.timedPlannerTerminationCondition(remaining), ob.PlannerTerminationCondition(progress)
-        )
+        origin = t_plan if now is time.perf_counter else t0 - (now() - t_plan)  # the plan's start, elapsed time
+        progress = Progress(planner, origin, c.progress_interval)
+        stop = ob.plannerOrTerminationCondition(_until(deadline, now), ob.PlannerTerminationCondition(progress))
         try:
             status = ss.solve(stop)
             progress.sample(time.perf_counter())
@@ -566,7 +600,7 @@ def _solve(
             progress.detach()  # a planner that keeps the condition (AORRTC) would keep itself alive
         info["progress"] = progress.as_info()
     else:
-        status = ss.solve(remaining)
+        status = ss.solve(_until(deadline, now))
     info["solve_time"] = time.perf_counter() - t0
     if hasattr(planner, "numIterations"):
         info["iterations"] = int(planner.numIterations())
@@ -593,7 +627,7 @@ def _solve(
         near = a + fraction * (b - a)
         for radius in DETOUR_RADII:
             for _ in range(DETOUR_TRIES):
-                if time.perf_counter() >= deadline:
+                if now() >= deadline:
                     return None
                 p = np.clip(near + detour_rng.normal(0.0, radius, size=nq), lower, upper)
                 if not in_collision(p) and certified.free(a, p) and certified.free(p, b):
@@ -604,14 +638,12 @@ def _solve(
         """A path from ``a`` to ``b`` whose every segment is certified free, or None within the time
         left: a detour through one random waypoint near the collision, else RRT-Connect with
         certified motion checks (its path then with vertices reduced, also certified)."""
-        remaining = deadline - time.perf_counter()
-        if remaining <= 0:
+        if now() >= deadline:
             return None
         piece = detour(a, b, fraction)
         if piece is not None:
             return piece
-        remaining = deadline - time.perf_counter()
-        if remaining <= 0:
+        if now() >= deadline:
             return None
         sub = og.SimpleSetup(space)
         sub.setStateValidityChecker(is_valid)
@@ -624,7 +656,10 @@ def _solve(
         rrt.setRange(float(params.get("range", 0.5)) if planner_name == "RRTConnect" else 0.5)
         sub.setPlanner(rrt)
         sub.setup()
-        if sub.solve(min(remaining, SUBSOLVE_TIME)).asString() != "Exact solution" or not sub.haveExactSolutionPath():
+        if (
+            sub.solve(_until(min(deadline, now() + SUBSOLVE_TIME), now)).asString() != "Exact solution"
+            or not sub.haveExactSolutionPath()
+        ):
             return None
         found = og.PathGeometric(sub.getSolutionPath())
         og.PathSimplifier(sub_si).reduceVertices(found)
@@ -661,13 +696,12 @@ def _solve(
             info["repaired_segments"] += 1
             path = np.vstack([path[:lo], piece, path[hi + 1 :]])
 
-    remaining = deadline - time.perf_counter()
-    if c.simplify and remaining <= 0:
+    if c.simplify and now() >= deadline:
         info["simplify_skipped"] = "no time left after the search"
     elif c.simplify:
         t1 = time.perf_counter()
         validator.certify = c.motion_check == "certified" or c.simplify_check == "certified"
-        ss.simplifySolution(remaining)
+        ss.simplifySolution(_until(deadline, now))
         info["simplify_time"] = time.perf_counter() - t1
         path = certify(as_array(ss.getSolutionPath()))
         if path is not None:

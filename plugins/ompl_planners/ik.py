@@ -45,12 +45,14 @@ def sample_goal_configurations(
     damping: float = 1e-3,
     seeds: Sequence[np.ndarray] = (),
     max_step: float = 0.2,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> list[np.ndarray]:
     """Collision-free configurations reaching ``problem.goal.pose`` (see the module docstring).
 
     ``time_budget`` [s]; ``damping`` [-] of the least-squares step; ``seeds``: initial guesses tried
     first, one attempt each (within the limits); ``max_step`` [rad]: largest joint step per iteration
-    (keeps an attempt near its initial guess).
+    (keeps an attempt near its initial guess); ``clock``: what ``time_budget`` counts (elapsed time,
+    or the process's CPU time for a controller's plan).
     """
 
     robot = problem.robot
@@ -61,11 +63,11 @@ def sample_goal_configurations(
     target = pose.se3()
     tol = problem.tolerances
     pos_tol, rot_tol = 0.1 * tol.position, 0.1 * tol.orientation
-    deadline = time.perf_counter() + time_budget
+    deadline = clock() + time_budget
     found: list[np.ndarray] = []
     eye = np.eye(6)
     guesses = [np.clip(np.asarray(x, dtype=float), robot.lower, robot.upper) for x in seeds]
-    while len(found) < n_goals and time.perf_counter() < deadline:
+    while len(found) < n_goals and clock() < deadline:
         q = guesses.pop(0) if guesses else rng.uniform(robot.lower, robot.upper)
         for _ in range(iterations):
             pin.framesForwardKinematics(model, data, q)
