@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import math
+import time
 import threading
 
 import numpy as np
@@ -173,6 +174,7 @@ def test_a_query_from_or_to_a_configuration_in_collision_is_refused_at_once(book
         {"unknown": "maybe"},
         {"field_mode": "sometimes"},
         {"standoff": 0.5},
+        {"slice_cpu_share": 1.0},
     ],
 )
 def test_bad_settings_are_errors_that_name_the_setting(setting):
@@ -226,6 +228,28 @@ def test_planning_is_spread_over_ticks_with_at_most_one_slice_each(task, monkeyp
     assert info["max_checks_per_slice"] <= query_bound
     # the path found is free of the board, at the planner's check points and between them
     assert free_along(CollisionChecker(task.robot, board), d.c.reference.waypoints)
+
+
+def test_with_slice_cpu_share_a_slice_ends_when_the_ticks_cpu_time_has_run_out(task, monkeypatch):
+    """A CPU clock that has always run out (a counter, read by the controller and the query):
+    every search and shortening slice makes one check, and the path is the one found without it,
+    many more ticks later."""
+    hand = task.robot.frame_pose(0.5 * (np.asarray(task.start) + np.asarray(task.goal.q)), task.goal.pose.frame)
+    board = truth(Scene((Obstacle("board", "box", tuple(hand.translation), size=(0.3, 0.3, 0.02)),)))
+
+    def planned(**settings):
+        d = Driver(task, **settings)
+        d.run(board, 20000, until=lambda d: d.c.reference is not None and d.c.job is None)
+        assert d.c.reference is not None
+        return d.c
+
+    plain = planned()
+    reads = iter(range(10**9))
+    monkeypatch.setattr(time, "process_time", lambda: float(next(reads)))
+    timed = planned(slice_cpu_share=0.5)
+    assert timed.info()["max_checks_per_slice"] == 1 < plain.info()["max_checks_per_slice"]
+    assert timed.info()["plan_ticks"][0] > 5 * plain.info()["plan_ticks"][0]
+    assert np.array_equal(timed.reference.waypoints, plain.reference.waypoints)
 
 
 def test_a_frames_new_cells_are_checked_in_octrees_of_at_most_a_slices_cells(task, monkeypatch):
@@ -445,6 +469,28 @@ def test_exact_slices_make_the_unsliced_search_and_end_at_their_bound(bookshelf)
                 break
         assert set(per_slice[:-1]) == {size} and per_slice[-1] <= size
         assert query.checks == whole.checks and np.array_equal(query.path, whole.path)
+
+
+def test_a_slice_past_its_cpu_time_ends_after_one_check_and_the_path_is_the_same(bookshelf):
+    """A slice ends at the first check past ``cpu_until`` (here always past: one check a slice),
+    in the search and in the shortening; the checks and the shortened path are those of slices
+    without it."""
+    checker = CollisionChecker(bookshelf.robot, bookshelf.scene)
+    free = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, exact=True)
+    while not free.advance(50):
+        pass
+    timed = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, exact=True)
+    per_slice = []
+    while True:
+        before = timed.checks
+        done = timed.advance(50, cpu_until=-math.inf)
+        per_slice.append(timed.checks - before)
+        if done:
+            break
+    assert set(per_slice[:-1]) == {1} and timed.slices > 20 * free.slices
+    assert timed.checks == free.checks and np.array_equal(timed.path, free.path)
+    later = SlicedRRTConnect(checker, bookshelf.start, bookshelf.goal.q, seed=3, exact=True)
+    assert not later.advance(50, cpu_until=math.inf) and later.checks == 50  # not yet: the count ends it
 
 
 def test_an_exact_query_dropped_or_closed_unfinished_ends_its_thread(bookshelf):

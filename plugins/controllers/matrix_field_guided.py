@@ -20,7 +20,8 @@ octrees of at most ``octree_cells`` cells, one per tick, then their checker), th
 search and shortening slices of ``plan_checks_per_tick`` collision checks (the search may end up
 to two motions of ``plan_range / motion_resolution`` checks beyond:
 :mod:`planbench_plugins.ompl_planners.sliced`), or, while a path is tracked, the check of the
-latest frame (below). A slice's end is set by check counts and frames only, never by the clock.
+latest frame (below). A slice's end is set by check counts and frames only, never by the clock
+(unless ``slice_cpu_share`` > 0: a planning slice then also ends when the tick's CPU time has run out).
 While it plans, the arm holds the reference it had (after a lag replan: where it is) with the field
 on; a plan starts there, and the tracker takes the path from where the arm is (its feedback closes
 the small gap). A query that finds nothing in ``plan_check_budget`` checks starts again from the
@@ -59,6 +60,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -132,6 +134,13 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     and a grid's scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 3 checks, 1,000 cells, 20
     parts, so a tick
     stays near a tenth of the work; at 100 Hz nothing changes. False: the numbers as given."""
+    slice_cpu_share: float = 0.0
+    """0 (the default): a planning slice ends by its check count alone, as the module docstring
+    says. > 0: it also ends at the first check after the tick has used this share of the control
+    period in CPU time (after at least one check), so that a slice of slow checks does not pass the
+    period; the search's checks and path stay the same, only when it finds them moves with the
+    clock (:mod:`planbench_plugins.ompl_planners.sliced`, "A slice's CPU time"). Measured in
+    docs/reactive.md ("A slice's CPU time")."""
     plan_check_budget: int = 20000
     """Checks one RRT-Connect query may spend without a path before it starts again from the held
     configuration on the latest frame."""
@@ -206,6 +215,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
         ):
             check_number(self, name, lambda v: v > 0, "finite and > 0")
         check_number(self, "velocity_scale", lambda v: v <= 1, "in (0, 1]")
+        check_number(self, "slice_cpu_share", lambda v: 0 <= v < 1, "in [0, 1)")
         check_number(self, "goal_fade", lambda v: v >= 0, "finite and >= 0")
         check_number(self, "repulsion_gain", lambda v: v >= 0, "finite and >= 0")
         for name in ("shorten", "scale_slices", "hold_gives_way"):
@@ -323,6 +333,7 @@ class MatrixFieldGuidedController(Controller):
         }
         self._plan_started = 0
         self._ticks = 0
+        self._cpu_until: float | None = None  # with slice_cpu_share: the process CPU time [s] a slice ends at
 
     def update(self, observation: Observation) -> None:
         """Take in a frame: the field's grid (its unknown cells near the arm occupied first, with
@@ -354,6 +365,8 @@ class MatrixFieldGuidedController(Controller):
         """The tracking law from ``q`` [rad] (module docstring) after at most one slice of work."""
         q = np.asarray(q, dtype=float)
         self._ticks += 1
+        if self.config.slice_cpu_share > 0:
+            self._cpu_until = time.process_time() + self.config.slice_cpu_share * self.task.period
         if self.frame_turn:
             self.frame_turn = False
             return self._command(t, q)  # the frame's update is this turn's work
@@ -438,7 +451,7 @@ class MatrixFieldGuidedController(Controller):
         yield
         while True:
             before = query.checks
-            done = query.advance(self.slice_checks)
+            done = query.advance(self.slice_checks, self._cpu_until)
             self._count(query.checks - before)
             if done:
                 break

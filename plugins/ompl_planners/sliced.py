@@ -35,6 +35,14 @@ so the checks are the same whatever the scheduler does, and the CPU time the sea
 the process's, charged where it is spent. This is what a 1 kHz loop needs: 5 checks a slice with a
 one-motion overrun would still allow 105 checks (several milliseconds) in one tick.
 
+**A slice's CPU time** (``advance(checks, cpu_until=...)``). A check's cost varies (a
+configuration near many octree cells, a machine whose other processes slow its caches), so a
+slice of a fixed count can pass a control period. Given ``cpu_until`` (a ``time.process_time``
+value [s]), an exact search and the shortening also end their slice at the first check that
+finds the process's CPU time past it, after at least one check. The pause changes nothing but
+where the slice ends: the checks, trees and path stay those of one ``solve`` (tested). The
+bounded mode ignores it (its slice's end cuts a connect).
+
 **No batch pool.** Motions are checked a configuration at a time on the checker's own broadphase
 (:class:`~.motion.SegmentChecker` with ``pooled=False``): the batch check's pool copies every
 obstacle when it is built, 6-12 ms in one piece with a depth frame's octrees, which alone missed a
@@ -52,6 +60,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 import weakref
 from typing import Any
 
@@ -111,6 +120,8 @@ class SlicedRRTConnect:
         """Calls of :meth:`advance` that did work."""
         self._states = 0  # state validity checks
         self._end = 0  # the check count at which the current slice ends
+        self._began = 0  # the check count at which it began
+        self._cpu_until: float | None = None  # the process CPU time [s] at which it ends (exact, shortening)
         self._i = 0  # shortening: the waypoint from which the farthest reachable one is sought,
         self._j = 0  # the one tried now,
         self._motion: tuple[np.ndarray, int] | None = None  # and that motion's states left to check
@@ -128,8 +139,14 @@ class SlicedRRTConnect:
 
     @property
     def spent(self) -> bool:
-        """The current slice's checks are spent."""
-        return self.checks >= self._end
+        """The current slice's checks are spent, or (exact search, shortening) its CPU time, once
+        it made a check (module docstring)."""
+        checks = self.checks
+        if checks >= self._end:
+            return True
+        if self._cpu_until is None or checks <= self._began or (self._pacer is None and self.path is None):
+            return False
+        return time.process_time() >= self._cpu_until
 
     @property
     def refusing(self) -> bool:
@@ -141,13 +158,17 @@ class SlicedRRTConnect:
         """The search ended without a path (an exact query whose search stopped: it never will)."""
         return self.path is None and self._pacer is not None and self._pacer.finished
 
-    def advance(self, checks: int) -> bool:
+    def advance(self, checks: int, cpu_until: float | None = None) -> bool:
         """Spend at most ``checks`` more checks (the search: up to :attr:`max_overshoot` beyond) on
-        the search, then on shortening its path; True once the path is final (:attr:`done`)."""
+        the search, then on shortening its path, and (exact search, shortening) stop at the first
+        check past the process CPU time ``cpu_until`` [s] once one is made; True once the path is
+        final (:attr:`done`)."""
         if self.done:
             return True
         self.slices += 1
-        self._end = self.checks + max(1, int(checks))
+        self._began = self.checks
+        self._end = self._began + max(1, int(checks))
+        self._cpu_until = cpu_until
         if self.path is None:
             if self._ompl is None:  # closed, or an exact search that ended without a path
                 return False
@@ -213,14 +234,16 @@ class SlicedRRTConnect:
         if self._motion is None:
             self._motion = self.segments.motion_states(a, b), 0
         states, done = self._motion
-        take = min(len(states) - done, self._end - self.checks)
-        if self.segments.first_hit(states[done : done + take]) >= 0:
-            self._motion = None
-            return False
-        done += take
-        if done < len(states):
-            self._motion = states, done
-            return None
+        while done < len(states):
+            if self.spent:
+                self._motion = states, done
+                return None
+            take = len(states) - done if self._cpu_until is None else 1  # else the CPU time read between
+            take = min(take, self._end - self.checks)
+            if self.segments.first_hit(states[done : done + take]) >= 0:
+                self._motion = None
+                return False
+            done += take
         self._motion = None
         return True
 
