@@ -10,8 +10,8 @@ from __future__ import annotations
 import dataclasses
 import gc
 import math
-import time
 import threading
+import time
 
 import numpy as np
 import pytest
