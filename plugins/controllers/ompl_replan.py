@@ -100,6 +100,7 @@ from planbench.reactive.shadows import ARM, SURFACE, occluders
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
+from planbench_plugins.controllers.evade import EvadeSettings, Threat, retreat
 from planbench_plugins.controllers.observed import ArmCells, GoalCells, LinkBoxes, PathBoxes, scene_without_touched
 from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
@@ -109,7 +110,7 @@ __all__ = ["OMPLReplanConfig", "OMPLReplanController"]
 
 
 @dataclass(frozen=True)
-class OMPLReplanConfig(UnknownSettings, PredictionSettings):
+class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     """Settings of ``ompl-replan``. ``unknown = "occupied"`` is its safe mode (module docstring):
     plan optimistically, move only into cells an observation knows."""
 
@@ -268,6 +269,7 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings):
                 raise InvalidConfigError(f"{name} must be an integer >= 1, got {v!r}")
         self.validate_unknown()
         self.validate_prediction()
+        self.validate_evade()
 
 
 def _ball(radius: float) -> np.ndarray:
@@ -348,7 +350,8 @@ class OMPLReplanController(Controller):
         if shadows and task.cameras:  # the compiled line walk loaded (or compiled), untimed
             tiny = OccupancyGrid.empty(np.zeros(3), np.full(3, 0.1), 0.05)
             occluders(np.arange(2), tiny, np.zeros(tiny.shape, dtype=bool), task.cameras[:1])
-        self.predictor = MotionPredictor(self.config) if self.config.prediction != "none" else None
+        tracked = self.config.prediction != "none" or self.config.evade != "none"
+        self.predictor = MotionPredictor(self.config) if tracked else None
         if self.predictor is not None:
             warm_up(self.config, lambda block: None)  # scipy's k-d tree and graph code loaded, untimed
 
@@ -385,7 +388,9 @@ class OMPLReplanController(Controller):
         self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
         self.relaxed = 0  # safe mode: steps surface_margin has been relaxed by (relax_steps)
         self.failed_in_row = 0  # plans failed since the last that found a path
-        self.predicted = np.zeros(0, dtype=np.intp)  # depth: the cells moving clusters sweep (flat)
+        self.predicted = np.zeros(0, dtype=np.intp)  # depth, "swept": the cells moving clusters sweep (flat)
+        self.threat = np.zeros(0, dtype=np.intp)  # depth, evade: moving cells and what tracks sweep (flat)
+        self.evading = False  # the path followed is a retreat (evade)
         if self.predictor is not None:
             self.predictor.reset()
         self.fresh = False
@@ -394,13 +399,17 @@ class OMPLReplanController(Controller):
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
-        self.stats.update(rest_checks=0, arm_shadow=0)
+        self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0)
         self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
         if self.predictor is not None and observation.scene is None:  # depth: where moving obstacles go
-            self.predicted = self.predictor.observe(observation).cells
+            prediction = self.predictor.observe(observation)
+            if self.config.evade != "none":
+                self.threat = np.union1d(prediction.moving, prediction.cells)
+            if self.config.prediction != "none":
+                self.predicted = prediction.cells
             if len(self.predicted):
                 self.stats["predicted_frames"] += 1
                 self.stats["predicted_cells_max"] = max(self.stats["predicted_cells_max"], len(self.predicted))
@@ -413,7 +422,9 @@ class OMPLReplanController(Controller):
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
             self.fresh, self.may_plan = False, True
             self._frame(q)
-            if self.path is not None:
+            if self.config.evade != "none" and self._evade(q):
+                pass  # a retreat now, no path to check
+            elif self.path is not None:
                 self._check_rest(q)
         if self.path is None:
             if not self.still:  # stop first: the runner holds this command while the plan is made
@@ -432,6 +443,45 @@ class OMPLReplanController(Controller):
 
     def info(self) -> dict[str, Any]:
         return dict(self.stats)
+
+    # --- getting out of the way ---------------------------------------------------------------
+    def _evade(self, q: np.ndarray) -> bool:
+        """Depth, ``evade``: on a new frame, whether the arm retreats now (a new path, the
+        retreat; :mod:`~.evade`). A retreat ends when its end is reached or no moving cell is
+        within ``evade_distance`` of the arm any more: then the arm plans to the goal again. A path
+        that takes the arm farther from the threat within ``scan_horizon`` is kept."""
+        obs, body = self.observation, self.body
+        evading = self.evading and self.path is not None
+        self.evading = evading
+        if obs is None or obs.scene is not None or body is None or (not len(self.threat) and not evading):
+            return False
+        threat = Threat(obs.grid, self.threat)
+        cap = 2.0 * self.config.evade_distance
+        near = threat.distance(body, q, cap)
+        if near >= self.config.evade_distance:
+            if evading:  # out of the way: plan to the goal again
+                self.evading, self.path = False, None
+            return False
+        if self.path is not None and self.times is not None:
+            if evading and self.tau < float(self.times[-1]) - 1e-9:
+                return False  # on its way out: its rest is checked as any path's
+            if not evading:
+                ahead = self._at(min(self.tau + self.config.scan_horizon, float(self.times[-1])))
+                if threat.distance(body, ahead, cap) > near + obs.grid.resolution:
+                    return False  # the path leads away
+        assert self.occupied is not None
+        checker = self._cells_checker(self.occupied, q)
+        limits = (np.asarray(self.task.robot.lower), np.asarray(self.task.robot.upper))
+        end = retreat(q, threat, body, checker, limits, self.config, self.config.check_resolution, self.rng)
+        if end is None:
+            self.stats["evade_failed"] += 1
+            if evading:  # at a retreat's end with nowhere farther to go: plan to the goal again
+                self.evading, self.path = False, None
+            return False
+        self._take(np.vstack([q, end]))
+        self.evading = True
+        self.stats["evasions"] += 1
+        return True
 
     # --- the frame ----------------------------------------------------------------------------
     def _frame(self, q: np.ndarray) -> None:
@@ -924,6 +974,7 @@ class OMPLReplanController(Controller):
         """Follow ``path`` from its start, timed at the scaled velocity limits."""
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
+        self.evading = False  # a retreat says so after taking its path
         self.reach = None  # the next frame checks the new path against every cell
         self.scan_clear = -math.inf
         self.stretch = None

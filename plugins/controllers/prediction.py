@@ -158,11 +158,15 @@ class Track:
 @dataclass(frozen=True)
 class Prediction:
     """What one frame predicts: ``cells`` the flat indices of the swept cells (sorted, unique),
-    ``tracks`` the tracks alive, ``moving_cells`` how many moving cells the frame had."""
+    ``tracks`` the tracks alive, ``moving_cells`` how many moving cells the frame had, ``moving``
+    the flat indices of those in clusters (step 2): where obstacles that came in lately are, with
+    or without a track (a track needs frames close together; a controller that plans between
+    frames may see an obstacle move in only once)."""
 
     cells: np.ndarray
     tracks: tuple[Track, ...] = ()
     moving_cells: int = 0
+    moving: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
 
 
 _EMPTY = np.zeros(0, dtype=np.intp)
@@ -210,7 +214,8 @@ class MotionPredictor:
             self._points_in = (cells[keep], points[keep])
         clusters = self._clusters(moving, grid.shape)
         self._associate(clusters, grid, t)
-        return Prediction(self._swept(grid, t), tuple(self.tracks), len(moving))
+        clustered = np.concatenate(clusters) if clusters else _EMPTY
+        return Prediction(self._swept(grid, t), tuple(self.tracks), len(moving), clustered)
 
     def _point_cells(self, observation: Observation) -> tuple[np.ndarray, np.ndarray | None]:
         """Flat indices of the cells holding a point of the frame, one per point, and those points

@@ -1,0 +1,122 @@
+"""Getting out of the way of an obstacle that comes at the arm.
+
+A replanning controller stops when its path is blocked and plans again; while the goal is blocked
+(a box crossing over it) it stands and waits. Standing still is safe from a static scene, not from
+a box on its way through the arm: on ``dynamic-tune`` (2026-11-27) the depth runs of
+``xarm7_crossing_*/0007`` stopped, the goal refused by every plan while the box passed over it,
+and the box ran into the standing arm at every speed, a frame having shown it coming for half a
+second. A person next to a robot expects it to yield.
+
+The threat is what came in lately, without a track: the cells of the moving clusters of
+:class:`~.prediction.MotionPredictor` (occupied now, seen free before, within
+``prediction_memory``) and, where a track's velocity is trusted, the cells it sweeps. A track
+needs frames close together and a replanning controller sees frames only between its plans, so
+the moving cells alone must do. When one lies within ``evade_distance`` of the arm's body (the
+cells it fills, centre to centre), the arm retreats: a straight joint motion of at most
+``evade_step`` per joint, the one of ``evade_samples`` random ones (joint limits kept) whose end
+keeps the body farthest from those cells (up to twice the distance; then the shortest), its
+motion checked against every occupied cell and the arm itself. None farther than where the arm
+stands: no retreat.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from planbench.checking.collision import CollisionChecker
+from planbench.errors import InvalidConfigError
+from planbench.geometry.occupancy import OccupancyGrid
+from planbench.reactive.body import ArmBody
+
+__all__ = ["EVADE_MODES", "EvadeSettings", "Threat", "retreat"]
+
+EVADE_MODES = ("none", "retreat")
+"""``"none"``: never; ``"retreat"``: back away from what came in lately (module docstring)."""
+
+_MOTION_CHECKS = 8
+"""Most candidate motions checked for collision per retreat, best first (each a coal check every
+``check_resolution``): the rest of the budget is not spent on worse ones."""
+
+
+@dataclass(frozen=True)
+class EvadeSettings:
+    """How a controller gets out of the way (module docstring); a mixin of a controller's config."""
+
+    evade: str = "none"
+    """``"none"`` or ``"retreat"`` (module docstring)."""
+    evade_distance: float = 0.15
+    """[m] A moving cell closer than this to the arm's body is a threat."""
+    evade_step: float = 0.5
+    """[rad] Largest move of one joint in a retreat."""
+    evade_samples: int = 64
+    """Random retreats scored per threat."""
+
+    def validate_evade(self) -> None:
+        """Raise :class:`~planbench.errors.InvalidConfigError` naming the first bad setting."""
+        if self.evade not in EVADE_MODES:
+            raise InvalidConfigError(f"evade must be one of {EVADE_MODES}, got {self.evade!r}")
+        for name in ("evade_distance", "evade_step"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise InvalidConfigError(f"{name} must be a finite number > 0, got {v!r}")
+        v = self.evade_samples
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InvalidConfigError(f"evade_samples must be an integer >= 1, got {v!r}")
+
+
+class Threat:
+    """Distances [m] from the arm's body to some cells of a grid (flat indices), centre to centre."""
+
+    def __init__(self, grid: OccupancyGrid, cells: np.ndarray) -> None:
+        self.grid = grid
+        self.tree = cKDTree(self._centres(np.asarray(cells, dtype=np.intp))) if len(cells) else None
+
+    def _centres(self, cells: np.ndarray) -> np.ndarray:
+        ijk = np.column_stack(np.unravel_index(cells, self.grid.shape))
+        return self.grid.origin + (ijk + 0.5) * self.grid.resolution  # type: ignore[no-any-return]
+
+    def distance(self, body: ArmBody, q: np.ndarray, cap: float = math.inf) -> float:
+        """The least distance [m] from a cell the body fills at ``q`` to the cells (``cap`` when
+        farther: a bound that speeds up the search)."""
+        if self.tree is None:
+            return cap
+        filled = body.cells(q)
+        if not len(filled):
+            return cap
+        d, _ = self.tree.query(self._centres(filled), k=1, distance_upper_bound=cap)
+        return float(min(cap, float(np.min(d))))
+
+
+def retreat(
+    q: np.ndarray,
+    threat: Threat,
+    body: ArmBody,
+    checker: CollisionChecker,
+    limits: tuple[np.ndarray, np.ndarray],
+    settings: EvadeSettings,
+    resolution: float,
+    rng: np.random.Generator,
+) -> np.ndarray | None:
+    """Where the arm at ``q`` retreats to (module docstring), or None: no motion checked free ends
+    farther from the threat than ``q`` is, by more than a cell. ``resolution`` [rad]: the spacing
+    of the motion's collision checks."""
+    q = np.asarray(q, dtype=float)
+    cap = 2.0 * settings.evade_distance
+    here = threat.distance(body, q, cap)
+    lower, upper = limits
+    steps = rng.uniform(-settings.evade_step, settings.evade_step, size=(settings.evade_samples, len(q)))
+    ends = np.clip(q + steps, lower, upper)
+    scores = np.array([threat.distance(body, x, cap) for x in ends])
+    moves = np.max(np.abs(ends - q), axis=1)
+    order = np.lexsort((moves, -scores))  # farthest first, then the shortest move
+    for i in order[:_MOTION_CHECKS]:
+        if scores[i] <= here + threat.grid.resolution:
+            return None
+        n = max(1, math.ceil(moves[i] / resolution))
+        if not any(checker.in_collision(q + u * (ends[i] - q)) for u in np.arange(1, n + 1) / n):
+            return ends[i]  # type: ignore[no-any-return]
+    return None
