@@ -3,6 +3,8 @@ invalidates the rest of the path."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,8 +14,11 @@ from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.conformance import check_controller
 from planbench.reactive.controller import ControlTask, Observation
+from planbench.problem import Goal
+from planbench.reactive.body import ArmBody
 from planbench.registry import make_controller
 from planbench.scene import Obstacle, Scene
+from planbench_plugins.controllers.evade import EvadeSettings, Threat, retreat
 
 
 @pytest.fixture(scope="module")
@@ -318,3 +323,63 @@ def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest
     assert out[1] and not g.blocking.any()  # 1.1 s: taken for what the map keeps, left out
     g.classify(1.7, frame([1, 0, 1, 1], [True] * 4), near)
     assert g.blocking.tolist() == [False, False, False, True]  # cell 1 seen free again; cell 3 appeared
+
+
+def _box_at_the_standing_arm(task: ControlTask, evade: str) -> tuple[bool, dict]:
+    """Depth, 30 frames a second: the arm stands at its goal; a box flies at 0.5 m/s through the
+    place of its hand, from 0.6 m away. Whether the box ever touched the arm (the arm moved by the
+    commands, clipped to the velocity limits), and the controller's ``info``."""
+    robot, q = task.robot, np.array(task.start, dtype=float)
+    at_start = Goal(robot.frame_pose(q, task.goal.pose.frame), q.copy())
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    hand = robot.frame_pose(q, task.goal.pose.frame).translation
+    v = np.array([0.0, -0.5, 0.0])
+    c = make_controller("ompl-replan", unknown="free", evade=evade)
+    c.setup(dataclasses.replace(task, goal=at_start))
+    c.reset(q.copy(), np.random.default_rng(0))
+    vmax = np.asarray(robot.velocity_limit)
+    touched = False
+    for k in range(200):  # 2 s: the box reaches the hand at 1.2 s
+        t = 0.01 * k
+        centre = hand - v * (1.2 - t)
+        if k % 3 == 0:
+            c.update(_box_frame(grid, _cube(centre), t, k // 3))
+        q = q + 0.01 * np.clip(c.step(t, q, None, at_start), -vmax, vmax)
+        box = Scene((Obstacle("box", "box", tuple(hand - v * (1.2 - t - 0.01)), size=(0.1, 0.1, 0.1)),))
+        touched = touched or CollisionChecker(robot, box).in_collision(q)
+    return touched, c.info()
+
+
+def test_with_evade_the_arm_backs_away_from_a_box_flying_at_it(free_task):
+    """``evade = "retreat"``: the cells that came in lately within ``evade_distance`` of the arm
+    make it retreat, so a box flying through the standing hand's place misses the arm; without
+    it the arm, at its goal, waits where it is and is hit."""
+    hit, plain = _box_at_the_standing_arm(free_task, "none")
+    assert hit and plain["evasions"] == 0
+    hit, evaded = _box_at_the_standing_arm(free_task, "retreat")
+    assert not hit and evaded["evasions"] >= 1, evaded
+    with pytest.raises(InvalidSettingError, match="evade"):
+        make_controller("ompl-replan", evade="flee")
+    with pytest.raises(InvalidSettingError, match="evade_distance"):
+        make_controller("ompl-replan", evade_distance=float("nan"))
+
+
+def test_a_retreat_ends_farther_from_the_threat_or_is_not_made(free_task):
+    """:func:`retreat`: the end it picks keeps the arm's body farther from the threat's cells than
+    where it stands, by more than a cell, and its motion is free; with steps too small to get a
+    cell farther, none."""
+    robot, q = free_task.robot, np.array(free_task.start, dtype=float)
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    hand = robot.frame_pose(q, free_task.goal.pose.frame).translation
+    cells = np.unique(np.ravel_multi_index(grid.index_of(_cube(hand + [0.2, 0.0, 0.0])).T, grid.shape))
+    threat = Threat(grid, cells)
+    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    checker = CollisionChecker(robot, Scene())
+    limits = (np.asarray(robot.lower), np.asarray(robot.upper))
+    here = threat.distance(body, q)
+    assert 0.0 < here < 0.15, here
+    end = retreat(q, threat, body, checker, limits, EvadeSettings(), 0.02, np.random.default_rng(0))
+    assert end is not None and threat.distance(body, end) > here + grid.resolution
+    assert np.all(np.abs(end - q) <= 0.5 + 1e-12) and np.all(end >= limits[0]) and np.all(end <= limits[1])
+    tiny = EvadeSettings(evade_step=1e-4)
+    assert retreat(q, threat, body, checker, limits, tiny, 0.02, np.random.default_rng(0)) is None

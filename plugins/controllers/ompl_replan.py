@@ -70,6 +70,15 @@ depth scenarios of ``dynamic-tune`` it solved 15 against 19 without (docs/reacti
 in ompl-replan"): the frames reach the predictor too sparsely while plans are charged for a track
 to form in most runs, and the differences were mostly in runs where it predicted nothing.
 
+**Getting out of the way** (depth; ``evade``, :class:`~.evade.EvadeSettings`): with
+``"retreat"``, on every frame the cells of obstacles that came in lately (the predictor's moving
+clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
+unless its path leads away from them: a short straight joint motion to where the body is farthest
+from them (:func:`~.evade.retreat`), checked against every occupied cell and the arm itself.
+Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
+Standing still while a plan is refused or the path is blocked is safe from a static scene, not
+from a box on its way through the arm.
+
 The arm may always enter the unknown cells within ``start_margin`` of its body where the run
 started (the sensor's robot filter blinds it there, so they are never seen until the arm has
 moved) and at the goal (which the task asserts free). With ``arm_shadow``, when a new path enters
