@@ -12,10 +12,10 @@ import planbench
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.geometry.occupancy import OccupancyGrid
-from planbench.reactive.conformance import check_controller
-from planbench.reactive.controller import ControlTask, Observation
 from planbench.problem import Goal
 from planbench.reactive.body import ArmBody
+from planbench.reactive.conformance import check_controller
+from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
 from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.evade import EvadeSettings, Threat, retreat
