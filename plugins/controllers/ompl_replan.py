@@ -352,6 +352,7 @@ class OMPLReplanController(Controller):
         self.task = task
         self.planner = REGISTRY.make(self.config.planner, **self._clock_setting())
         self.vmax = self.config.speed_scale * np.asarray(task.robot.velocity_limit, dtype=float)
+        self.pace = self.vmax  # [rad/s] the path's timing: the scaled limits, a retreat's the full ones
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
         self.link_boxes = LinkBoxes(task.robot)
@@ -456,9 +457,11 @@ class OMPLReplanController(Controller):
     # --- getting out of the way ---------------------------------------------------------------
     def _evade(self, q: np.ndarray) -> bool:
         """Depth, ``evade``: on a new frame, whether the arm retreats now (a new path, the
-        retreat; :mod:`~.evade`). A retreat ends when its end is reached or no moving cell is
-        within ``evade_distance`` of the arm any more: then the arm plans to the goal again. A path
-        that takes the arm farther from the threat within ``scan_horizon`` is kept."""
+        retreat, at the full velocity limits; :mod:`~.evade`). A retreat ends when its end is
+        reached or no moving cell is within ``evade_distance`` of the arm any more: then the arm
+        plans to the goal again; one whose end is no farther from the threat than the arm is now
+        (the obstacle came on) is replaced. A path that takes the arm farther from the threat
+        within ``scan_horizon`` is kept."""
         obs, body = self.observation, self.body
         evading = self.evading and self.path is not None
         self.evading = evading
@@ -473,7 +476,8 @@ class OMPLReplanController(Controller):
             return False
         if self.path is not None and self.times is not None:
             if evading and self.tau < float(self.times[-1]) - 1e-9:
-                return False  # on its way out: its rest is checked as any path's
+                if threat.distance(body, self.path[-1], cap) > near + obs.grid.resolution:
+                    return False  # on its way out: its rest is checked as any path's
             if not evading:
                 ahead = self._at(min(self.tau + self.config.scan_horizon, float(self.times[-1])))
                 if threat.distance(body, ahead, cap) > near + obs.grid.resolution:
@@ -487,7 +491,7 @@ class OMPLReplanController(Controller):
             if evading:  # at a retreat's end with nowhere farther to go: plan to the goal again
                 self.evading, self.path = False, None
             return False
-        self._take(np.vstack([q, end]))
+        self._take(np.vstack([q, end]), self.vmax / self.config.speed_scale)  # at the full limits
         self.evading = True
         self.stats["evasions"] += 1
         return True
@@ -979,9 +983,11 @@ class OMPLReplanController(Controller):
         self._take(np.array(result.path, dtype=float))
         return True
 
-    def _take(self, path: np.ndarray) -> None:
-        """Follow ``path`` from its start, timed at the scaled velocity limits."""
-        steps = np.max(np.abs(np.diff(path, axis=0)) / self.vmax, axis=1) if len(path) > 1 else np.zeros(0)
+    def _take(self, path: np.ndarray, pace: np.ndarray | None = None) -> None:
+        """Follow ``path`` from its start, timed at ``pace`` [rad/s] per joint (by default the
+        scaled velocity limits)."""
+        self.pace = self.vmax if pace is None else pace
+        steps = np.max(np.abs(np.diff(path, axis=0)) / self.pace, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
         self.evading = False  # a retreat says so after taking its path
         self.reach = None  # the next frame checks the new path against every cell
@@ -994,7 +1000,7 @@ class OMPLReplanController(Controller):
         """The path's configurations at the times [s] in ``[t0, t1]`` on a fixed grid along it
         (no joint moves more than ``check_resolution`` between two), the path's end included."""
         assert self.times is not None
-        dt = self.config.check_resolution / float(np.max(self.vmax))
+        dt = self.config.check_resolution / float(np.max(self.pace))
         end = float(self.times[-1])
         stamps = np.arange(math.ceil(t0 / dt - 1e-9), math.floor(min(t1, end) / dt + 1e-9) + 1) * dt
         if t1 >= end and (not len(stamps) or stamps[-1] < end):
