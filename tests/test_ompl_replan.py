@@ -13,12 +13,11 @@ from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError, InvalidSettingError
 from planbench.geometry.occupancy import OccupancyGrid
 from planbench.problem import Goal
-from planbench.reactive.body import ArmBody
 from planbench.reactive.conformance import check_controller
 from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
 from planbench.scene import Obstacle, Scene
-from planbench_plugins.controllers.evade import EvadeSettings, Threat, retreat
+from planbench_plugins.controllers.evade import ArmSamples, EvadeSettings, Threat, retreat
 
 
 @pytest.fixture(scope="module")
@@ -373,7 +372,7 @@ def test_a_retreat_ends_farther_from_the_threat_or_is_not_made(free_task):
     hand = robot.frame_pose(q, free_task.goal.pose.frame).translation
     cells = np.unique(np.ravel_multi_index(grid.index_of(_cube(hand + [0.2, 0.0, 0.0])).T, grid.shape))
     threat = Threat(grid, cells)
-    body = ArmBody(robot, grid.origin, grid.shape, grid.resolution)
+    body = ArmSamples(robot)
     checker = CollisionChecker(robot, Scene())
     limits = (np.asarray(robot.lower), np.asarray(robot.upper))
     here = threat.distance(body, q)

@@ -11,8 +11,8 @@ The threat is what came in lately, without a track: the cells of the moving clus
 :class:`~.prediction.MotionPredictor` (occupied now, seen free before, within
 ``prediction_memory``) and, where a track's velocity is trusted, the cells it sweeps. A track
 needs frames close together and a replanning controller sees frames only between its plans, so
-the moving cells alone must do. When one lies within ``evade_distance`` of the arm's body (the
-cells it fills, centre to centre), the arm retreats: a straight joint motion of at most
+the moving cells alone must do. When one lies within ``evade_distance`` of the arm's body (its
+sample points, ``SAMPLE_SPACING`` apart, to the cells' centres), the arm retreats: a straight joint motion of at most
 ``evade_step`` per joint, the one of ``evade_samples`` random ones (joint limits kept) whose end
 keeps the body farthest from those cells (up to twice the distance; then the shortest), its
 motion checked against every occupied cell and the arm itself. None farther than where the arm
@@ -25,14 +25,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 from scipy.spatial import cKDTree
 
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.geometry.occupancy import OccupancyGrid
-from planbench.reactive.body import ArmBody
+from planbench.reactive.body import body_points
+from planbench.robot import Robot
 
-__all__ = ["EVADE_MODES", "EvadeSettings", "Threat", "retreat"]
+__all__ = ["EVADE_MODES", "ArmSamples", "EvadeSettings", "Threat", "retreat"]
 
 EVADE_MODES = ("none", "retreat")
 """``"none"``: never; ``"retreat"``: back away from what came in lately (module docstring)."""
@@ -68,8 +70,39 @@ class EvadeSettings:
             raise InvalidConfigError(f"evade_samples must be an integer >= 1, got {v!r}")
 
 
+SAMPLE_SPACING = 0.05
+"""[m] Spacing of the body's sample points a threat's distance is measured from: those of
+:func:`~planbench.reactive.body.body_points`, one kept per cube of this side, so every point of the
+body lies within about this of one; 534 on the Panda where the grid's 2 cm give 30,151 (a retreat
+scores dozens of configurations in one tick: 23 ms a retreat, against 100 ms with the grid's)."""
+
+
+class ArmSamples:
+    """Sample points [m] of the arm's body in the world at a configuration, ``spacing`` apart."""
+
+    def __init__(self, robot: Robot, spacing: float = SAMPLE_SPACING) -> None:
+        self.robot = robot
+        parts = []
+        for points in body_points(robot, spacing):  # mesh vertices kept: thin them to one per cube
+            _, first = np.unique(np.floor(points / spacing).astype(np.int64), axis=0, return_index=True)
+            parts.append(points[np.sort(first)])
+        self.local = np.concatenate(parts)
+        self.part = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+        self._data = robot.model.createData()
+        self._geometry_data = pin.GeometryData(robot.collision_model)
+
+    def at(self, q: np.ndarray) -> np.ndarray:
+        """The points (N, 3) [m] with the arm at ``q`` [rad]."""
+        pin.updateGeometryPlacements(self.robot.model, self._data, self.robot.collision_model, self._geometry_data, q)
+        placements = self._geometry_data.oMg
+        R = np.array([M.rotation for M in placements])[self.part]
+        t = np.array([M.translation for M in placements])[self.part]
+        return np.einsum("nij,nj->ni", R, self.local) + t  # type: ignore[no-any-return]
+
+
 class Threat:
-    """Distances [m] from the arm's body to some cells of a grid (flat indices), centre to centre."""
+    """Distances [m] from the arm's body to some cells of a grid (flat indices), from the body's
+    sample points to the cells' centres."""
 
     def __init__(self, grid: OccupancyGrid, cells: np.ndarray) -> None:
         self.grid = grid
@@ -79,22 +112,19 @@ class Threat:
         ijk = np.column_stack(np.unravel_index(cells, self.grid.shape))
         return self.grid.origin + (ijk + 0.5) * self.grid.resolution  # type: ignore[no-any-return]
 
-    def distance(self, body: ArmBody, q: np.ndarray, cap: float = math.inf) -> float:
-        """The least distance [m] from a cell the body fills at ``q`` to the cells (``cap`` when
-        farther: a bound that speeds up the search)."""
+    def distance(self, body: ArmSamples, q: np.ndarray, cap: float = math.inf) -> float:
+        """The least distance [m] from the body's sample points at ``q`` to the cells' centres
+        (``cap`` when farther: a bound that speeds up the search)."""
         if self.tree is None:
             return cap
-        filled = body.cells(q)
-        if not len(filled):
-            return cap
-        d, _ = self.tree.query(self._centres(filled), k=1, distance_upper_bound=cap)
+        d, _ = self.tree.query(body.at(q), k=1, distance_upper_bound=cap)
         return float(min(cap, float(np.min(d))))
 
 
 def retreat(
     q: np.ndarray,
     threat: Threat,
-    body: ArmBody,
+    body: ArmSamples,
     checker: CollisionChecker,
     limits: tuple[np.ndarray, np.ndarray],
     settings: EvadeSettings,

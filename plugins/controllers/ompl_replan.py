@@ -109,7 +109,7 @@ from planbench.reactive.shadows import ARM, SURFACE, occluders
 from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
-from planbench_plugins.controllers.evade import EvadeSettings, Threat, retreat
+from planbench_plugins.controllers.evade import ArmSamples, EvadeSettings, Threat, retreat
 from planbench_plugins.controllers.observed import ArmCells, GoalCells, LinkBoxes, PathBoxes, scene_without_touched
 from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
@@ -355,6 +355,7 @@ class OMPLReplanController(Controller):
         self.pace = self.vmax  # [rad/s] the path's timing: the scaled limits, a retreat's the full ones
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
+        self.samples = ArmSamples(task.robot) if self.config.evade != "none" else None  # built untimed
         self.link_boxes = LinkBoxes(task.robot)
         shadows = self.config.arm_shadow or self.config.surface_shadow == "avoid"
         if shadows and task.cameras:  # the compiled line walk loaded (or compiled), untimed
@@ -462,7 +463,7 @@ class OMPLReplanController(Controller):
         plans to the goal again; one whose end is no farther from the threat than the arm is now
         (the obstacle came on) is replaced. A path that takes the arm farther from the threat
         within ``scan_horizon`` is kept."""
-        obs, body = self.observation, self.body
+        obs, body = self.observation, self.samples
         evading = self.evading and self.path is not None
         self.evading = evading
         if obs is None or obs.scene is not None or body is None or (not len(self.threat) and not evading):
