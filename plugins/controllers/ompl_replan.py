@@ -73,7 +73,7 @@ to form in most runs, and the differences were mostly in runs where it predicted
 **Getting out of the way** (depth; ``evade``, :class:`~.evade.EvadeSettings`): with
 ``"retreat"``, on every frame the cells of obstacles that came in lately (the predictor's moving
 clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
-unless its path leads away from them: a short straight joint motion to where the body is farthest
+unless its path leads well away from them (twice that distance within ``scan_horizon``): a short straight joint motion to where the body is farthest
 from them (:func:`~.evade.retreat`), checked against every occupied cell and the arm itself.
 Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
 Standing still while a plan is refused or the path is blocked is safe from a static scene, not
@@ -461,8 +461,9 @@ class OMPLReplanController(Controller):
         retreat, at the full velocity limits; :mod:`~.evade`). A retreat ends when its end is
         reached or no moving cell is within ``evade_distance`` of the arm any more: then the arm
         plans to the goal again; one whose end is no farther from the threat than the arm is now
-        (the obstacle came on) is replaced. A path that takes the arm farther from the threat
-        within ``scan_horizon`` is kept."""
+        (the obstacle came on) is replaced. A path that takes the arm twice ``evade_distance``
+        from the threat's cells within ``scan_horizon`` is kept (a path that is only farther from
+        where they are now let a box that followed the arm run into it on ``dynamic-tune``)."""
         obs, body = self.observation, self.samples
         evading = self.evading and self.path is not None
         self.evading = evading
@@ -481,8 +482,8 @@ class OMPLReplanController(Controller):
                     return False  # on its way out: its rest is checked as any path's
             if not evading:
                 ahead = self._at(min(self.tau + self.config.scan_horizon, float(self.times[-1])))
-                if threat.distance(body, ahead, cap) > near + obs.grid.resolution:
-                    return False  # the path leads away
+                if threat.distance(body, ahead, cap) >= cap:
+                    return False  # the path leads well away (the threat may follow: farther than near is not enough)
         assert self.occupied is not None
         checker = self._cells_checker(self.occupied, q)
         limits = (np.asarray(self.task.robot.lower), np.asarray(self.task.robot.upper))
