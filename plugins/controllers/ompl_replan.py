@@ -73,8 +73,9 @@ to form in most runs, and the differences were mostly in runs where it predicted
 **Getting out of the way** (depth; ``evade``, :class:`~.evade.EvadeSettings`): with
 ``"retreat"``, on every frame the cells of obstacles that came in lately (the predictor's moving
 clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
-unless its path leads well away from them (twice that distance within ``scan_horizon``): a short straight joint motion to where the body is farthest
-from them (:func:`~.evade.retreat`), checked against every occupied cell and the arm itself.
+unless its path leads well away from them (twice that distance within ``scan_horizon``): a
+short straight joint motion, at the full velocity limits, to where the body is farthest from them
+(:func:`~.evade.retreat`), checked against every occupied cell and the arm itself.
 Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
 Standing still while a plan is refused or the path is blocked is safe from a static scene, not
 from a box on its way through the arm.
