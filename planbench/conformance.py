@@ -172,8 +172,9 @@ def check_planner(
 ) -> list[Finding]:
     """Problems found with ``planner`` (a class, or a registered name); empty when conformant.
 
-    ``config`` is a ``Config`` instance to check it with (default: its defaults, built as every
-    planner is, by :meth:`~planbench.registry.Registry.configure`). ``problems`` default: a trivial
+    ``config`` is a ``Config`` instance to check it with, or a mapping of settings (checked and
+    built as a suite's are; a refused one is a ``settings`` finding); default: its defaults, built
+    as every planner is, by :meth:`~planbench.registry.Registry.configure`. ``problems`` default: a trivial
     free-space problem (must be solved) and a problem with a small obstacle on the straight line's
     way (any status is fine, but a success must validate).
     """
@@ -193,11 +194,13 @@ def planner_report(
     if Config is None or not dataclasses.is_dataclass(Config):
         record.fail("interface", "'Config' must be a dataclass of the planner's settings (units in its docstrings)")
         record.skip(["settings"])
-    elif config is None:
+    elif config is None or isinstance(config, Mapping):
+        settings = dict(config) if config is not None else None
         try:
-            config = REGISTRY.configure(planner).config
+            config = REGISTRY.configure(planner, settings).config
         except InvalidConfigError as exc:
             what = "Config() must work with defaults only" if not implied else f"{planner}'s settings {implied}"
+            what = f"{planner}'s settings {settings}" if settings else what
             record.fail("settings", f"{what}: {exc}")
             record.skip(["interface", *RUN_CHECKS])  # its methods are not looked at either
             return record.report()

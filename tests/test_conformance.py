@@ -169,3 +169,15 @@ def test_a_report_crosses_processes_as_checked_plain_data():
     for bad in ({}, {"checks": "a", "findings": [], "not_run": []}, {"checks": [], "findings": [["a"]], "not_run": []}):
         with pytest.raises(TypeError):
             ConformanceReport.from_data(bad)
+
+
+def test_the_checkers_take_settings_as_a_mapping_and_name_a_refused_one():
+    """A mapping of settings is checked and built as a suite's are: a refused one is a ``settings``
+    finding naming it (not an error raised from the planner's own code), an accepted one is run."""
+    from planbench.reactive.conformance import check_controller
+
+    [found] = check_controller("ompl-replan", {"evade": "flee"})
+    assert found.check == "settings" and "evade" in found.message and "retreat" in found.message
+    [found] = check_planner("straight-line", {"nope": 1})
+    assert found.check == "settings" and "nope" in found.message and "check_resolution" in found.message
+    assert check_planner("straight-line", {"check_resolution": 0.02}) == []

@@ -18,7 +18,6 @@ from planbench.reactive.controller import ControlTask, Observation
 from planbench.registry import make_controller
 from planbench.scene import Obstacle, Scene
 from planbench_plugins.controllers.evade import ArmSamples, EvadeSettings, Threat, retreat
-from planbench_plugins.controllers.ompl_replan import OMPLReplanConfig
 
 
 @pytest.fixture(scope="module")
@@ -358,7 +357,7 @@ def test_with_evade_the_arm_backs_away_from_a_box_flying_at_it(free_task):
     assert hit and plain["evasions"] == 0
     hit, evaded = _box_at_the_standing_arm(free_task, "retreat")
     assert not hit and evaded["evasions"] >= 1, evaded
-    assert check_controller("ompl-replan", OMPLReplanConfig(evade="retreat")) == []
+    assert check_controller("ompl-replan", {"evade": "retreat"}) == []
     with pytest.raises(InvalidSettingError, match="evade"):
         make_controller("ompl-replan", evade="flee")
     with pytest.raises(InvalidSettingError, match="evade_distance"):

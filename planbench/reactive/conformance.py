@@ -95,10 +95,12 @@ def check_controller(
     """Problems found with ``controller`` (a class, a registered name, ``name:preset``); empty when
     conformant.
 
-    ``config``: a ``Config`` instance to check it with (default: built from its defaults through the
-    registry, as the benchmark builds it). ``steps``: control ticks per run; ``frame_every``: a new
-    frame every this many ticks (30 Hz at the default 10 ms period); ``goal_progress``: the fraction
-    of the goal error the free-space run must remove at least.
+    ``config``: a ``Config`` instance to check it with, or a mapping of settings (checked and built
+    through the registry, as a suite's are; a refused one is a ``settings`` finding); default: built
+    from its defaults through the registry, as the benchmark builds it. ``steps``: control ticks
+    per run; ``frame_every``: a new frame every this many ticks (30 Hz at the default 10 ms
+    period); ``goal_progress``: the fraction of the goal error the free-space run must remove at
+    least.
     """
     report = controller_report(
         controller,
@@ -130,14 +132,16 @@ def controller_report(
         )
     registry = registry or CONTROLLERS
     record = CheckRecord(CHECKS)
-    _interface(controller, config, registry, record)
+    settings = dict(config) if isinstance(config, Mapping) else None
+    config = None if settings is not None else config
+    _interface(controller, config, registry, record, settings)
     if record.findings:
         record.skip(c for c in CHECKS if c not in ("interface", "settings"))
         return record.report()
     _, cls, _ = registry.resolve(controller)
 
     def make() -> Any:
-        return cls(config) if config is not None else registry.configure(controller).build()
+        return cls(config) if config is not None else registry.configure(controller, settings).build()
 
     where = conformance_task()
     nq = where.task.robot.nq
@@ -184,7 +188,9 @@ def controller_report(
     return record.report()
 
 
-def _interface(controller: Any, config: Any, registry: Registry, record: CheckRecord) -> None:
+def _interface(
+    controller: Any, config: Any, registry: Registry, record: CheckRecord, settings: Mapping[str, Any] | None = None
+) -> None:
     """The checks that need no call of the controller's code besides its ``Config``."""
     try:
         _, cls, implied = registry.resolve(controller)
@@ -201,9 +207,10 @@ def _interface(controller: Any, config: Any, registry: Registry, record: CheckRe
         record.skip(["settings"])
     elif config is None:
         try:
-            registry.configure(controller)
+            registry.configure(controller, settings)
         except InvalidConfigError as exc:
             what = "Config() must work with its defaults only" if not implied else f"the settings {implied}"
+            what = f"the settings {settings}" if settings else what
             record.fail("settings", f"{what}: {exc}")
     else:
         record.skip(["settings"])  # a Config given: its defaults are not built
