@@ -434,9 +434,8 @@ class OMPLReplanController(Controller):
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
             self.fresh, self.may_plan = False, True
             self._frame(q)
-            if self.config.evade != "none" and self._evade(q):
-                pass  # a retreat now, no path to check
-            elif self.path is not None:
+            retreating = self.config.evade != "none" and self._evade(q)  # a new retreat: nothing to check
+            if not retreating and self.path is not None:
                 self._check_rest(q)
         if self.path is None:
             if not self.still:  # stop first: the runner holds this command while the plan is made
