@@ -6,6 +6,7 @@ named errors. Observations are built by hand (an empty grid with a ``known`` mas
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -120,6 +121,8 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_checks_per_tick": -1},
         {"known_checks_per_tick": True},
         {"known_plan_checks": 0},
+        {"known_cpu_share": 1.0},
+        {"known_cpu_share": -0.1},
         {"relax_steps": -1},
         {"relax_after": 0},
         {"dead_end": "jump"},
@@ -222,21 +225,30 @@ def _block_on_path(free_task, grid: OccupancyGrid, path: np.ndarray, body: ArmBo
     raise AssertionError("no place for the block")
 
 
-@pytest.mark.parametrize(("per_tick", "at"), [(50, "start"), (0, "start"), (0, "stop")])
-def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick, at):
+@pytest.mark.parametrize(
+    ("per_tick", "at", "share"), [(50, "start", 0.0), (2000, "start", 0.9), (0, "start", 0.0), (0, "stop", 0.0)]
+)
+def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free_task, open_space, per_tick, at, share):
     """A 10 cm cube no camera saw lies on the path, off the start and the goal; everything else is
     seen. The default follows its path through it; the safe mode plans in known space around it, in
     slices while the arm follows the first path up to the cube (``known_checks_per_tick`` > 0), or
     at once, the arm held still (the default), or once the arm, following the first path, has
     stopped short of the cube and looked (``known_plan_at = "stop"``); the arm's body is never in
-    one of the cube's cells."""
+    one of the cube's cells. Slices bounded by a share of the tick's CPU time too
+    (``known_cpu_share``) end when the clock says, so how many there are is not asserted."""
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
     through, _ = _run(free_task, _seeing(grid, known), 400, unknown="free")
     assert any(body.in_unknown(q, known) for q in through)  # "free": through the block
     qs, c = _run(
-        free_task, _seeing(grid, known), 600, unknown="occupied", known_checks_per_tick=per_tick, known_plan_at=at
+        free_task,
+        _seeing(grid, known),
+        600,
+        unknown="occupied",
+        known_checks_per_tick=per_tick,
+        known_plan_at=at,
+        known_cpu_share=share,
     )
     info = c.info()
     assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
@@ -245,12 +257,35 @@ def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free
         assert info["looks"] > 3, info
     elif not per_tick:  # planned round at once: never held short of the cube
         assert info["looks"] == 0, info
-    if per_tick:  # the plan took ticks, and the arm moved meanwhile
+    if per_tick and not share:  # the plan took ticks, and the arm moved meanwhile
         assert info["known_slices"] > 1
         assert np.linalg.norm(qs[info["known_slices"] // 2] - qs[0]) > 0.01, info
-    else:
+    elif not per_tick:
         assert info["known_slices"] == 0
     assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info  # around it to the goal
+
+
+def test_ompl_replan_sliced_plan_in_known_space_spends_cpu_time_not_checks(free_task, open_space, monkeypatch):
+    """With ``known_cpu_share`` the sliced plan in known space is bounded by CPU time, not by its
+    check count (``known_plan_checks``, 10,000): under a CPU clock that moves a second at every
+    reading, each slice ends after its first check and the first slice spends the plan's budget
+    (``known_plan_time``, 0.5 s), so the plan gives up after one slice and one check."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    known = _block_on_path(free_task, grid, path, body)
+    clock = iter(range(1, 10**9))
+    monkeypatch.setattr(time, "process_time", lambda: float(next(clock)))
+    _, c = _run(
+        free_task,
+        _seeing(grid, known),
+        60,
+        unknown="occupied",
+        plan_clock="wall",  # the first plan's limit on the true clock
+        known_checks_per_tick=2000,
+        known_cpu_share=0.9,
+    )
+    info = c.info()
+    assert info["known_slices"] == 1 and info["known_failed"] == 1 and info["known_plans"] == 0, info
 
 
 def test_ompl_replan_goes_through_cells_only_its_own_arm_hides(free_task, open_space):

@@ -159,7 +159,15 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     (docs/reactive.md)."""
     known_plan_checks: int = 10000
     """Safe mode: the most collision checks of a sliced plan in known space (its budget: about
-    0.5-1 s of work, spread over 200 ticks)."""
+    0.5-1 s of work, spread over 200 ticks), with ``known_cpu_share`` 0; with a share, the budget is
+    ``known_plan_time`` of CPU time, the plan made at once's."""
+    known_cpu_share: float = 0.0
+    """Safe mode, with ``known_checks_per_tick`` > 0: 0 (the default), a slice ends by its count
+    alone; in (0, 1), a slice also ends at the first check after the tick has used this share of
+    the control period in CPU time, its frame's work included (the search then runs on a thread of
+    its own, paused between slices: :class:`~planbench_plugins.ompl_planners.SlicedRRTConnect`
+    with ``exact``). With a large count it spreads the work of the plan made at once over the
+    fewest ticks that keep each within the period, while the arm moves."""
     speed_scale: float = 0.5
     """Speed along the path, as a fraction of each joint's velocity limit (0, 1]."""
     check_resolution: float = 0.02
@@ -267,6 +275,8 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(
                 f'goal_obstacles must be "ignore", "wait" or "appeared", got {self.goal_obstacles!r}'
             )
+        if not (isinstance(self.known_cpu_share, (int, float)) and 0 <= self.known_cpu_share < 1):
+            raise InvalidConfigError(f"known_cpu_share must be in [0, 1), got {self.known_cpu_share!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
         for name in ("look_frames", "known_checks_per_tick", "relax_steps"):
@@ -379,6 +389,7 @@ class OMPLReplanController(Controller):
         self.looks = 0  # safe mode: frames the arm has waited short of unknown cells
         self.known_path = False  # safe mode: the path was planned in known space
         self.known_query: SlicedRRTConnect | None = None  # safe mode: the plan in known space, in slices
+        self.known_cpu = 0.0  # [s] CPU time its slices have taken (its budget with known_cpu_share)
         self.known_pending = False  # safe mode, known_plan_at "stop": the path's plan in known space is yet to be made
         self.observation: Observation | None = None
         self.checker: CollisionChecker | None = None  # truth: the frame's scene, less what the arm touches
@@ -413,6 +424,7 @@ class OMPLReplanController(Controller):
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
         self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0)
         self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
+        self.tick_cpu = time.process_time()  # [s] process CPU time when the current tick began
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
@@ -429,6 +441,7 @@ class OMPLReplanController(Controller):
         self.fresh = True
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
+        self.tick_cpu = time.process_time()  # [s] the tick's start, for a sliced plan's share of it
         if self.observation is None:
             return np.zeros_like(q)
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
@@ -832,7 +845,10 @@ class OMPLReplanController(Controller):
         if self.config.known_checks_per_tick > 0 and goal_q is not None:
             known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
             try:  # in slices, while the arm follows the optimistic path up to the unknown cells
-                self.known_query = SlicedRRTConnect(known, q, np.asarray(goal_q), seed=int(self.rng.integers(2**31)))
+                seed = int(self.rng.integers(2**31))
+                exact = self.config.known_cpu_share > 0  # a slice's end by CPU time needs the exact mode
+                self.known_query = SlicedRRTConnect(known, q, np.asarray(goal_q), seed=seed, exact=exact)
+                self.known_cpu = 0.0
             except ValueError:  # the start or the goal touches the cells that stand for unknown space
                 self.known_query = None
             return
@@ -859,11 +875,19 @@ class OMPLReplanController(Controller):
         enter (the frames seen since have shown them)."""
         query = self.known_query
         assert query is not None
-        before = query.checks
-        done = query.advance(self.config.known_checks_per_tick)
+        before, cpu = query.checks, time.process_time()
+        share = self.config.known_cpu_share
+        cpu_until = self.tick_cpu + share * self.task.period if share > 0 else None
+        done = query.advance(self.config.known_checks_per_tick, cpu_until)
+        self.known_cpu += time.process_time() - cpu
         self.stats["known_slices"] += 1
         if not done:
-            if query.checks >= self.config.known_plan_checks or query.checks == before:
+            spent = (
+                self.known_cpu >= self.config.known_plan_time
+                if share > 0
+                else query.checks >= self.config.known_plan_checks
+            )
+            if spent or query.checks == before or query.failed:
                 self.known_query = None  # over its budget, or stuck: the optimistic path stays
                 self.stats["known_failed"] += 1
             return
