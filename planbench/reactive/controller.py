@@ -83,8 +83,10 @@ class Controller:
     name: ClassVar[str] = ""
     Config: ClassVar[type] = EmptyConfig
     compiles: ClassVar[bool] = False
-    """The controller runs code compiled on first use (numba): the benchmark puts one frame
-    through it, untimed, before its first run in each worker, so no run pays the compilation."""
+    """The controller has costs on first use (numba compiling, lazy imports, a planner's first
+    objects): the benchmark puts two frames of a scene of its own through it, untimed, before the
+    run in each worker, so no run is charged them (``ompl-replan`` was charged 0.5-1.2 s at its
+    first plan before it asked)."""
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         self.config = build_config(self.Config, config, settings)
