@@ -43,9 +43,10 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
   the two-cell layer of unknown ones next to the space the arm may enter stand for them all: any
   motion into the rest crosses that layer). By default that plan is made at once, within
   ``known_plan_time``, the arm held still. With ``known_checks_per_tick`` > 0 it runs in slices of
-  that many collision checks, one per tick, up to ``known_plan_checks`` in all, while the arm
-  follows the first path up to the unknown cells (measured on ``dynamic-tune``: no better than at
-  once, docs/reactive.md, so not the default). When a sliced plan has a path and the
+  that many collision checks, one per tick, up to ``known_plan_checks`` in all (with
+  ``known_cpu_share``, also ending at that share of the tick's CPU time, ``known_plan_time`` of
+  CPU in all), while the arm follows the first path up to the unknown cells (measured on
+  ``dynamic-tune``: no better than at once either way, docs/reactive.md, so not the default). When a sliced plan has a path and the
   first path still enters cells the arm may not enter, the arm goes straight to the farthest of
   its waypoints that a free motion reaches (else back the way it came); while the plan runs, the
   arm waits short of unknown cells instead of going in after its looks (going in meanwhile took
