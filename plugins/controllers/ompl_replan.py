@@ -46,11 +46,11 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
   that many collision checks, one per tick, up to ``known_plan_checks`` in all (with
   ``known_cpu_share``, also ending at that share of the tick's CPU time, ``known_plan_time`` of
   CPU in all), while the arm follows the first path up to the unknown cells (measured on
-  ``dynamic-tune``: no better than at once either way, docs/reactive.md, so not the default). When a sliced plan has a path and the
-  first path still enters cells the arm may not enter, the arm goes straight to the farthest of
-  its waypoints that a free motion reaches (else back the way it came); while the plan runs, the
-  arm waits short of unknown cells instead of going in after its looks (going in meanwhile took
-  it into the unseen cap of ``mbm:box``);
+  ``dynamic-tune``: no better than at once either way, docs/reactive.md, so not the default).
+  When a sliced plan has a path and the first path still enters cells the arm may not enter, the
+  arm goes straight to the farthest of its waypoints that a free motion reaches (else back the way
+  it came); while the plan runs, the arm waits short of unknown cells instead of going in after
+  its looks (going in meanwhile took it into the unseen cap of ``mbm:box``);
 - **stop short, look, go on**: on every frame the next ``scan_horizon`` seconds of the path are
   scanned with the arm's body (:class:`~planbench.reactive.body.ArmBody`, the cells the
   ``unobserved_motion`` metric counts) at fixed times along the path; the follower stops
