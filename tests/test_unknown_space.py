@@ -269,7 +269,7 @@ def test_ompl_replan_sliced_plan_in_known_space_spends_cpu_time_not_checks(free_
     """With ``known_cpu_share`` the sliced plan in known space is bounded by CPU time, not by its
     check count (``known_plan_checks``, 10,000): under a CPU clock that moves a second at every
     reading, each slice ends after its first check and the first slice spends the plan's budget
-    (``known_plan_time``, 0.5 s), so the plan gives up after one slice and one check."""
+    (``known_plan_time``, 0.5 s), so the plan gives up after that one slice."""
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
