@@ -1,6 +1,7 @@
 """Controllers written to fool the closed-loop benchmark; workers import them by entry point
 (``"bench_hostile_controllers:PatchEverything"``). Each reports in ``info()`` what it tried, so the
-tests can tell that the attempt ran (``info`` is diagnostics: nothing in a verdict reads it)."""
+tests can tell that the attempt ran (``info`` is diagnostics: nothing in a verdict reads it). At the
+end, plain ones for the warm-up's tests (a one-time cost, steps that never return)."""
 
 from __future__ import annotations
 
@@ -254,11 +255,8 @@ instance, as a hostile controller's would)."""
 
 
 class PeeksAtWarmUp(_ToGoal):
-    """Asks for the benchmark's warm-up (``compiles``) and keeps what its frames showed in module
-    state, to read it back in the run: the warm-up is uncharged, so it must show nothing of the
-    scenario."""
-
-    compiles = True
+    """Keeps what the benchmark's warm-up frames showed it in module state, to read it back in the
+    run: the warm-up is uncharged, so it must show nothing of the scenario."""
 
     def update(self, observation):
         names = [o.name for o in observation.scene.obstacles] if observation.scene is not None else None
@@ -271,3 +269,52 @@ class PeeksAtWarmUp(_ToGoal):
     def step(self, t, q, observation, goal):
         self.steps += 1
         return self.toward_goal(q)
+
+
+FIRST_USE = {"paid": False}
+"""Whether this process has met :class:`FirstUseCost`'s one-time cost (module state: it outlives
+an instance, as numba's compiled code and a library's first objects do)."""
+
+
+class FirstUseCost(_ToGoal):
+    """Not hostile: a third-party controller that knows nothing of the warm-up and has a one-time
+    cost per process, ``COST`` s of CPU at its first step (as compiling or a first plan would)."""
+
+    COST = 0.3
+
+    def step(self, t, q, observation, goal):
+        if not FIRST_USE["paid"]:
+            FIRST_USE["paid"] = True
+            _burn(self.COST)
+        return self.toward_goal(q)
+
+
+class FirstUseCostNoWarmUp(FirstUseCost):
+    """:class:`FirstUseCost` declining the warm-up: its run is charged the one-time cost."""
+
+    warm_up = False
+
+
+class HangsInItsSteps(_ToGoal):
+    """Computes nothing in any step (it sleeps): met first in the warm-up, which is bounded as
+    ``setup`` is, where the run would abandon the call."""
+
+    def step(self, t, q, observation, goal):
+        time.sleep(3600.0)
+        return np.zeros(len(q))
+
+
+class PlansPastTheHorizon(_ToGoal):
+    """Not hostile: its step at 0.4 s computes ``WORK`` s of CPU, past the end of a 0.5 s horizon,
+    as a plan started late would; its ``info`` says how many steps it was called."""
+
+    WORK = 0.3
+
+    def reset(self, q, rng):
+        self.tried = {"steps": 0}
+
+    def step(self, t, q, observation, goal):
+        self.tried["steps"] += 1
+        if t >= 0.4:
+            _burn(self.WORK)
+        return np.zeros(len(q))

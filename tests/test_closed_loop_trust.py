@@ -81,6 +81,65 @@ def test_patching_clocks_modules_and_the_robot_in_the_controller_process_changes
     assert json.loads(rows["CollectorState"]["info"])["controller"]["frozen"] > 10000
 
 
+@pytest.mark.parametrize(("controller", "warmed"), [("FirstUseCost", True), ("FirstUseCostNoWarmUp", False)])
+def test_a_controller_that_never_heard_of_the_warm_up_is_not_charged_its_one_time_costs(controller, warmed):
+    """Every controller is warmed up before its run unless it declines (``warm_up = False``): a
+    third-party controller's 0.3 s of one-time CPU work per process (compiling, a first plan) is
+    then no tick's charge, as it is for the built-in ones. Declined, the first call pays it."""
+    from dataclasses import replace
+
+    from planbench.reactive.isolated import run_isolated
+
+    scenario = replace(load_scenario(SCENARIO), horizon=1.0)  # longer than the cost: no call abandoned
+    run = run_isolated(
+        scenario, f"bench_hostile_controllers:{controller}", settings=RunSettings(check_collisions=False)
+    )
+    charged = run.record.measured[np.isfinite(run.record.measured)]
+    cost = 0.3  # FirstUseCost.COST: CPU time, whatever the machine's load
+    if warmed:
+        assert charged.max() < 0.5 * cost, charged[:5]
+    else:
+        assert charged[0] >= 0.9 * cost, charged[:5]
+
+
+def test_the_info_of_a_run_whose_last_call_was_abandoned_is_still_read():
+    """A call that computes past the horizon's end is abandoned (its command can no longer act),
+    and its late answer would be read as the next call's: the simulation waits for it, throws it
+    away, then asks ``info`` (it was lost before, as in five ``ompl-replan`` runs of `dynamic-test`)."""
+    from dataclasses import replace
+
+    from planbench.reactive.isolated import run_isolated
+
+    scenario = replace(load_scenario(SCENARIO), horizon=0.5)  # the step at 0.4 s burns 0.3 s of CPU
+    run = run_isolated(
+        scenario, "bench_hostile_controllers:PlansPastTheHorizon", settings=RunSettings(check_collisions=False)
+    )
+    assert run.record.status != "success"
+    assert "info_error" not in run.record.info, run.record.info
+    assert run.record.info["steps"] == 41, run.record.info  # ticks 0.00-0.40 s, the last one abandoned
+
+
+@pytest.mark.slow
+def test_a_warm_up_that_hangs_is_a_timeout_row_bounded_by_the_setup_timeout(tmp_path):
+    """The warm-up runs before the run's clock, so it is bounded as ``setup`` is: a controller whose
+    steps never return ends as a ``timeout`` row within ``setup_timeout`` that says where, and the
+    benchmark goes on."""
+    suite = (
+        f'[suite]\nname = "hangs"\nscenarios = ["{_scenario_file(tmp_path, 1.0)}"]\n'
+        'timing = "measured"\ntime_limit = 60.0\nsetup_timeout = 5.0\n'
+        '[[controllers]]\ncontroller = "bench_hostile_controllers:HangsInItsSteps"\n'
+        '[[controllers]]\ncontroller = "bench_hostile_controllers:FirstUseCost"\n'
+    )
+    db_path = tmp_path / "hangs.db"
+    run_benchmark(parse_suite(suite, "hangs.toml"), db_path, jobs=2)
+    with ResultsDB(db_path) as db:
+        rows = {r["planner"].split(":")[-1]: r for r in db.rows()}
+    hung = rows["HangsInItsSteps"]
+    assert hung["status"] == "timeout" and not hung["success"], (hung["status"], hung["message"])
+    assert "the controller's setup and warm-up" in hung["message"], hung["message"]
+    assert rows["FirstUseCost"]["status"] != "error", rows["FirstUseCost"]["message"]
+
+
 @pytest.mark.slow
 def test_the_uncharged_warm_up_shows_nothing_of_the_scenario(tmp_path):
     """The warm-up (two frames, before the run, uncharged) is of a scene of its own: a controller

@@ -389,8 +389,8 @@ def test_the_benchmark_warms_it_up_through_a_plan():
     """A benchmark run charges the controller's CPU time, so the first plan's one-time costs (the
     imports, OMPL's and coal's first objects, numba's line walk) must be met untimed: on
     ``dynamic-tune``'s ``xarm7_crossing_fast_depth/0007`` in the benchmark's worker they were
-    0.5-1.2 s of the first plan's charge, where the plans took 0.6 s. ``ompl-replan`` asks for the
-    warm-up, and the warm-up's frames take it through a plan and the plan in known space."""
+    0.5-1.2 s of the first plan's charge, where the plans took 0.6 s. The warm-up's frames take
+    ``ompl-replan`` through a plan and the plan in known space."""
     from planbench.reactive.bench import _warm
     from planbench.reactive.sets import load_scenario
 
@@ -400,10 +400,11 @@ def test_the_benchmark_warms_it_up_through_a_plan():
     assert info["plans"] >= 2, info  # the optimistic plan and the one in known space
 
 
-def test_every_built_in_controller_is_warmed_up_before_a_benchmark_run():
-    """The closed loop charges a controller's CPU time, so a built-in controller that skipped the
-    benchmark's warm-up would be charged its one-time costs in its first plan or frame (as
-    ``ompl-replan`` was, 0.9 s a run with depth sensing, before it asked): each one asks."""
+def test_no_built_in_controller_declines_the_warm_up():
+    """The closed loop charges a controller's CPU time, so a built-in controller that declined the
+    benchmark's warm-up (``warm_up = False``) would be charged its one-time costs in its first plan
+    or frame (``ompl-replan`` was, 0.9 s a run with depth sensing, when the warm-up was asked for
+    by name and it did not ask)."""
     from planbench.registry import CONTROLLERS
 
     cold = []
@@ -411,6 +412,6 @@ def test_every_built_in_controller_is_warmed_up_before_a_benchmark_run():
         spec = CONTROLLERS.spec(name)
         if not spec.entry_point.startswith("planbench_plugins.") or not spec.available:
             continue  # another package's controller, or an extra not installed (vamp-replan)
-        if not getattr(spec.load(), "compiles", False):
+        if not getattr(spec.load(), "warm_up", True):
             cold.append(name)
     assert not cold, f"built-in controllers not warmed up before their runs: {cold}"

@@ -787,7 +787,12 @@ class Runner:
             )
             planning_time = elapsed
         else:
-            msg = f"setup (problem loading, planner setup) ran past {task.setup_timeout} s; worker process killed"
+            what = (
+                "scenario loading, the controller's setup and warm-up"
+                if slot.kind.channel
+                else "problem loading, planner setup"
+            )
+            msg = f"setup ({what}) ran past {task.setup_timeout} s; worker process killed"
             planning_time = math.nan
         return failure_record("timeout", msg, _with_output("", slot.worker.output.tail()), planning_time)
 

@@ -119,8 +119,9 @@ def _warm(controller: Any, scenario: Scenario) -> bool:
     first-call costs before its run: two frames of a scene of its own (:func:`warm_scene`, nothing
     of the scenario's obstacles) through ``setup``, ``reset``, ``update`` and :data:`WARM_STEPS`
     steps, untimed, so that the run's first frames and first plan are not charged them. A failure
-    here is left to the run to meet. True when ``controller`` was used for it."""
-    if not getattr(controller, "compiles", False):
+    here is left to the run to meet. True when ``controller`` was used for it; False when it says
+    ``warm_up = False`` (:attr:`~planbench.reactive.controller.Controller.warm_up`)."""
+    if not getattr(controller, "warm_up", True):
         return False
     try:
         from planbench.reactive.sensing import Sensor

@@ -82,11 +82,13 @@ class Controller:
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = EmptyConfig
-    compiles: ClassVar[bool] = False
-    """The controller has costs on first use (numba compiling, lazy imports, a planner's first
-    objects): the benchmark puts two frames of a scene of its own through it, untimed, before the
-    run in each worker, so no run is charged them (``ompl-replan`` was charged 0.5-1.2 s at its
-    first plan before it asked)."""
+    warm_up: ClassVar[bool] = True
+    """Before each run, in the run's own process, the benchmark puts two frames of a scene of its
+    own (nothing of the scenario) and 40 steps through a first instance, untimed, then builds the
+    instance that runs: first-use costs (numba compiling, lazy imports, a planner's first objects)
+    are then no run's charge. Every controller gets it unless it sets this to False (then it is
+    charged those costs in its run: ``ompl-replan`` was charged 0.5-1.2 s at its first plan when
+    the warm-up was asked for by name)."""
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         self.config = build_config(self.Config, config, settings)

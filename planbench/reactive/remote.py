@@ -27,8 +27,9 @@ measured on an idle 2-core VM).
 
 A call waits on the wall clock as long as the controller keeps consuming CPU within what is left
 of the horizon; past that its command can no longer take effect, the call is abandoned
-(:class:`Overrun`) and the controller's process is killed. A call that consumes no CPU (the
-controller sleeps or waits) is abandoned after :data:`IDLE_WAIT` seconds of wall time.
+(:class:`Overrun`) and the controller's process is killed once its ``info`` is read (after the
+late answer, thrown away, when it comes within :data:`LATE_WAIT` seconds). A call that consumes no
+CPU (the controller sleeps or waits) is abandoned after :data:`IDLE_WAIT` seconds of wall time.
 """
 
 from __future__ import annotations
@@ -78,6 +79,11 @@ IDLE_WAIT = 10.0
 """[s] of wall time a call may go on without the controller consuming CPU before it is abandoned."""
 POLL = 0.05
 """[s] between checks of a call's CPU time while the simulation waits for its answer."""
+CPU_OVERRUN = "the call consumed more CPU time than was left of the horizon"
+"""Why a call was abandoned for its CPU time (:attr:`RemoteController.abandoned`)."""
+LATE_WAIT = 5.0
+"""[s] of wall time the simulation waits after the run for the answer of a call abandoned for its
+CPU time, to ask the controller's ``info`` after it (the run's verdict is already made)."""
 
 
 class RemoteFault(Exception):
@@ -487,10 +493,13 @@ class RemoteController:
             raise RemoteFault(str(bad)) from None
 
     def info(self) -> dict[str, Any]:
-        """The controller's diagnostics (JSON data as sent; the benchmark cleans them). Not asked
-        after an abandoned call: the answer read would be that call's, late."""
-        if self.abandoned is not None:
+        """The controller's diagnostics (JSON data as sent; the benchmark cleans them). After a
+        call abandoned for its CPU time, its late answer is awaited for up to :data:`LATE_WAIT`
+        seconds and thrown away first (a plan that ran past the horizon's end); after one abandoned
+        for computing nothing, or a late answer that does not come, the controller is not asked."""
+        if self.abandoned is not None and not self._drain_late_answer():
             return {"info_error": f"not asked: a call was abandoned ({self.abandoned})"}
+        self.abandoned = None
         self.budget = 5.0  # info() is not timed, but may not run forever
         try:
             kind, answer, _ = self._call(b"E", b"")
@@ -498,6 +507,25 @@ class RemoteController:
         except (RemoteFault, Overrun, OSError, ValueError) as exc:
             data = {"info_error": f"{type(exc).__name__}: {exc}"}
         return data if isinstance(data, dict) else {"info": data}
+
+    def _drain_late_answer(self) -> bool:
+        """Read and drop the answer of the call abandoned for its CPU time, when it comes within
+        :data:`LATE_WAIT` s; True when the connection then holds nothing (the next answer is the
+        next call's)."""
+        if self.abandoned is None or self.abandoned != CPU_OVERRUN:
+            return False
+        timeout = self.sock.gettimeout()
+        self.sock.settimeout(LATE_WAIT)  # an answer begun and never finished blocks no read for longer
+        try:
+            ready, _, _ = select.select([self.sock], [], [], LATE_WAIT)
+            if not ready:
+                return False
+            _recv(self.sock, MAX_ANSWER_BYTES)
+        except (OSError, RemoteFault, ControllerGone):
+            return False
+        finally:
+            self.sock.settimeout(timeout)
+        return True
 
     def kill(self) -> None:
         """End the controller's process and its group (it is a session leader of its own)."""
@@ -552,7 +580,7 @@ class RemoteController:
                 return  # the read that follows meets the closed connection
             now = time.perf_counter()
             if (cpu - self._cpu) * 1e-9 > self.budget:
-                self.abandoned = "the call consumed more CPU time than was left of the horizon"
+                self.abandoned = CPU_OVERRUN
                 raise Overrun((cpu - self._cpu) * 1e-9, self.abandoned)
             if cpu != cpu_seen:
                 idle_since, cpu_seen = now, cpu

@@ -57,8 +57,6 @@ class IKLoopController(Controller):
     controller defaults), :attr:`planner_class`, and write :meth:`make_source`.
     """
 
-    compiles = True  # the loop's step and the fields are numba code: warmed up before a benchmark's runs
-
     Config: ClassVar[type] = IKLoopConfig
     planner_class: ClassVar[type[IKLoopPlanner]] = IKLoopPlanner
     """The IK-loop planner whose step this controller runs."""

@@ -231,7 +231,6 @@ class MatrixFieldGuidedController(Controller):
 
     name = "matrix-field-guided"
     Config = MatrixFieldGuidedControllerConfig
-    compiles = True  # the lazy field is numba code: warmed up before a benchmark's runs
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)

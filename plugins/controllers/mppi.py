@@ -264,7 +264,6 @@ class MPPIController(Controller):
 
     name = "mppi"
     Config = MPPIConfig
-    compiles = True
 
     def __init__(self, config: Any = None, **settings: Any) -> None:
         super().__init__(config, **settings)

@@ -359,7 +359,6 @@ class OMPLReplanController(Controller):
 
     name = "ompl-replan"
     Config = OMPLReplanConfig
-    compiles = True  # first-use costs (imports, coal and OMPL objects, numba): warmed up before a benchmark run
 
     def setup(self, task: ControlTask) -> None:
         self.task = task

@@ -94,7 +94,6 @@ class VampReplanController(Controller):
 
     name = "vamp-replan"
     Config = VampReplanConfig
-    compiles = True  # first-use costs (imports, VAMP's first plan): warmed up before a benchmark run
 
     def setup(self, task: ControlTask) -> None:
         self.task = task
