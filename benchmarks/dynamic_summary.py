@@ -6,6 +6,11 @@ behaviour (95 % Wilson intervals), failure reasons, compute times and the hand-o
     python benchmarks/dynamic_summary.py dynamic.db            # Markdown, as in docs/reactive.md
     python benchmarks/dynamic_summary.py dynamic.db --loaded loaded.db
     python benchmarks/dynamic_summary.py dynamic-test.db --sensing depth --common
+    python benchmarks/dynamic_summary.py seed0.db seed1.db --truth-gap   # depth against truth, paired
+
+``--truth-gap`` pairs each depth run with the truth run of the same scenario and seed (runs of
+several seeds pool: ``planbench bench ... --seeds 0-2``) and gives the gap in points with a 95 %
+interval that resamples scenarios, each with all of its seeds.
 
 Keys come from the shipped scenario names (``dynamic:<robot>_<behaviour>_<speed>_<sensing>/N``).
 """
@@ -159,31 +164,59 @@ def compare(quiet: Sequence[dict[str, Any]], loaded: Sequence[dict[str, Any]]) -
     return "\n".join(lines)
 
 
-def truth_gap(rows: Sequence[dict[str, Any]]) -> str:
+def truth_gap(rows: Sequence[dict[str, Any]], resamples: int = 10_000) -> str:
     """Per controller and robot, success with depth sensing against truth sensing on the same
-    scenarios (base problem, behaviour and speed), for the controllers that ran both."""
-    verdicts: dict[tuple[str, str, str], bool] = {}
+    scenarios (base problem, behaviour and speed) and seeds, for the controllers that ran both.
+    The gap [points] is truth's success less depth's over the pairs; its 95 % interval resamples
+    the scenarios with replacement, each with all of its seeds (a percentile bootstrap, seeded)."""
+    verdicts: dict[tuple[str, str, str, int], bool] = {}
     robot_of: dict[str, str] = {}
     for r in rows:
         keys = scenario_keys(r["problem"])
         sensing = keys.get("sensing")
         if sensing in ("truth", "depth"):
             same = str(r["problem"]).replace(f"_{sensing}/", "/")
-            verdicts[(r["planner"], sensing, same)] = bool(r["success"])
+            verdicts[(r["planner"], sensing, same, int(r["seed"]))] = bool(r["success"])
             robot_of[same] = keys["robot"]
-    lines = ["| controller | robot | truth | depth | gap [points] |", "|---|---|---|---|---|"]
+    lines = [
+        "| controller | robot | seeds | truth | depth | gap [points] (95 % interval) |",
+        "|---|---|---|---|---|---|",
+    ]
     for c in sorted({k[0] for k in verdicts}):
         both = sorted(
-            p for (cc, sensing, p) in verdicts if (cc, sensing) == (c, "depth") and (c, "truth", p) in verdicts
+            (p, seed)
+            for (cc, sensing, p, seed) in verdicts
+            if (cc, sensing) == (c, "depth") and (c, "truth", p, seed) in verdicts
         )
-        robots = sorted({robot_of[p] for p in both})
+        robots = sorted({robot_of[p] for p, _ in both})
         for robot in [*robots, "all"] if len(robots) > 1 else robots:
-            mine = [p for p in both if robot in ("all", robot_of[p])]
-            t = sum(verdicts[(c, "truth", p)] for p in mine)
-            d = sum(verdicts[(c, "depth", p)] for p in mine)
-            gap = round(100 * t / len(mine)) - round(100 * d / len(mine))
-            lines.append(f"| `{c}` | {robot} | {_rate(t, len(mine))} | {_rate(d, len(mine))} | {gap} |")
+            mine = [(p, seed) for p, seed in both if robot in ("all", robot_of[p])]
+            t = sum(verdicts[(c, "truth", p, seed)] for p, seed in mine)
+            d = sum(verdicts[(c, "depth", p, seed)] for p, seed in mine)
+            lo, hi = _gap_interval(
+                [(p, verdicts[(c, "truth", p, seed)], verdicts[(c, "depth", p, seed)]) for p, seed in mine], resamples
+            )
+            seeds = ",".join(str(x) for x in sorted({seed for _, seed in mine}))
+            lines.append(
+                f"| `{c}` | {robot} | {seeds} | {_rate(t, len(mine))} | {_rate(d, len(mine))} "
+                f"| {100 * (t - d) / len(mine):.1f} [{lo:.1f}, {hi:.1f}] |"
+            )
     return "\n".join(lines)
+
+
+def _gap_interval(pairs: Sequence[tuple[str, bool, bool]], resamples: int) -> tuple[float, float]:
+    """95 % percentile-bootstrap interval [points] of truth's success less depth's over ``pairs``
+    (scenario, truth verdict, depth verdict), resampling scenarios with all of their pairs."""
+    by: dict[str, list[int]] = collections.defaultdict(list)
+    for p, t, d in pairs:
+        by[p].append(int(t) - int(d))
+    diff = np.array([sum(v) for v in by.values()], dtype=float)  # per scenario: summed over its seeds
+    count = np.array([len(v) for v in by.values()], dtype=float)
+    rng = np.random.default_rng(0)
+    pick = rng.integers(0, len(diff), size=(resamples, len(diff)))
+    gaps = 100 * diff[pick].sum(axis=1) / count[pick].sum(axis=1)
+    lo, hi = np.percentile(gaps, [2.5, 97.5])
+    return float(lo), float(hi)
 
 
 def main() -> None:
