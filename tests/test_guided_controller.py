@@ -243,7 +243,7 @@ def test_with_slice_cpu_share_a_slice_ends_when_the_ticks_cpu_time_has_run_out(t
         assert d.c.reference is not None
         return d.c
 
-    plain = planned()
+    plain = planned(slice_cpu_share=0.0)  # slices by their count alone
     reads = iter(range(10**9))
     monkeypatch.setattr(time, "process_time", lambda: float(next(reads)))
     timed = planned(slice_cpu_share=0.5)
