@@ -324,10 +324,11 @@ def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest
     assert g.blocking.tolist() == [False, False, False, True]  # cell 1 seen free again; cell 3 appeared
 
 
-def _box_at_the_standing_arm(task: ControlTask, evade: str) -> tuple[bool, dict]:
-    """Depth, 30 frames a second: the arm stands at its goal; a box flies at 0.5 m/s through the
-    place of its hand, from 0.6 m away. Whether the box ever touched the arm (the arm moved by the
-    commands, clipped to the velocity limits), and the controller's ``info``."""
+def _box_at_the_standing_arm(task: ControlTask, evade: str, sensing: str = "depth") -> tuple[bool, dict]:
+    """30 frames a second: the arm stands at its goal; a box flies at 0.5 m/s through the place of
+    its hand, from 0.6 m away. Whether the box ever touched the arm (the arm moved by the commands,
+    clipped to the velocity limits), and the controller's ``info``. ``sensing``: ``"depth"`` (the
+    box's surface points) or ``"truth"`` (the box's exact scene and its voxels)."""
     robot, q = task.robot, np.array(task.start, dtype=float)
     at_start = Goal(robot.frame_pose(q, task.goal.pose.frame), q.copy())
     grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
@@ -342,7 +343,12 @@ def _box_at_the_standing_arm(task: ControlTask, evade: str) -> tuple[bool, dict]
         t = 0.01 * k
         centre = hand - v * (1.2 - t)
         if k % 3 == 0:
-            c.update(_box_frame(grid, _cube(centre), t, k // 3))
+            frame = _box_frame(grid, _cube(centre), t, k // 3)
+            if sensing == "truth":
+                voxels = OccupancyGrid(frame.grid.data, grid.origin, grid.resolution)  # every cell known
+                scene = Scene((Obstacle("box", "box", tuple(centre), size=(0.1, 0.1, 0.1)),))
+                frame = Observation(t, voxels, k // 3, None, scene)
+            c.update(frame)
         q = q + 0.01 * np.clip(c.step(t, q, None, at_start), -vmax, vmax)
         box = Scene((Obstacle("box", "box", tuple(hand - v * (1.2 - t - 0.01)), size=(0.1, 0.1, 0.1)),))
         touched = touched or CollisionChecker(robot, box).in_collision(q)
@@ -352,12 +358,16 @@ def _box_at_the_standing_arm(task: ControlTask, evade: str) -> tuple[bool, dict]
 def test_with_evade_the_arm_backs_away_from_a_box_flying_at_it(free_task):
     """``evade = "retreat"``: the cells that came in lately within ``evade_distance`` of the arm
     make it retreat, so a box flying through the standing hand's place misses the arm; without
-    it the arm, at its goal, waits where it is and is hit."""
+    it the arm, at its goal, waits where it is and is hit. With depth and with truth sensing."""
     hit, plain = _box_at_the_standing_arm(free_task, "none")
     assert hit and plain["evasions"] == 0
     hit, evaded = _box_at_the_standing_arm(free_task, "retreat")
     assert not hit and evaded["evasions"] >= 1, evaded
     assert check_controller("ompl-replan", {"evade": "retreat"}) == []
+    hit, plain = _box_at_the_standing_arm(free_task, "none", "truth")
+    assert hit and plain["evasions"] == 0
+    hit, evaded = _box_at_the_standing_arm(free_task, "retreat", "truth")  # the voxels of the exact scene
+    assert not hit and evaded["evasions"] >= 1, evaded
     with pytest.raises(InvalidSettingError, match="evade"):
         make_controller("ompl-replan", evade="flee")
     with pytest.raises(InvalidSettingError, match="evade_distance"):

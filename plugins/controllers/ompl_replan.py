@@ -71,12 +71,13 @@ depth scenarios of ``dynamic-tune`` it solved 15 against 19 without (docs/reacti
 in ompl-replan"): the frames reach the predictor too sparsely while plans are charged for a track
 to form in most runs, and the differences were mostly in runs where it predicted nothing.
 
-**Getting out of the way** (depth; ``evade``, :class:`~.evade.EvadeSettings`): with
+**Getting out of the way** (``evade``, :class:`~.evade.EvadeSettings`; with either sensing): with
 ``"retreat"``, on every frame the cells of obstacles that came in lately (the predictor's moving
 clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
 unless its path leads well away from them (twice that distance within ``scan_horizon``): a
 short straight joint motion, at the full velocity limits, to where the body is farthest from them
-(:func:`~.evade.retreat`), checked against every occupied cell and the arm itself.
+(:func:`~.evade.retreat`), checked against every occupied cell (truth: the frame's scene) and
+the arm itself. With truth sensing the frame's voxelised grid is what the predictor reads.
 Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
 Standing still while a plan is refused or the path is blocked is safe from a static scene, not
 from a box on its way through the arm.
@@ -413,7 +414,7 @@ class OMPLReplanController(Controller):
         self.relaxed = 0  # safe mode: steps surface_margin has been relaxed by (relax_steps)
         self.failed_in_row = 0  # plans failed since the last that found a path
         self.predicted = np.zeros(0, dtype=np.intp)  # depth, "swept": the cells moving clusters sweep (flat)
-        self.threat = np.zeros(0, dtype=np.intp)  # depth, evade: moving cells and what tracks sweep (flat)
+        self.threat = np.zeros(0, dtype=np.intp)  # evade: moving cells and what tracks sweep (flat)
         self.evading = False  # the path followed is a retreat (evade)
         if self.predictor is not None:
             self.predictor.reset()
@@ -429,11 +430,12 @@ class OMPLReplanController(Controller):
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
-        if self.predictor is not None and observation.scene is None:  # depth: where moving obstacles go
+        depth = observation.scene is None
+        if self.predictor is not None and (depth or self.config.evade != "none"):  # where obstacles go
             prediction = self.predictor.observe(observation)
             if self.config.evade != "none":
                 self.threat = np.union1d(prediction.moving, prediction.cells)
-            if self.config.prediction != "none":
+            if self.config.prediction != "none" and depth:  # truth: its plans check the exact scene
                 self.predicted = prediction.cells
             if len(self.predicted):
                 self.stats["predicted_frames"] += 1
@@ -481,7 +483,7 @@ class OMPLReplanController(Controller):
         obs, body = self.observation, self.samples
         evading = self.evading and self.path is not None
         self.evading = evading
-        if obs is None or obs.scene is not None or body is None or (not len(self.threat) and not evading):
+        if obs is None or body is None or (not len(self.threat) and not evading):
             return False
         threat = Threat(obs.grid, self.threat)
         cap = 2.0 * self.config.evade_distance
@@ -498,8 +500,12 @@ class OMPLReplanController(Controller):
                 ahead = self._at(min(self.tau + self.config.scan_horizon, float(self.times[-1])))
                 if threat.distance(body, ahead, cap) >= cap:
                     return False  # the path leads well away (the threat may follow: farther than near is not enough)
-        assert self.occupied is not None
-        checker = self._cells_checker(self.occupied, q)
+        if obs.scene is not None:  # truth: the frame's scene less what the arm touches (``_frame``)
+            checker = self.checker
+        else:
+            assert self.occupied is not None
+            checker = self._cells_checker(self.occupied, q)
+        assert checker is not None
         limits = (np.asarray(self.task.robot.lower), np.asarray(self.task.robot.upper))
         end = retreat(q, threat, body, checker, limits, self.config, self.config.check_resolution, self.rng)
         if end is None:
