@@ -310,7 +310,7 @@ def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest
             np.array(occupied, dtype=float).reshape(1, 1, 4), np.zeros(3), 0.02, known=np.array(known).reshape(1, 1, 4)
         )
 
-    g = GoalCells(block_time=1.0)
+    g = GoalCells(block_time=1.0, fringe=0)  # the first sight alone (the fringe: the next test)
     out = g.classify(0.0, frame([1, 0, 0, 0], [True, True, False, True]), near)
     assert out.tolist() == [True, False, False, False] and not g.blocking.any()
     out = g.classify(0.5, frame([1, 1, 1, 0], [True, True, True, True]), near)
@@ -322,6 +322,31 @@ def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest
     assert out[1] and not g.blocking.any()  # 1.1 s: taken for what the map keeps, left out
     g.classify(1.7, frame([1, 0, 1, 1], [True] * 4), near)
     assert g.blocking.tolist() == [False, False, False, True]  # cell 1 seen free again; cell 3 appeared
+
+
+def test_goal_cells_take_a_flickering_cell_beside_the_static_scene_for_it():
+    """``GoalCells`` with ``fringe = 1``: a cell next to one occupied when first seen (a can's
+    surface) that a frame saw free and the next occupied is that surface flickering, left out
+    however often it flickers; an occupied cell two cells from the surface blocks the goal as
+    before. With ``fringe = 0`` the flickering cell blocks the goal each time it comes back."""
+    from planbench_plugins.controllers.observed import GoalCells
+
+    near = np.arange(6)  # flat indices into a 1x1x6 grid
+
+    def frame(occupied):
+        data = np.zeros(6)
+        data[list(occupied)] = 1.0
+        return OccupancyGrid(data.reshape(1, 1, 6), np.zeros(3), 0.02, known=np.ones((1, 1, 6), dtype=bool))
+
+    for fringe, flicker_blocks in ((1, False), (0, True)):
+        g = GoalCells(block_time=6.0, fringe=fringe)
+        g.classify(0.0, frame([0]), near)  # cell 0: the static scene
+        out = g.classify(0.1, frame([0, 1, 3]), near)  # 1 beside it; 3 two cells from it
+        assert g.blocking[3] and not out[3]
+        assert g.blocking[1] == flicker_blocks and out[1] != flicker_blocks
+        g.classify(0.2, frame([0, 3]), near)  # the flickering cell seen free
+        out = g.classify(0.3, frame([0, 1, 3]), near)  # and occupied again
+        assert g.blocking[1] == flicker_blocks and g.blocking[3]
 
 
 def _box_at_the_standing_arm(task: ControlTask, evade: str, sensing: str = "depth") -> tuple[bool, dict]:

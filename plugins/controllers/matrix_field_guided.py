@@ -163,6 +163,10 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     are: a map keeps an obstacle that left where no ray passes any more (the arm's own shadow, say;
     seen on ``dynamic:panda_reaching_fast_depth/0001``). The ``dynamic`` set parks obstacles on
     the goal for 2-5 s."""
+    goal_fringe: int = 1
+    """[cells] Depth: an occupied cell near the goal within this many cells of one that was
+    occupied when first seen is taken for that static surface and left out, however it flickered
+    (:class:`~.observed.GoalCells`); 0: only the first sight decides."""
     replan_lag: float = 0.3
     """[rad] The arm farther than this from its reference (largest joint error) plans again from
     where it is."""
@@ -202,6 +206,9 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InvalidConfigError(f"{name} must be an integer >= 1, got {v!r}")
+        v = self.goal_fringe
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise InvalidConfigError(f"goal_fringe must be an integer >= 0, got {v!r}")
         for name in (
             "plan_range",
             "motion_resolution",
@@ -294,7 +301,9 @@ class MatrixFieldGuidedController(Controller):
         self.frame = 0  # frames taken in
         self.fresh = False  # a frame not yet checked against the path
         self.counted: np.ndarray | None = None  # unknown cells read as occupied last frame
-        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth: near-goal cells left out or blocking
+        self.goal_cells = GoalCells(
+            self.config.goal_block_time, self.config.goal_fringe
+        )  # depth: near-goal cells left out or blocking
         self.goal_out: np.ndarray | None = None  # depth: near-goal cells left out (static, or blocking too long)
         self.hold = np.array(q, dtype=float)  # the reference held while there is no path
         self.reference: Reference | None = None

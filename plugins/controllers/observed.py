@@ -97,15 +97,26 @@ class ArmCells:
 class GoalCells:
     """Which occupied cells near the arm's body at the goal a plan leaves out (:meth:`classify`):
     those occupied the first time a frame knew them (the static scene a grasp touches: observed
-    cells lie up to a cell beyond the true surface), and those that appeared after a frame saw them
-    free but have stayed longer than ``block_time`` [s] (what a map keeps where no ray passes any
-    more: an obstacle that left in the arm's shadow). The others are an obstacle standing on the
-    goal: kept, so that no plan reaches the goal while it is there."""
+    cells lie up to a cell beyond the true surface), those within ``fringe`` cells (26-neighbours,
+    per step) of such a cell, and those that appeared after a frame saw them free but have stayed
+    longer than ``block_time`` [s] (what a map keeps where no ray passes any more: an obstacle that
+    left in the arm's shadow). The others are an obstacle standing on the goal: kept, so that no
+    plan reaches the goal while it is there.
 
-    def __init__(self, block_time: float) -> None:
+    The fringe: a static surface's cells flicker in a depth map (rays that graze the surface clear
+    a cell its hits set), so a cell beside a can that a frame saw free is occupied again the next,
+    and would block the goal anew each time (on the Panda's tall bookshelf, ``dynamic-tune``'s
+    shelf set, the goal was blocked in nearly every frame of a run and never reached in 20 s). A
+    cell beside the static scene is taken for that surface, as a cell beyond it is at first sight;
+    an obstacle standing on the goal still has cells farther from it. ``fringe = 0``: none."""
+
+    def __init__(self, block_time: float, fringe: int = 1) -> None:
         self.block_time = block_time
+        self.fringe = fringe
         self.first_seen = np.zeros(0, dtype=bool)  # the cells a frame knew
         self.static = np.zeros(0, dtype=bool)  # those occupied when first known
+        self.beside = np.zeros(0, dtype=bool)  # those within ``fringe`` cells of a static one
+        self._static_count = -1  # static cells when ``beside`` was found
         self.since = np.zeros(0)  # [s] since when the others are occupied (NaN: not)
         self.blocking = np.zeros(0, dtype=bool)
         """The cells that block the goal in the frame last classified: appeared, not yet stale."""
@@ -117,18 +128,40 @@ class GoalCells:
         if len(self.first_seen) != len(near):
             self.first_seen = np.zeros(len(near), dtype=bool)
             self.static = np.zeros(len(near), dtype=bool)
+            self.beside = np.zeros(len(near), dtype=bool)
+            self._static_count = -1
             self.since = np.full(len(near), np.nan)
         occupied = np.asarray(grid.data).reshape(-1)[near] >= 0.5
         if not self.first_seen.all():  # the mask's bits of these cells only: no bool per cell of the grid
             new = grid.known_at(near) & ~self.first_seen
             self.static[new] = occupied[new]
             self.first_seen |= new
-        blocker = occupied & self.first_seen & ~self.static
+        surface = self.static
+        if self.fringe > 0:
+            count = int(np.count_nonzero(self.static))
+            if count != self._static_count:  # static cells are only ever added: found again when they are
+                self.beside = _within_cells(near, near[self.static], grid.shape, self.fringe)
+                self._static_count = count
+            surface = self.static | (self.beside & occupied)
+        blocker = occupied & self.first_seen & ~surface
         self.since[~blocker] = np.nan
         self.since[blocker & np.isnan(self.since)] = time
         stale = time - self.since > self.block_time  # False where NaN
         self.blocking = blocker & ~stale
-        return np.asarray(self.static | stale, dtype=bool)
+        return np.asarray(surface | stale, dtype=bool)
+
+
+def _within_cells(cells: np.ndarray, of: np.ndarray, shape: tuple[int, ...], reach: int) -> np.ndarray:
+    """For each of ``cells`` (flat indices into a grid of ``shape``), whether it lies within
+    ``reach`` cells (in every axis) of one of ``of``."""
+    if not len(of) or not len(cells):
+        return np.zeros(len(cells), dtype=bool)
+    steps = np.arange(-reach, reach + 1)
+    offsets = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), axis=-1).reshape(-1, 3)
+    around = np.stack(np.unravel_index(of, shape), axis=1)[:, None, :] + offsets[None, :, :]
+    around = around.reshape(-1, 3)
+    inside = np.all((around >= 0) & (around < np.asarray(shape)), axis=1)
+    return np.isin(cells, np.ravel_multi_index(tuple(around[inside].T), shape))
 
 
 class LinkBoxes:

@@ -229,6 +229,10 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     goal_block_time: float = 6.0
     """[s] Depth, ``goal_obstacles = "appeared"``: how long cells that appeared on the goal block
     it at most (then they are taken for what the map keeps where no ray passes, and left out)."""
+    goal_fringe: int = 1
+    """[cells] Depth: an occupied cell near the goal within this many cells of one that was
+    occupied when first seen is taken for that static surface and left out, however it flickered
+    (:class:`~.observed.GoalCells`); 0: only the first sight decides."""
     start_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
@@ -281,7 +285,7 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(f"known_cpu_share must be in [0, 1), got {self.known_cpu_share!r}")
         if not 0 <= self.cell_inset < 0.5:
             raise InvalidConfigError(f"cell_inset must be in [0, 0.5) cells, got {self.cell_inset!r}")
-        for name in ("look_frames", "known_checks_per_tick", "relax_steps"):
+        for name in ("look_frames", "known_checks_per_tick", "relax_steps", "goal_fringe"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise InvalidConfigError(f"{name} must be an integer >= 0, got {v!r}")
@@ -406,7 +410,9 @@ class OMPLReplanController(Controller):
         self.body: ArmBody | None = None
         self.arm = ArmCells(self.task.robot, self.task.goal.q)  # the cells the arm fills, per grid
         self.near_goal: np.ndarray | None = None  # cells within a cell of the body at the goal
-        self.goal_cells = GoalCells(self.config.goal_block_time)  # depth, "appeared": which of them block the goal
+        self.goal_cells = GoalCells(
+            self.config.goal_block_time, self.config.goal_fringe
+        )  # depth, "appeared": which of them block the goal
         self.goal_refused = False  # the last plan failed because the goal is in collision
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
