@@ -310,7 +310,7 @@ def test_goal_cells_keep_what_appeared_after_a_free_frame_and_leave_out_the_rest
             np.array(occupied, dtype=float).reshape(1, 1, 4), np.zeros(3), 0.02, known=np.array(known).reshape(1, 1, 4)
         )
 
-    g = GoalCells(block_time=1.0, fringe=0)  # the first sight alone (the fringe: the next test)
+    g = GoalCells(block_time=1.0)  # the first sight alone (the default; the fringe: the next test)
     out = g.classify(0.0, frame([1, 0, 0, 0], [True, True, False, True]), near)
     assert out.tolist() == [True, False, False, False] and not g.blocking.any()
     out = g.classify(0.5, frame([1, 1, 1, 0], [True, True, True, True]), near)

@@ -163,10 +163,12 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     are: a map keeps an obstacle that left where no ray passes any more (the arm's own shadow, say;
     seen on ``dynamic:panda_reaching_fast_depth/0001``). The ``dynamic`` set parks obstacles on
     the goal for 2-5 s."""
-    goal_fringe: int = 1
+    goal_fringe: int = 0
     """[cells] Depth: an occupied cell near the goal within this many cells of one that was
     occupied when first seen is taken for that static surface and left out, however it flickered
-    (:class:`~.observed.GoalCells`); 0: only the first sight decides."""
+    (:class:`~.observed.GoalCells`); 0 (the default): only the first sight decides. 1 ended a
+    flickering can's blocks of the goal in a traced run, and was not better in benchmark runs
+    (docs/reactive.md, "A flickering shelf blocked the goal")."""
     replan_lag: float = 0.3
     """[rad] The arm farther than this from its reference (largest joint error) plans again from
     where it is."""

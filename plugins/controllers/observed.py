@@ -108,9 +108,10 @@ class GoalCells:
     and would block the goal anew each time (on the Panda's tall bookshelf, ``dynamic-tune``'s
     shelf set, the goal was blocked in nearly every frame of a run and never reached in 20 s). A
     cell beside the static scene is taken for that surface, as a cell beyond it is at first sight;
-    an obstacle standing on the goal still has cells farther from it. ``fringe = 0``: none."""
+    an obstacle standing on the goal still has cells farther from it. ``fringe = 0`` (the
+    default): none."""
 
-    def __init__(self, block_time: float, fringe: int = 1) -> None:
+    def __init__(self, block_time: float, fringe: int = 0) -> None:
         self.block_time = block_time
         self.fringe = fringe
         self.first_seen = np.zeros(0, dtype=bool)  # the cells a frame knew

@@ -229,10 +229,12 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     goal_block_time: float = 6.0
     """[s] Depth, ``goal_obstacles = "appeared"``: how long cells that appeared on the goal block
     it at most (then they are taken for what the map keeps where no ray passes, and left out)."""
-    goal_fringe: int = 1
+    goal_fringe: int = 0
     """[cells] Depth: an occupied cell near the goal within this many cells of one that was
     occupied when first seen is taken for that static surface and left out, however it flickered
-    (:class:`~.observed.GoalCells`); 0: only the first sight decides."""
+    (:class:`~.observed.GoalCells`); 0 (the default): only the first sight decides. 1 ended a
+    flickering can's blocks of the goal in a traced run, and was not better in benchmark runs
+    (docs/reactive.md, "A flickering shelf blocked the goal")."""
     start_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
