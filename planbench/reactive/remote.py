@@ -512,7 +512,7 @@ class RemoteController:
         """Read and drop the answer of the call abandoned for its CPU time, when it comes within
         :data:`LATE_WAIT` s; True when the connection then holds nothing (the next answer is the
         next call's)."""
-        if self.abandoned is None or self.abandoned != CPU_OVERRUN:
+        if self.abandoned != CPU_OVERRUN:
             return False
         timeout = self.sock.gettimeout()
         self.sock.settimeout(LATE_WAIT)  # an answer begun and never finished blocks no read for longer

@@ -83,15 +83,21 @@ class ArmCells:
         body = self.body
         if body is None:
             raise RuntimeError("ArmCells.fit(grid) before around()")
-        if not len(flat):
-            return np.zeros(0, dtype=np.intp)
-        hit = np.column_stack(np.unravel_index(flat, body.shape))
-        lo = np.maximum(hit.min(axis=0) - cells, 0)
-        hi = np.minimum(hit.max(axis=0) + cells + 1, body.shape)
-        block = np.zeros(tuple(hi - lo), dtype=bool)
-        block[tuple((hit - lo).T)] = True
-        idx = np.argwhere(grow_cells(block, cells)) + lo
-        return np.ravel_multi_index(tuple(idx.T), body.shape)
+        return cells_around(flat, body.shape, cells)
+
+
+def cells_around(flat: np.ndarray, shape: tuple[int, ...], cells: int) -> np.ndarray:
+    """Flat indices of the cells of a grid of ``shape`` within ``cells`` cells (a cube) of the
+    cells ``flat``, those included."""
+    if not len(flat):
+        return np.zeros(0, dtype=np.intp)
+    hit = np.column_stack(np.unravel_index(flat, shape))
+    lo = np.maximum(hit.min(axis=0) - cells, 0)
+    hi = np.minimum(hit.max(axis=0) + cells + 1, shape)
+    block = np.zeros(tuple(hi - lo), dtype=bool)
+    block[tuple((hit - lo).T)] = True
+    idx = np.argwhere(grow_cells(block, cells)) + lo
+    return np.ravel_multi_index(tuple(idx.T), shape)
 
 
 class GoalCells:
@@ -141,7 +147,7 @@ class GoalCells:
         if self.fringe > 0:
             count = int(np.count_nonzero(self.static))
             if count != self._static_count:  # static cells are only ever added: found again when they are
-                self.beside = _within_cells(near, near[self.static], grid.shape, self.fringe)
+                self.beside = np.isin(near, cells_around(near[self.static], grid.shape, self.fringe))
                 self._static_count = count
             surface = self.static | (self.beside & occupied)
         blocker = occupied & self.first_seen & ~surface
@@ -150,19 +156,6 @@ class GoalCells:
         stale = time - self.since > self.block_time  # False where NaN
         self.blocking = blocker & ~stale
         return np.asarray(surface | stale, dtype=bool)
-
-
-def _within_cells(cells: np.ndarray, of: np.ndarray, shape: tuple[int, ...], reach: int) -> np.ndarray:
-    """For each of ``cells`` (flat indices into a grid of ``shape``), whether it lies within
-    ``reach`` cells (in every axis) of one of ``of``."""
-    if not len(of) or not len(cells):
-        return np.zeros(len(cells), dtype=bool)
-    steps = np.arange(-reach, reach + 1)
-    offsets = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), axis=-1).reshape(-1, 3)
-    around = np.stack(np.unravel_index(of, shape), axis=1)[:, None, :] + offsets[None, :, :]
-    around = around.reshape(-1, 3)
-    inside = np.all((around >= 0) & (around < np.asarray(shape)), axis=1)
-    return np.isin(cells, np.ravel_multi_index(tuple(around[inside].T), shape))
 
 
 class LinkBoxes:
