@@ -399,6 +399,33 @@ def test_with_evade_the_arm_backs_away_from_a_box_flying_at_it(free_task):
         make_controller("ompl-replan", evade_distance=float("nan"))
 
 
+def test_a_threat_at_a_moving_arm_stops_it_before_it_retreats(free_task):
+    """The runner holds the last command while a retreat is worked out (tens of milliseconds,
+    charged): a retreat worked out for a moving arm would start from wherever that command carried
+    it, along a motion nothing checked (the UR5's upper arm was driven into a table so). So a
+    threat at a moving arm stops it in that tick, and the retreat starts where the arm stands."""
+    robot, q = free_task.robot, np.array(free_task.start, dtype=float)
+    grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+    c = make_controller("ompl-replan", unknown="free", evade="retreat")
+    c.setup(free_task)
+    c.reset(q.copy(), np.random.default_rng(0))
+    vmax = np.asarray(robot.velocity_limit)
+    k, command = 0, np.zeros_like(q)
+    while not np.any(command) and k < 30:  # empty frames until the arm follows its first path
+        if k % 3 == 0:
+            c.update(_box_frame(grid, np.zeros((0, 3)), 0.01 * k, k // 3))
+        command = np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
+        q, k = q + 0.01 * command, k + 1
+    assert np.any(command), "the arm never set off"
+    hand = robot.frame_pose(q, free_task.goal.pose.frame).translation
+    c.update(_box_frame(grid, _cube(hand + [0.0, 0.0, 0.12]), 0.01 * k, k))  # a box appears by the hand
+    assert not np.any(c.step(0.01 * k, q, None, free_task.goal))  # a stop, no retreat yet
+    assert c.info()["evasions"] == 0
+    command = c.step(0.01 * (k + 1), q, None, free_task.goal)  # the stop held: the arm stands at q
+    assert np.any(command) and c.info()["evasions"] == 1
+    assert np.array_equal(c.path[0], q)  # the retreat starts where the arm stands
+
+
 def test_a_retreat_ends_farther_from_the_threat_or_is_not_made(free_task):
     """:func:`retreat`: the end it picks keeps the arm's body farther from the threat's cells than
     where it stands, by more than a cell, and its motion is free; with steps too small to get a

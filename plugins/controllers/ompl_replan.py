@@ -77,7 +77,9 @@ clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body
 unless its path leads well away from them (twice that distance within ``scan_horizon``): a
 short straight joint motion, at the full velocity limits, to where the body is farthest from them
 (:func:`~.evade.retreat`), checked against every occupied cell (truth: the frame's scene) and
-the arm itself. With truth sensing the frame's voxelised grid is what the predictor reads.
+the arm itself. A retreat is worked out only where the arm stands: a moving arm is stopped in the
+tick the threat is found and retreats in the next, as a plan waits for a stop (the runner holds
+the last command while either is computed). With truth sensing the frame's voxelised grid is what the predictor reads.
 Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
 Standing still while a plan is refused or the path is blocked is safe from a static scene, not
 from a box on its way through the arm.
@@ -424,6 +426,7 @@ class OMPLReplanController(Controller):
         self.predicted = np.zeros(0, dtype=np.intp)  # depth, "swept": the cells moving clusters sweep (flat)
         self.threat = np.zeros(0, dtype=np.intp)  # evade: moving cells and what tracks sweep (flat)
         self.evading = False  # the path followed is a retreat (evade)
+        self.retreat_due = False  # evade: a threat came at the moving arm; it stops, then retreats
         if self.predictor is not None:
             self.predictor.reset()
         self.fresh = False
@@ -465,7 +468,10 @@ class OMPLReplanController(Controller):
             if not self.still:  # stop first: the runner holds this command while the plan is made
                 self.still = True
                 return np.zeros_like(q)
-            if self.may_plan:
+            if self.retreat_due:  # stopped: the retreat starts where the arm stands
+                self.retreat_due = False
+                self._retreat(q)
+            if self.path is None and self.may_plan:
                 self.may_plan = False
                 self._plan(q)
             if self.path is None:
@@ -490,7 +496,7 @@ class OMPLReplanController(Controller):
         where they are now let a box that followed the arm run into it on ``dynamic-tune``)."""
         obs, body = self.observation, self.samples
         evading = self.evading and self.path is not None
-        self.evading = evading
+        self.evading, self.retreat_due = evading, False  # each frame decides again
         if obs is None or body is None or (not len(self.threat) and not evading):
             return False
         threat = Threat(obs.grid, self.threat)
@@ -508,6 +514,20 @@ class OMPLReplanController(Controller):
                 ahead = self._at(min(self.tau + self.config.scan_horizon, float(self.times[-1])))
                 if threat.distance(body, ahead, cap) >= cap:
                     return False  # the path leads well away (the threat may follow: farther than near is not enough)
+        if not self.still:  # moving: stop now, retreat from where the arm stops (``_retreat``)
+            self.path, self.evading, self.retreat_due = None, False, True
+            return True
+        return self._retreat(q)
+
+    def _retreat(self, q: np.ndarray) -> bool:
+        """Evade: take a retreat from ``q``, where the arm stands, if one gets it farther from the
+        threat. Only from a standing arm: the runner holds the last command while this is
+        computed (tens of milliseconds, charged), so a retreat worked out for a moving arm would
+        start from wherever that command carried it, along a motion nothing checked (the UR5's
+        upper arm was driven into a table so on ``dynamic-tune``, 2026-11-27)."""
+        obs, body = self.observation, self.samples
+        assert obs is not None and body is not None
+        threat = Threat(obs.grid, self.threat)
         if obs.scene is not None:  # truth: the frame's scene less what the arm touches (``_frame``)
             checker = self.checker
         else:
@@ -518,7 +538,7 @@ class OMPLReplanController(Controller):
         end = retreat(q, threat, body, checker, limits, self.config, self.config.check_resolution, self.rng)
         if end is None:
             self.stats["evade_failed"] += 1
-            if evading:  # at a retreat's end with nowhere farther to go: plan to the goal again
+            if self.evading:  # at a retreat's end with nowhere farther to go: plan to the goal again
                 self.evading, self.path = False, None
             return False
         self._take(np.vstack([q, end]), self.vmax / self.config.speed_scale)  # at the full limits
