@@ -72,7 +72,7 @@ in ompl-replan"): the frames reach the predictor too sparsely while plans are ch
 to form in most runs, and the differences were mostly in runs where it predicted nothing.
 
 **Getting out of the way** (``evade``, :class:`~.evade.EvadeSettings`; with either sensing): with
-``"retreat"``, on every frame the cells of obstacles that came in lately (the predictor's moving
+``"retreat"`` (the default since 2026-11-27, chosen on ``dynamic-tune``), on every frame the cells of obstacles that came in lately (the predictor's moving
 clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
 unless its path leads well away from them (twice that distance within ``scan_horizon``): a
 short straight joint motion, at the full velocity limits, to where the body is farthest from them
