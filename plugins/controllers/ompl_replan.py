@@ -72,14 +72,16 @@ in ompl-replan"): the frames reach the predictor too sparsely while plans are ch
 to form in most runs, and the differences were mostly in runs where it predicted nothing.
 
 **Getting out of the way** (``evade``, :class:`~.evade.EvadeSettings`; with either sensing): with
-``"retreat"`` (the default since 2026-11-27, chosen on ``dynamic-tune``), on every frame the cells of obstacles that came in lately (the predictor's moving
-clusters, and what its tracks sweep) within ``evade_distance`` of the arm's body make it retreat,
+``"retreat"`` (the default since 2026-11-27, chosen on ``dynamic-tune``), on every frame the
+cells of obstacles that came in lately (the predictor's moving clusters, and what its tracks
+sweep) within ``evade_distance`` of the arm's body make it retreat,
 unless its path leads well away from them (twice that distance within ``scan_horizon``): a
 short straight joint motion, at the full velocity limits, to where the body is farthest from them
 (:func:`~.evade.retreat`), checked against every occupied cell (truth: the frame's scene) and
 the arm itself. A retreat is worked out only where the arm stands: a moving arm is stopped in the
 tick the threat is found and retreats in the next, as a plan waits for a stop (the runner holds
-the last command while either is computed). With truth sensing the frame's voxelised grid is what the predictor reads.
+the last command while either is computed). With truth sensing the frame's voxelised grid is
+what the predictor reads.
 Once no such cell is that close, or the retreat's end is reached, it plans to the goal again.
 Standing still while a plan is refused or the path is blocked is safe from a static scene, not
 from a box on its way through the arm.
