@@ -76,6 +76,8 @@ def reasons(rows: Sequence[dict[str, Any]]) -> str:
                         f = "collision with the moving obstacle" if moving else "collision with the static scene"
                     if r.get("collision_observed") is not None and not r["collision_observed"]:
                         f += ", never observed"
+                    elif (r["failure"] or "").endswith(", in unobserved space"):  # hit where no frame showed it
+                        f += ", in unobserved space"
                 elif f.startswith("goal not reached"):
                     f = "goal not reached in the horizon"
                 elif f.startswith("error"):

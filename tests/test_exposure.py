@@ -3,6 +3,8 @@ observation had shown, decided by the simulation from the observations it delive
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from bench_controllers import ToGoalController
@@ -95,6 +97,49 @@ def test_a_collision_with_an_obstacle_no_observation_showed_is_told_apart(free_p
     m = evaluate_run(seen, rec)
     assert rec.status == "collision" and m.collision_observed is True and rec.first_seen["ball"] == 0.0
     assert "never observed" not in m.failure
+
+
+class PartSensor:
+    """Frames that show the scene's cells inside the box ``lo``-``hi`` only: those occupied and
+    known, the rest unknown; with ``all_known``, every cell known (the rest free)."""
+
+    def __init__(self, lo, hi, all_known=False):
+        self.lo, self.hi, self.all_known = np.asarray(lo), np.asarray(hi), all_known
+
+    def capture(self, scene, q, t, frame, rng):
+        full = OccupancyGrid.from_scene(scene, RES, bounds=BOUNDS)
+        centres = full.origin + (np.indices(full.shape).reshape(3, -1).T + 0.5) * RES
+        inside = np.all((centres >= self.lo) & (centres <= self.hi), axis=1).reshape(full.shape)
+        known = np.ones(full.shape, dtype=bool) if self.all_known else inside
+        return Observation(t, OccupancyGrid(np.where(inside, full.data, 0.0), full.origin, RES, known=known), frame)
+
+
+def test_a_collision_where_no_frame_showed_the_obstacle_is_told_apart(free_problem):
+    """A long board across the hand's way, shown by its far end only: the obstacle counts as
+    observed, but the arm hits it where the frames knew nothing, so the collision is "in
+    unobserved space". With every cell known (the hit part seen free or occupied), it is not."""
+    robot = free_problem.robot
+    a = robot.frame_pose(free_problem.start).translation
+    b = robot.frame_pose(free_problem.goal.q).translation
+    mid = 0.5 * (a + b)
+    axis = int(np.argmin(np.abs(b - a)))  # the board's length runs across the hand's way
+    size = np.full(3, 0.08)
+    size[axis] = 0.8
+    problem = dataclasses.replace(free_problem, scene=Scene((box("board", mid, size),)))
+    s = scenario(problem)
+    far = mid.copy()
+    far[axis] += 0.35
+    end = (far - 0.06, far + 0.06)  # the board's far end: shown
+    rec = run_scenario(s, ToGoalController(), sensor=PartSensor(*end), settings=IDEAL)
+    m = evaluate_run(s, rec)
+    assert rec.status == "collision" and m.collision_observed is True and "board" in rec.first_seen
+    assert rec.contact_unobserved is True and m.failure.endswith(", in unobserved space"), m.failure
+    row = {"success": False, "status": "collision", "collision_pair": f"{rec.collision[0]} / obstacle:board"}
+    assert failure_reason({**row, "collision_observed": True, "failure": m.failure}).startswith("unobserved-collision")
+    rec = run_scenario(s, ToGoalController(), sensor=PartSensor(*end, all_known=True), settings=IDEAL)
+    m = evaluate_run(s, rec)
+    assert rec.status == "collision" and rec.contact_unobserved is False
+    assert not m.failure.endswith("space") and "never observed" not in m.failure
 
 
 def test_depth_shows_an_obstacle_by_its_occupied_cells(panda):

@@ -230,7 +230,9 @@ def valid_path_failure(row: dict[str, Any]) -> str:
 def failure_reason(row: dict[str, Any]) -> str:
     """Why a run failed, in a few words ("" for a success): ``collision <robot link>``,
     ``unseen-collision <robot link>`` (a closed-loop run's collision with an obstacle no observation
-    had shown), ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``late`` (an
+    had shown), ``unobserved-collision <robot link>`` (with one shown elsewhere, hit in space the
+    latest observation did not know: :mod:`planbench.reactive.exposure`),
+    ``self-collision <link>/<link>``, ``stall`` (a local minimum), ``time limit``, ``late`` (an
     answer after the time limit), ``claimed-failure <status>`` (a valid path, a failure status),
     ``horizon`` (a closed-loop run that did not reach its goal in time), ``error``, ``crash``, or
     the planner's own status (``step limit``, ``infeasible``, ...)."""
@@ -250,7 +252,11 @@ def failure_reason(row: dict[str, Any]) -> str:
         if b and not b.startswith("obstacle:"):
             return f"self-collision {a}/{b}"
         observed = row.get("collision_observed")  # None, or a bool (an integer from the results file)
-        return f"unseen-collision {a}" if observed is not None and not observed else f"collision {a}"
+        if observed is not None and not observed:
+            return f"unseen-collision {a}"
+        if str(row.get("failure") or "").endswith(", in unobserved space"):
+            return f"unobserved-collision {a}"
+        return f"collision {a}"
     if status == "timeout":
         return "horizon" if row.get("deadline_misses") is not None else "time limit"
     return {"local_minimum": "stall"}.get(status, status.replace("_", " ") or "failed")

@@ -158,6 +158,22 @@ class CollisionChecker:
                 out.append((_display(a), _display(b)))
         return out
 
+    def contacts(self, q: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
+        """Every colliding pair at ``q`` as in :meth:`collisions`, each with one contact point [m]
+        (coal's, base frame) per contact coal reports."""
+        data, geom_data = self._all_pairs_data()
+        for request in geom_data.collisionRequests:
+            request.enable_contact = True
+        pin.computeCollisions(self._model, data, self.geometry_model, geom_data, np.asarray(q, dtype=float), False)
+        out = []
+        objs = self.geometry_model.geometryObjects
+        for k, pair in enumerate(self.geometry_model.collisionPairs):
+            result = geom_data.collisionResults[k]
+            if result.isCollision():
+                a, b = _display(objs[pair.first].name), _display(objs[pair.second].name)
+                out.extend((a, b, np.array(c.pos, dtype=float)) for c in result.getContacts())
+        return out
+
     def clearance(self, q: np.ndarray) -> float:
         """Smallest robot-obstacle distance [m] at ``q`` (negative or zero when penetrating;
         ``inf`` in an empty scene). Self-distances are not included."""

@@ -275,6 +275,7 @@ def _record_info(record: RunRecord, handoff: list[float]) -> dict[str, Any]:
         "position_clamped": int(record.position_clamped),
         "collision": list(record.collision) if record.collision else None,
         "first_seen": dict(record.first_seen),
+        "contact_unobserved": record.contact_unobserved,
         "handoff_median": float(np.median(h)) if len(h) else None,
         "handoff_p99": float(np.percentile(h, 99)) if len(h) else None,
         "handoff_calls": len(h),

@@ -17,6 +17,12 @@ controller was actually delivered (never from its own account):
   no signed distance here, counts as shown by an occupied cell in its bounding box grown by that
   much. A collision with an obstacle never observed is reported apart: no controller could have
   avoided it by what it was shown.
+- **Where a collision happened.** An obstacle counts as observed once any part of it was shown;
+  a shelf board seen at one end can be hit at the other, where no camera saw it. So a collision
+  is also told apart when it happens *in unobserved space*: at every contact point (coal's, the
+  arm at the end of the colliding tick) the latest delivered observation does not know the
+  point's cell and has no occupied cell within the reach above. The controller was shown neither
+  the obstacle there nor free space.
 """
 
 from __future__ import annotations
@@ -73,6 +79,34 @@ class Exposure:
         if body is None or body.shape != grid.shape or not np.array_equal(body.lower, grid.origin):
             body = self._body = ArmBody(self.scenario.problem.robot, grid.origin, grid.shape, grid.resolution)
         return body.in_unknown(q, known)
+
+    def unobserved_at(self, points: np.ndarray) -> bool:
+        """Whether every point [m] (N, 3) lies in unobserved space for the latest delivered
+        observation (module docstring): its cell unknown, no occupied cell within reach. With no
+        observation delivered, every point does; with every cell known (truth), none does."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        latest = self._latest
+        if latest is None:
+            return True
+        grid = latest.grid
+        if grid.known is None or len(points) == 0:
+            return False
+        res = grid.resolution
+        reach = res * (1.0 + math.sqrt(3.0) / 2.0)
+        shape = np.array(grid.shape)
+        for p in points:
+            cell = np.floor((p - grid.origin) / res).astype(int)
+            if np.all((cell >= 0) & (cell < shape)) and grid.known[tuple(cell)]:
+                return False
+            i0 = np.clip(np.floor((p - reach - grid.origin) / res).astype(int), 0, shape)
+            i1 = np.clip(np.floor((p + reach - grid.origin) / res).astype(int) + 1, 0, shape)
+            block = grid.data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
+            occupied = np.argwhere(block > 0)
+            if len(occupied):
+                centres = grid.origin + (i0 + occupied + 0.5) * res
+                if np.any(np.linalg.norm(centres - p, axis=1) <= reach):
+                    return False
+        return True
 
 
 def _shown(obstacle: Obstacle, observation: Observation) -> bool:

@@ -37,6 +37,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from planbench.checking.collision import CollisionChecker
 from planbench.problem import pose_error
 from planbench.reactive.checker import TickChecker
 from planbench.reactive.controller import BadCommand, Controller, ControlTask, Observation, as_command
@@ -114,6 +115,9 @@ class RunRecord:
     """(n,) bool: the ticks of unobserved motion (:mod:`planbench.reactive.exposure`); None: not recorded."""
     first_seen: dict[str, float] = field(default_factory=dict)
     """Obstacle name -> when an observation delivered to the controller first showed it [s]."""
+    contact_unobserved: bool | None = None
+    """A collision with an obstacle: whether it happened in unobserved space
+    (:mod:`planbench.reactive.exposure`); None: no such collision, or not recorded."""
 
 
 class ControllerFault(Exception):
@@ -314,6 +318,7 @@ def simulate(
                 when = t + verdict.fraction * T
                 path[k + 1] = clamped
                 rec.collision = verdict.pair
+                rec.contact_unobserved = _contact_unobserved(scenario, exposure, clamped, times[k + 1], verdict.pair)
                 status = "collision"
                 message = f"collision at t = {when:.3f} s: {verdict.pair[0]} with {verdict.pair[1]}"
                 n_done = k + 1
@@ -333,6 +338,19 @@ def simulate(
     except Exception as exc:  # diagnostics must not lose the run
         rec.info = {"info_error": f"{type(exc).__name__}: {exc}"}
     return rec
+
+
+def _contact_unobserved(
+    scenario: Scenario, exposure: Exposure, q: np.ndarray, t: float, pair: tuple[str, str]
+) -> bool | None:
+    """Whether the arm at ``q`` touches the obstacle of ``pair`` at time ``t`` only in unobserved
+    space (:meth:`~planbench.reactive.exposure.Exposure.unobserved_at`); None for the arm touching
+    itself, or when coal reports no contact point there."""
+    if not pair[1].startswith("obstacle:"):
+        return None
+    checker = CollisionChecker(scenario.problem.robot, scenario.scene_at(t))
+    points = [p for a, b, p in checker.contacts(q) if (a, b) == pair]
+    return exposure.unobserved_at(np.array(points)) if points else None
 
 
 def _compute(
@@ -426,6 +444,8 @@ def evaluate_run(scenario: Scenario, record: RunRecord, settings: RunSettings | 
                 seen_at = record.first_seen.get(body.removeprefix("obstacle:"))
                 observed = bool(seen_at is not None and seen_at <= times[k + 1] + _EPS)
             unseen = ", never observed" if observed is False else ""
+            if observed and record.contact_unobserved and record.collision == verdict.pair:
+                unseen = ", in unobserved space"  # an obstacle shown elsewhere, hit where no frame showed it
             failure = failure or f"collision with {body} ({verdict.pair[0]}) at t = {when:.3f} s{unseen}"
             break
         clearance = min(clearance, checker.clearance(path[k + 1], times[k + 1]))
