@@ -165,7 +165,7 @@ class CollisionChecker:
         for request in geom_data.collisionRequests:
             request.enable_contact = True
         pin.computeCollisions(self._model, data, self.geometry_model, geom_data, np.asarray(q, dtype=float), False)
-        out = []
+        out: list[tuple[str, str, np.ndarray]] = []
         objs = self.geometry_model.geometryObjects
         for k, pair in enumerate(self.geometry_model.collisionPairs):
             result = geom_data.collisionResults[k]
