@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from planbench.geometry.occupancy import OccupancyGrid
 from planbench.reactive.body import ArmBody
 from planbench.reactive.controller import Observation
 from planbench.reactive.scenario import Scenario
@@ -91,39 +92,40 @@ class Exposure:
         grid = latest.grid
         if grid.known is None or len(points) == 0:
             return False
-        res = grid.resolution
-        reach = res * (1.0 + math.sqrt(3.0) / 2.0)
         shape = np.array(grid.shape)
         for p in points:
-            cell = np.floor((p - grid.origin) / res).astype(int)
+            cell = np.floor((p - grid.origin) / grid.resolution).astype(int)
             if np.all((cell >= 0) & (cell < shape)) and grid.known[tuple(cell)]:
                 return False
-            i0 = np.clip(np.floor((p - reach - grid.origin) / res).astype(int), 0, shape)
-            i1 = np.clip(np.floor((p + reach - grid.origin) / res).astype(int) + 1, 0, shape)
-            block = grid.data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
-            occupied = np.argwhere(block > 0)
-            if len(occupied):
-                centres = grid.origin + (i0 + occupied + 0.5) * res
-                if np.any(np.linalg.norm(centres - p, axis=1) <= reach):
-                    return False
+            centres = _occupied_centres(grid, p, p)
+            if np.any(np.linalg.norm(centres - p, axis=1) <= _reach(grid)):
+                return False
         return True
 
 
 def _shown(obstacle: Obstacle, observation: Observation) -> bool:
     """Whether the observation's grid has an occupied cell on ``obstacle`` (module docstring)."""
     grid = observation.grid
-    res = grid.resolution
-    reach = res * (1.0 + math.sqrt(3.0) / 2.0)
     lo, hi = obstacle.aabb()
-    i0 = np.clip(np.floor((lo - reach - grid.origin) / res).astype(int), 0, grid.shape)
-    i1 = np.clip(np.floor((hi + reach - grid.origin) / res).astype(int) + 1, 0, grid.shape)
-    if np.any(i1 <= i0):
-        return False
-    block = grid.data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
-    cells = np.argwhere(block > 0)
-    if len(cells) == 0:
+    centres = _occupied_centres(grid, lo, hi)
+    if len(centres) == 0:
         return False
     if obstacle.type == "mesh":
         return True
-    centres = grid.origin + (i0 + cells + 0.5) * res
-    return bool(np.any(obstacle.signed_distance(centres) <= reach))
+    return bool(np.any(obstacle.signed_distance(centres) <= _reach(grid)))
+
+
+def _reach(grid: OccupancyGrid) -> float:
+    """[m] How far from a surface the centre of a cell that shows it may lie (module docstring)."""
+    return grid.resolution * (1.0 + math.sqrt(3.0) / 2.0)
+
+
+def _occupied_centres(grid: OccupancyGrid, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Centres [m] (N, 3) of the grid's occupied cells in the box ``lo``-``hi`` grown by the reach."""
+    res, reach = grid.resolution, _reach(grid)
+    i0 = np.clip(np.floor((lo - reach - grid.origin) / res).astype(int), 0, grid.shape)
+    i1 = np.clip(np.floor((hi + reach - grid.origin) / res).astype(int) + 1, 0, grid.shape)
+    if np.any(i1 <= i0):
+        return np.zeros((0, 3))
+    block = grid.data[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]]
+    return grid.origin + (i0 + np.argwhere(block > 0) + 0.5) * res  # type: ignore[no-any-return]

@@ -519,17 +519,18 @@ class OMPLReplanController(Controller):
         if not self.still:  # moving: stop now, retreat from where the arm stops (``_retreat``)
             self.path, self.evading, self.retreat_due = None, False, True
             return True
-        return self._retreat(q)
+        return self._retreat(q, threat)
 
-    def _retreat(self, q: np.ndarray) -> bool:
+    def _retreat(self, q: np.ndarray, threat: Threat | None = None) -> bool:
         """Evade: take a retreat from ``q``, where the arm stands, if one gets it farther from the
         threat. Only from a standing arm: the runner holds the last command while this is
         computed (tens of milliseconds, charged), so a retreat worked out for a moving arm would
         start from wherever that command carried it, along a motion nothing checked (the UR5's
-        upper arm was driven into a table so on ``dynamic-tune``, 2026-11-27)."""
+        upper arm was driven into a table so on ``dynamic-tune``, 2026-11-27). ``threat``: the
+        frame's, when the caller has it already."""
         obs, body = self.observation, self.samples
         assert obs is not None and body is not None
-        threat = Threat(obs.grid, self.threat)
+        threat = threat if threat is not None else Threat(obs.grid, self.threat)
         if obs.scene is not None:  # truth: the frame's scene less what the arm touches (``_frame``)
             checker = self.checker
         else:
