@@ -159,50 +159,6 @@ def test_an_obstacle_that_appears_on_the_goal_blocks_it_and_one_seen_from_the_st
     assert np.allclose(q, goal_q, atol=1e-3) and static.info()["goal_blocked"] == 0
 
 
-def test_with_approach_the_arm_waits_near_a_blocked_goal_not_at_its_start(free_task):
-    """Depth, ``blocked_goal = "approach"``: while a box that appeared on the goal blocks it, the
-    arm follows a path toward the goal and stops ``approach_clearance`` short of the box's cells
-    (never nearer than the clearance less a cell); once frames show the box gone it reaches the
-    goal. With ``"wait"`` the arm stays at its start meanwhile."""
-    robot, goal_q = free_task.robot, np.asarray(free_task.goal.q)
-    start = np.array(free_task.start, dtype=float)
-    empty = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
-    hand = robot.frame_pose(goal_q, free_task.goal.pose.frame).translation
-    box = Scene((Obstacle("box", "box", tuple(hand), size=(0.1, 0.1, 0.1)),))
-    blocked = OccupancyGrid.from_scene(box, 0.02, bounds=(empty.origin, empty.origin + 2.2), rule="any")
-    near = CollisionChecker(robot, Scene((Obstacle("near", "box", tuple(hand), size=(0.26, 0.26, 0.26)),)))
-    vmax = np.asarray(robot.velocity_limit)
-    with pytest.raises(InvalidSettingError, match="blocked_goal"):
-        make_controller("ompl-replan", blocked_goal="retreat")
-    with pytest.raises(InvalidSettingError, match="approach_clearance"):
-        make_controller("ompl-replan", approach_clearance=0.0)
-
-    def run(c, frames, ticks, q):
-        qs = []
-        for k in ticks:
-            if k % 3 == 0:
-                c.update(_depth(frames(k), 0.01 * k, k // 3))
-            q = q + 0.01 * np.clip(c.step(0.01 * k, q, None, free_task.goal), -vmax, vmax)
-            qs.append(q)
-        return qs
-
-    moved = {}
-    for mode in ("wait", "approach"):
-        c = make_controller("ompl-replan", blocked_goal=mode)
-        c.setup(free_task)
-        c.reset(start.copy(), np.random.default_rng(0))
-        qs = run(c, lambda k: empty if k < 3 else blocked, range(300), start.copy())
-        assert not any(near.in_collision(x) for x in qs), mode  # never within 8 cm of the box
-        moved[mode] = float(np.linalg.norm(qs[-1] - start)), float(np.linalg.norm(qs[-1] - goal_q))
-        assert c.info()["goal_blocked"] > 0 and (c.info()["approaches"] > 0) == (mode == "approach")
-        if mode == "approach":
-            q = run(c, lambda k: empty, range(300, 900), qs[-1])[-1]  # the box has left
-            assert np.allclose(q, goal_q, atol=1e-3), c.info()
-    assert moved["wait"][0] < 0.1  # stood where the first frames let it start
-    assert moved["approach"][1] < 0.5 * float(np.linalg.norm(goal_q - start)), moved  # waited nearer the goal
-    print(moved, float(np.linalg.norm(goal_q - start)))
-
-
 def _box_frame(grid: OccupancyGrid, points: np.ndarray, t: float, frame: int) -> Observation:
     """A depth observation of ``points`` (a box's surface): their cells occupied, every cell known."""
     data = np.zeros(grid.shape)

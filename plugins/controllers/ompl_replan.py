@@ -117,14 +117,7 @@ from planbench.registry import REGISTRY
 from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
 from planbench_plugins.controllers.evade import ArmSamples, EvadeSettings, Threat, retreat
-from planbench_plugins.controllers.observed import (
-    ArmCells,
-    GoalCells,
-    LinkBoxes,
-    PathBoxes,
-    cells_around,
-    scene_without_touched,
-)
+from planbench_plugins.controllers.observed import ArmCells, GoalCells, LinkBoxes, PathBoxes, scene_without_touched
 from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_checker
@@ -246,17 +239,6 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     (:class:`~.observed.GoalCells`); 0 (the default): only the first sight decides. 1 ended a
     flickering can's blocks of the goal in a traced run, and was not better in benchmark runs
     (docs/reactive.md, "A flickering shelf blocked the goal")."""
-    blocked_goal: str = "wait"
-    """Depth, ``goal_obstacles = "appeared"``: what the arm does while cells that appeared on the
-    goal block it (the plan is refused): ``"wait"`` (the default) stands where it is and plans
-    again on the next frame; ``"approach"`` plans to the goal as if those cells were not there
-    and follows that path only up to ``approach_clearance`` from them, then waits there, and
-    plans to the goal once a frame shows it free (on the Panda's tall bookshelf a forearm swinging
-    through the goal, and the cells the map keeps where no ray passes, held the arm at its start,
-    4.7 rad away, for most of the run; docs/reactive.md, "Waiting near a blocked goal")."""
-    approach_clearance: float = 0.10
-    """[m] With ``blocked_goal = "approach"``: how far from the cells blocking the goal (cell
-    centres, rounded up to whole cells) the arm's body stays while it waits."""
     start_margin: float = 0.04
     """Safe mode: [m] unknown cells within this of the arm's body where the run starts (rounded up
     to whole cells) may be entered: the sensor's robot filter blinds it within ``robot_margin``
@@ -287,7 +269,6 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             "start_margin",
             "surface_margin",
             "goal_block_time",
-            "approach_clearance",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -300,8 +281,6 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(f'surface_shadow must be "enter" or "avoid", got {self.surface_shadow!r}')
         if self.known_plan_at not in ("start", "stop"):
             raise InvalidConfigError(f'known_plan_at must be "start" or "stop", got {self.known_plan_at!r}')
-        if self.blocked_goal not in ("wait", "approach"):
-            raise InvalidConfigError(f'blocked_goal must be "wait" or "approach", got {self.blocked_goal!r}')
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait", "appeared"):
@@ -441,7 +420,6 @@ class OMPLReplanController(Controller):
             self.config.goal_block_time, self.config.goal_fringe
         )  # depth, "appeared": which of them block the goal
         self.goal_refused = False  # the last plan failed because the goal is in collision
-        self.approaching = False  # blocked_goal "approach": the path stops short of a blocked goal
         self.own: np.ndarray | None = None  # safe mode: unknown cells the arm may enter (start, goal)
         self.allowed: np.ndarray | None = None  # safe mode: known or own, the frame's (bool, grid shape)
         self.hidden: np.ndarray | None = None  # safe mode: unknown cells next to occupied ones
@@ -459,7 +437,7 @@ class OMPLReplanController(Controller):
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
-        self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0, approaches=0)
+        self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0)
         self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
         self.tick_cpu = time.process_time()  # [s] process CPU time when the current tick began
 
@@ -485,8 +463,6 @@ class OMPLReplanController(Controller):
         if self.fresh:  # a new frame: the rest of the path is checked, one plan is allowed
             self.fresh, self.may_plan = False, True
             self._frame(q)
-            if self.approaching and not len(self._blocking()):  # the goal is free again: plan to it
-                self.path, self.approaching = None, False
             retreating = self.config.evade != "none" and self._evade(q)  # a new retreat: nothing to check
             if not retreating and self.path is not None:
                 self._check_rest(q)
@@ -629,28 +605,20 @@ class OMPLReplanController(Controller):
             return self.occupied
         return np.union1d(self.occupied, self.predicted)
 
-    def _cells_checker(
-        self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None, keep_blocking: bool = True
-    ) -> CollisionChecker:
+    def _cells_checker(self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None) -> CollisionChecker:
         """A checker of the cells (flat indices) less those within a cell of the arm at ``q`` and at
         the goal, when the arm touches them there (counted in ``dropped``); with ``swept`` (the
         cells moving clusters sweep), those too, less the ones within a cell of the arm at ``q`` or
         at the goal, always: an arm in a sweep plans its way out of it, and a sweep near the arm
-        does not drop the static cells it touches. ``keep_blocking`` False: the cells that block
-        the goal are dropped too (an approach's plan)."""
-        return self._cells_and_checker(cells, q, swept, keep_blocking=keep_blocking)[1]
+        does not drop the static cells it touches."""
+        return self._cells_and_checker(cells, q, swept)[1]
 
     def _cells_and_checker(
-        self,
-        cells: np.ndarray,
-        q: np.ndarray,
-        swept: np.ndarray | None = None,
-        touched: bool | None = None,
-        keep_blocking: bool = True,
+        self, cells: np.ndarray, q: np.ndarray, swept: np.ndarray | None = None, touched: bool | None = None
     ) -> tuple[np.ndarray, CollisionChecker]:
         """:meth:`_cells_checker`, and the cells (flat indices) its checker holds; ``touched``:
         whether the arm touches the frame's cells, when ``cells`` are only some of them."""
-        checker, kept = self._kept(cells, q, touched, keep_blocking)
+        checker, kept = self._kept(cells, q, touched)
         if swept is None or not len(swept):
             return (cells, checker) if kept is None else (kept, self._checker_of(kept))
         assert self.near_goal is not None
@@ -659,13 +627,12 @@ class OMPLReplanController(Controller):
         return held, self._checker_of(held)
 
     def _kept(
-        self, cells: np.ndarray, q: np.ndarray, touched: bool | None = None, keep_blocking: bool = True
+        self, cells: np.ndarray, q: np.ndarray, touched: bool | None = None
     ) -> tuple[CollisionChecker, np.ndarray | None]:
         """A checker of the cells (flat indices), and the cells less those within a cell of the
         arm at ``q`` and at the goal when the arm touches them there (counted in ``dropped``; None
         when it touches none). ``touched`` given: whether it touches the frame's occupied cells
-        (``cells`` being some of them). ``keep_blocking`` False: the cells that block the goal
-        (``goal_obstacles = "appeared"``) are dropped as the rest near it."""
+        (``cells`` being some of them)."""
         checker = self._checker_of(cells)
         goal_q = self.task.goal.q
         some = touched is not None  # ``cells`` are some of the frame's
@@ -682,7 +649,7 @@ class OMPLReplanController(Controller):
             near_goal = near_goal[~np.isin(near_goal, on_goal)]
             self.stats["goal_blocked"] += 1
         blocking = self.goal_cells.blocking  # the rest near the goal is left out as with "ignore"
-        if keep_blocking and self.config.goal_obstacles == "appeared" and len(blocking) == len(near_goal):
+        if self.config.goal_obstacles == "appeared" and len(blocking) == len(near_goal):
             if np.isin(near_goal[blocking], cells).any():  # cells that appeared on the goal: kept
                 self.stats["goal_blocked"] += 1
             near_goal = near_goal[~blocking]
@@ -890,18 +857,14 @@ class OMPLReplanController(Controller):
         checker = self.checker  # truth: the frame's scene
         safe = self.safe and obs.grid.known is not None
         depth = safe and obs.scene is None
-        cells = None
         if depth:
             assert self.occupied is not None
-            cells = np.union1d(self.occupied, self._hidden())
+            checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q, self.predicted)
         elif obs.scene is None:
-            cells = self.occupied
-        if cells is not None:
-            checker = self._cells_checker(cells, q, self.predicted)
+            assert self.occupied is not None
+            checker = self._cells_checker(self.occupied, q, self.predicted)
         if not self._plan_once(q, checker):
-            if self.goal_refused and cells is not None and self.config.blocked_goal == "approach":
-                self._approach(q, cells)
-            elif depth and not len(self.predicted) and not self.goal_refused:  # nor is a sweep or a blocked goal
+            if depth and not len(self.predicted) and not self.goal_refused:  # nor is a sweep or a blocked goal
                 self._relax()
             return
         self.failed_in_row = 0
@@ -931,47 +894,6 @@ class OMPLReplanController(Controller):
             self.known_pending = True
             return
         self._plan_known(q)
-
-    def _blocking(self) -> np.ndarray:
-        """Depth, ``goal_obstacles = "appeared"``: the cells (flat) that block the goal in the
-        frame (:attr:`~.observed.GoalCells.blocking`); none otherwise."""
-        near = self.near_goal
-        blocking = self.goal_cells.blocking
-        if near is None or self.config.goal_obstacles != "appeared" or len(blocking) != len(near):
-            return np.zeros(0, dtype=np.intp)
-        return near[blocking]
-
-    def _approach(self, q: np.ndarray, cells: np.ndarray) -> bool:
-        """``blocked_goal = "approach"``, after a plan refused for a blocked goal: plan from ``q``
-        against ``cells`` with the cells that block the goal left out, and follow that path only
-        up to its last configuration before the body comes within ``approach_clearance`` of
-        them; True when the arm has such a stretch to follow. The next frame that shows the goal
-        free drops it (``step``); a frame's check of its rest and the safe mode's stops apply
-        to it as to any path."""
-        blocking = self._blocking()
-        if not len(blocking) or self.observation is None:
-            return False
-        grid = self.observation.grid
-        grow = math.ceil(self.config.approach_clearance / grid.resolution - 1e-9)
-        keep_out = self._checker_of(cells_around(blocking, grid.shape, grow))
-        if keep_out.in_collision(q):  # that close already: it waits where it is
-            return False
-        if not self._plan_once(q, self._cells_checker(cells, q, self.predicted, keep_blocking=False)):
-            return False
-        assert self.path is not None and self.times is not None
-        last = None
-        for when, x in self._samples(0.0, float(self.times[-1])):
-            if keep_out.in_collision(x):
-                break
-            last = when
-        if last is None or last <= 0.0:
-            self.path = None
-            return False
-        i = int(np.searchsorted(self.times, last, side="left"))
-        self._take(np.vstack([self.path[:i], self._at(last)]))
-        self.approaching = True
-        self.stats["approaches"] += 1
-        return True
 
     def _plan_known(self, q: np.ndarray) -> bool:
         """Safe mode: plan from ``q`` in known space (every unknown cell an obstacle but those the
@@ -1132,7 +1054,6 @@ class OMPLReplanController(Controller):
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.pace, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
         self.evading = False  # a retreat says so after taking its path
-        self.approaching = False  # so does an approach to a blocked goal
         self.reach = None  # the next frame checks the new path against every cell
         self.scan_clear = -math.inf
         self.stretch = None
