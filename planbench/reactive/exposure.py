@@ -92,13 +92,13 @@ class Exposure:
         grid = latest.grid
         if grid.known is None or len(points) == 0:
             return False
-        shape = np.array(grid.shape)
+        shape, reach = np.array(grid.shape), _reach(grid)
         for p in points:
             cell = np.floor((p - grid.origin) / grid.resolution).astype(int)
             if np.all((cell >= 0) & (cell < shape)) and grid.known[tuple(cell)]:
                 return False
             centres = _occupied_centres(grid, p, p)
-            if np.any(np.linalg.norm(centres - p, axis=1) <= _reach(grid)):
+            if np.any(np.linalg.norm(centres - p, axis=1) <= reach):
                 return False
         return True
 
