@@ -60,7 +60,7 @@ def test_free_space_plan_is_validated_and_times_the_solver_apart():
         assert result.info[key].shape == (n,)
     assert 0 < result.info["solver_time"] < result.planning_time
     assert 0 < result.info["build_time"] < result.planning_time
-    assert result.info["solver"] == "osqp"
+    assert result.info["solver"] == "daqp"
     assert ev.max_limit_violation == 0.0 and ev.max_velocity_ratio <= 1.0
 
 
@@ -141,7 +141,9 @@ def test_infeasible_start_gives_the_named_failure(robot):
 @pytest.mark.filterwarnings("ignore:OSQP exited")
 def test_solver_failure_is_a_named_status_and_options_pass_through(robot):
     problem = trivial_problem()
-    result = planbench.plan(problem, MatrixFieldQPPlanner, solver_options={"max_iter": 1}, time_limit=5.0)
+    result = planbench.plan(
+        problem, MatrixFieldQPPlanner, solver="osqp", solver_options={"max_iter": 1}, time_limit=5.0
+    )
     assert result.status is PlanStatus.INFEASIBLE, result.message
     assert "osqp" in result.message and "maximum iterations" in result.message
     assert result.info["qp_failure"]["solver"] == "osqp"
