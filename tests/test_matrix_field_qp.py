@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -14,6 +16,7 @@ from planbench.conformance import check_planner, trivial_problem
 from planbench.errors import InvalidConfigError
 from planbench.robot import load_robot
 from planbench_plugins.ik_loop import DistanceModel
+from planbench_plugins.ik_loop import distances as ik_distances
 from planbench_plugins.ik_loop import tasks as T
 from planbench_plugins.matrix_field_qp import MatrixFieldQPConfig, MatrixFieldQPPlanner, installed_solvers
 from planbench_plugins.matrix_field_qp import planner as qp_planner
@@ -247,6 +250,30 @@ def test_hull_distances_never_exceed_the_true_clearance(robot):
         pairs = distances.near_at(q)
         obstacle = pairs.second >= distances.n_robot
         assert pairs.distance[obstacle].min() <= checker.clearance(q) + 1e-5  # GJK's tolerance
+
+
+def test_models_of_one_robot_share_its_hulls_and_measure_as_one_made_afresh(robot, monkeypatch):
+    """A controller builds a distance model every frame: the robot's hulls and bounds are made once
+    per robot and shared, and a model on them gives the distances of one whose hulls are new."""
+    problem = elbow_wall_problem(robot)
+    first = DistanceModel(robot, problem.scene, 1.0)
+    shared = DistanceModel(robot, problem.scene, 1.0)
+    n = first.n_robot
+    kept = [first.geometry_model.geometryObjects[i].geometry for i in range(n)]
+    again = [shared.geometry_model.geometryObjects[i].geometry for i in range(n)]
+    assert all(a is b for a, b in zip(kept, again, strict=True))  # the same coal objects
+    monkeypatch.setattr(ik_distances, "_BODIES", weakref.WeakKeyDictionary())
+    fresh = DistanceModel(robot, problem.scene, 1.0)
+    made = [fresh.geometry_model.geometryObjects[i].geometry for i in range(n)]
+    assert not any(a is b for a, b in zip(kept, made, strict=True))  # hulls made again
+    assert np.array_equal(shared.body_segment, fresh.body_segment) and np.array_equal(shared.radius, fresh.radius)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q = rng.uniform(robot.lower, robot.upper)
+        a, b = shared.near_at(q), fresh.near_at(q)
+        assert np.array_equal(a.pair, b.pair)
+        assert np.array_equal(a.distance, b.distance) and np.array_equal(a.normal, b.normal)
+        assert np.array_equal(a.point, b.point) and np.array_equal(a.other_point, b.other_point)
 
 
 def test_collision_constraints_turn_a_collision_into_a_named_stall(robot):

@@ -25,7 +25,8 @@ cost a few microseconds each; coal's mesh (BVH) queries cost tens to hundreds.
 
 from __future__ import annotations
 
-from typing import Any
+import weakref
+from typing import Any, NamedTuple
 
 import coal
 import numpy as np
@@ -142,6 +143,53 @@ def _support_row(model: Any, joint: int) -> np.ndarray:
     return row
 
 
+class _RobotBodies(NamedTuple):
+    """What a distance model needs of each robot geometry, the same for every scene: the geometry
+    queried (its convex hull, or the primitive), its bounding capsule (ends in its joint's frame
+    [m], radius [m]) and its bounding sphere (centre in its own frame [m], radius [m])."""
+
+    geometries: tuple[Any, ...]
+    capsules: tuple[tuple[np.ndarray, np.ndarray, float], ...]
+    centres: tuple[np.ndarray, ...]
+    radii: tuple[float, ...]
+
+
+_BODIES: weakref.WeakKeyDictionary[Any, tuple[int, _RobotBodies]] = weakref.WeakKeyDictionary()
+"""Per robot object: its geometries' hulls and bounds, made once. A controller builds a distance
+model on every frame's observed geometry, and the hulls (qhull on each mesh) and capsules were most
+of that model's cost (Panda: 8.6 ms a model with no obstacle, 1.3 ms on the kept bodies). A geometry
+is shared between models as the same coal object; coal's distance queries do not change it."""
+
+
+def _robot_bodies(robot: Any) -> _RobotBodies:
+    """:class:`_RobotBodies` of ``robot``'s collision model, from :data:`_BODIES` when made before
+    (keyed by the robot object and checked against its collision model's identity)."""
+    collision = robot.collision_model
+    try:
+        kept = _BODIES.get(robot)
+    except TypeError:  # a robot object that cannot be weakly referenced: made every time
+        kept = None
+    if kept is not None and kept[0] == id(collision):
+        return kept[1]
+    geometries, capsules, centres, radii = [], [], [], []
+    for g in collision.geometryObjects:
+        geom = _hull(g.geometry)
+        end0, end1, r = bounding_capsule(_vertices(geom))
+        M = g.placement
+        capsules.append((M.rotation @ end0 + M.translation, M.rotation @ end1 + M.translation, r))
+        geom.computeLocalAABB()
+        lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
+        centres.append(0.5 * (lo + hi))
+        radii.append(0.5 * float(np.linalg.norm(hi - lo)))
+        geometries.append(geom)
+    bodies = _RobotBodies(tuple(geometries), tuple(capsules), tuple(centres), tuple(radii))
+    try:
+        _BODIES[robot] = (id(collision), bodies)
+    except TypeError:
+        pass
+    return bodies
+
+
 class DistanceModel:
     """Distances between a robot's collision geometries and a scene's obstacles, and (with
     ``self_pairs``) between the robot's own geometries.
@@ -157,16 +205,9 @@ class DistanceModel:
         model = robot.model
         gm = pin.GeometryModel()
         robot_geoms = list(robot.collision_model.geometryObjects)
-        centres, radii, capsules = [], [], []
-        for g in robot_geoms:
-            geom = _hull(g.geometry)
-            end0, end1, r = bounding_capsule(_vertices(geom))
-            M = g.placement
-            capsules.append((M.rotation @ end0 + M.translation, M.rotation @ end1 + M.translation, r))
-            geom.computeLocalAABB()
-            lo, hi = np.array(geom.aabb_local.min_), np.array(geom.aabb_local.max_)
-            centres.append(0.5 * (lo + hi))
-            radii.append(0.5 * float(np.linalg.norm(hi - lo)))
+        bodies = _robot_bodies(robot)
+        centres, radii, capsules = bodies.centres, bodies.radii, bodies.capsules
+        for g, geom in zip(robot_geoms, bodies.geometries, strict=True):
             gm.addGeometryObject(pin.GeometryObject(g.name, int(g.parentJoint), int(g.parentFrame), g.placement, geom))
         self.n_robot = n_robot = len(robot_geoms)
         moving = [g.parentJoint != 0 for g in robot_geoms]
