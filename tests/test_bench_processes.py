@@ -19,7 +19,7 @@ import pytest
 
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
-from planbench.bench.procs import OUTPUT_HEADER, process_alive
+from planbench.bench.procs import OUTPUT_HEADER, WORKER_DIR_PREFIX, process_alive, worker_dir
 from planbench.bench.sandbox import WRITABLE_VARIABLE
 from planbench.bench.suite import parse_suite
 
@@ -82,7 +82,8 @@ def test_a_run_killed_on_timeout_takes_its_child_processes_with_it(tmp_path):
     assert wait_gone([pids["worker"], pids["child"]]) == []
 
 
-def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path):
+def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path, monkeypatch):
+    """And the next benchmark removes the folder of output files that the killed one left."""
     pid_file = tmp_path / "pids.json"
     suite_file = tmp_path / "hang.toml"
     suite_file.write_text(suite(hanging(pid_file), time_limit=600.0))
@@ -94,7 +95,9 @@ def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path
     )
     script = tmp_path / "run.py"
     script.write_text(code)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]))
+    temp = tmp_path / "temp"  # its temporary folder
+    temp.mkdir()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]), TMPDIR=str(temp))
     proc = subprocess.Popen([sys.executable, str(script)], env=env, start_new_session=True)
     try:
         deadline = time.monotonic() + 60
@@ -110,6 +113,16 @@ def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path
         if proc.poll() is None:
             proc.kill()
     assert wait_gone([pids["worker"], pids["child"], *spawned]) == []
+    left = [p.name for p in temp.iterdir()]
+    assert left == [next(n for n in left if n.startswith(f"{WORKER_DIR_PREFIX}{proc.pid}-"))]
+    live = temp / f"{WORKER_DIR_PREFIX}{os.getpid()}-running"  # a benchmark still running: kept
+    other = temp / f"{WORKER_DIR_PREFIX}old"  # not a name this sweep knows: kept
+    live.mkdir()
+    other.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    made = Path(worker_dir())
+    assert made.parent == temp and made.name.startswith(f"{WORKER_DIR_PREFIX}{os.getpid()}-")
+    assert sorted(p.name for p in temp.iterdir()) == sorted([made.name, live.name, other.name])
 
 
 def test_a_planner_flooding_stdout_reaches_neither_the_terminal_nor_the_disk_unbounded(tmp_path, capfd, monkeypatch):

@@ -27,6 +27,8 @@ Why each piece:
 - :class:`OutputFile` is where a worker's fds 1 and 2 go. The parent trims it when it grows past
   :data:`OUTPUT_MAX_BYTES` (keeping the tail) and reads its tail into the run's row, so a planner
   that prints without end neither reaches the terminal nor fills the disk.
+- :func:`worker_dir` makes the folder of those files (named with the benchmark's pid) and removes
+  the folders of benchmarks that are gone: one killed cannot remove its own.
 """
 
 from __future__ import annotations
@@ -34,8 +36,11 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
+import re
+import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -46,6 +51,7 @@ from planbench.runtime.threads import limit_threads as limit_compute_threads
 __all__ = [
     "Cgroups",
     "OutputFile",
+    "WORKER_DIR_PREFIX",
     "descendants",
     "detach",
     "join_cgroup",
@@ -55,6 +61,7 @@ __all__ = [
     "start_reaper",
     "thread_environment",
     "watch_parent",
+    "worker_dir",
 ]
 
 
@@ -323,6 +330,29 @@ def _remove_stale(parent: str) -> None:
             if os.path.isdir(os.path.join(base, sub)):
                 Cgroups.kill(os.path.join(base, sub))
         _remove(base, wait=0.5)
+
+
+WORKER_DIR_PREFIX = "planbench-workers-"
+"""A benchmark's folder for its workers' output files and scratch folders, in the system's temporary
+folder: this prefix, the benchmark's pid, a dash, a random part."""
+
+
+def worker_dir() -> str:
+    """A new folder for this benchmark's workers (:data:`WORKER_DIR_PREFIX`), after removing those of
+    benchmarks that are gone: a benchmark killed (``SIGKILL``, out of memory) cannot remove its own,
+    and each one left a folder of output files in the temporary folder for good."""
+    parent = tempfile.gettempdir()
+    pattern = re.compile(re.escape(WORKER_DIR_PREFIX) + r"(\d+)-")
+    with contextlib.suppress(OSError):
+        for name in os.listdir(parent):
+            match = pattern.match(name)
+            path = os.path.join(parent, name)
+            if match is None or process_alive(int(match.group(1))):
+                continue
+            with contextlib.suppress(OSError):
+                if os.stat(path).st_uid == os.getuid():  # never another user's
+                    shutil.rmtree(path, ignore_errors=True)
+    return tempfile.mkdtemp(prefix=f"{WORKER_DIR_PREFIX}{os.getpid()}-")
 
 
 def _kill_own_group() -> None:

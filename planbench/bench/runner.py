@@ -69,7 +69,6 @@ import shutil
 import signal
 import socket
 import struct
-import tempfile
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -79,7 +78,7 @@ from typing import Any
 
 from planbench.bench import sandbox, snapshot
 from planbench.bench.kinds import RunKind, kind_of
-from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group, thread_environment
+from planbench.bench.procs import OUTPUT_HEADER, Cgroups, OutputFile, kill_group, thread_environment, worker_dir
 from planbench.bench.records import Record, failure_record, ran_out_of_memory, record_from
 from planbench.bench.task import RunTask
 from planbench.bench.wire import MAX_MESSAGE_BYTES, BadField, BadMessage, clean_result, decode, encode
@@ -355,7 +354,7 @@ class Runner:
 
     def _grow(self, n: int) -> None:
         if not self._tmp:
-            self._tmp = tempfile.mkdtemp(prefix="planbench-workers-")
+            self._tmp = worker_dir()  # and those of benchmarks killed before they could remove theirs
             make_undumpable()  # no confined controller may read or write this process's memory
             if self.warm_numba:
                 compile_cache.warm_now()  # trusted code, before any plugin's; its workers copy it
