@@ -3,6 +3,7 @@
     python benchmarks/controller_tick.py                 # 2 s of control at 1 kHz, 30 Hz depth frames
     python benchmarks/controller_tick.py --seconds 4 --sensing truth
     python benchmarks/controller_tick.py --controllers mppi --rate 100 --clock cpu   # mppi at 100 Hz
+    python benchmarks/controller_tick.py --controllers matrix-field-guided --settings '{"slice_cpu_share": 0.15}'
 
 A 128^3 grid (2 cm cells, a 2.56 m cube around the base) is observed at 30 Hz from the scenario
 ``dynamic:panda_swinging_fast_<sensing>/0001`` (a forearm swinging across the Panda's path at
@@ -23,6 +24,7 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
     os.environ[_v] = "1"  # before numpy and numba are imported: one core
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
 
@@ -66,11 +68,18 @@ def frames_of(scenario, seconds: float, rate: float = RATE) -> tuple[list, np.nd
 
 
 def tick_times(
-    name: str, scenario, frames: list, qs: np.ndarray, rate: float = RATE, clock=time.perf_counter
+    name: str,
+    scenario,
+    frames: list,
+    qs: np.ndarray,
+    rate: float = RATE,
+    clock=time.perf_counter,
+    settings: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(tick times, update times) [s] of controller ``name`` stepped at ``rate`` [Hz] along ``qs``."""
+    """(tick times, update times) [s] of controller ``name`` (with ``settings``) stepped at ``rate``
+    [Hz] along ``qs``."""
     p = scenario.problem
-    c = make_controller(name)
+    c = make_controller(name, **(settings or {}))
     c.setup(ControlTask(p.robot, p.start, p.goal, p.tolerances, 1.0 / rate, scenario.name))
     c.reset(np.array(p.start), np.random.default_rng(0))
     c.update(frames[0])
@@ -99,7 +108,11 @@ def main() -> None:
     parser.add_argument(
         "--clock", choices=("wall", "cpu"), default="wall", help="cpu: this process's CPU time (a loaded machine)"
     )
+    parser.add_argument("--settings", default="{}", help="JSON object of settings given to every controller")
     args = parser.parse_args()
+    settings = json.loads(args.settings)
+    if not isinstance(settings, dict):
+        parser.error("--settings must be a JSON object, e.g. '{\"slice_cpu_share\": 0.15}'")
     scenario = planbench.load_scenarios(f"dynamic:panda_swinging_fast_{args.sensing}/0001")[0]
     frames, qs = frames_of(scenario, args.seconds, args.rate)
     period = 1.0 / args.rate
@@ -112,7 +125,7 @@ def main() -> None:
     updates = {}
     for name in args.controllers.split(","):
         clock = time.process_time if args.clock == "cpu" else time.perf_counter
-        ticks, upd = tick_times(name, scenario, frames, qs, args.rate, clock)
+        ticks, upd = tick_times(name, scenario, frames, qs, args.rate, clock, settings)
         updates[name] = upd
         print(
             f"{name:<14} {np.median(ticks) * 1e3:>9.3f} ms {np.percentile(ticks, 99) * 1e3:>7.3f} ms "
