@@ -5,6 +5,7 @@ Planners in tests/bench_adversarial_planners.py."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import signal
@@ -19,7 +20,7 @@ import pytest
 
 from planbench.bench.benchmark import run_benchmark
 from planbench.bench.db import ResultsDB
-from planbench.bench.procs import OUTPUT_HEADER, WORKER_DIR_PREFIX, process_alive, worker_dir
+from planbench.bench.procs import OUTPUT_HEADER, WORKER_DIR_LOCK, WORKER_DIR_PREFIX, process_alive, worker_dir
 from planbench.bench.sandbox import WRITABLE_VARIABLE
 from planbench.bench.suite import parse_suite
 
@@ -82,6 +83,13 @@ def test_a_run_killed_on_timeout_takes_its_child_processes_with_it(tmp_path):
     assert wait_gone([pids["worker"], pids["child"]]) == []
 
 
+def children_gone_pid() -> int:
+    """The pid of a process that has ended (a child started and waited for)."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
 def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path, monkeypatch):
     """And the next benchmark removes the folder of output files that the killed one left."""
     pid_file = tmp_path / "pids.json"
@@ -115,14 +123,26 @@ def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path
     assert wait_gone([pids["worker"], pids["child"], *spawned]) == []
     left = [p.name for p in temp.iterdir()]
     assert left == [next(n for n in left if n.startswith(f"{WORKER_DIR_PREFIX}{proc.pid}-"))]
-    live = temp / f"{WORKER_DIR_PREFIX}{os.getpid()}-running"  # a benchmark still running: kept
-    other = temp / f"{WORKER_DIR_PREFIX}old"  # not a name this sweep knows: kept
-    live.mkdir()
-    other.mkdir()
+    assert (temp / left[0] / WORKER_DIR_LOCK).exists()  # its lock, released with the process
+    gone = children_gone_pid()
+    held = temp / f"{WORKER_DIR_PREFIX}{gone}-elsewhere"  # a pid not ours (another pid namespace): its lock held
+    held.mkdir()
+    holder = os.open(held / WORKER_DIR_LOCK, os.O_RDWR | os.O_CREAT)
+    fcntl.flock(holder, fcntl.LOCK_EX)
+    lockless_gone = temp / f"{WORKER_DIR_PREFIX}{gone}-old"  # no lock file: by its pid, which is gone
+    lockless_live = temp / f"{WORKER_DIR_PREFIX}{os.getpid()}-old"  # no lock file, its pid runs
+    other = temp / f"{WORKER_DIR_PREFIX}old"  # not a name the sweep knows
+    for d in (lockless_gone, lockless_live, other):
+        d.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temp))
-    made = Path(worker_dir())
-    assert made.parent == temp and made.name.startswith(f"{WORKER_DIR_PREFIX}{os.getpid()}-")
-    assert sorted(p.name for p in temp.iterdir()) == sorted([made.name, live.name, other.name])
+    try:
+        made, lock = worker_dir()
+        os.close(lock)
+    finally:
+        os.close(holder)
+    made_name = Path(made).name
+    assert Path(made).parent == temp and made_name.startswith(f"{WORKER_DIR_PREFIX}{os.getpid()}-")
+    assert sorted(p.name for p in temp.iterdir()) == sorted([made_name, held.name, lockless_live.name, other.name])
 
 
 def test_a_planner_flooding_stdout_reaches_neither_the_terminal_nor_the_disk_unbounded(tmp_path, capfd, monkeypatch):

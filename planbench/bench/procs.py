@@ -27,14 +27,15 @@ Why each piece:
 - :class:`OutputFile` is where a worker's fds 1 and 2 go. The parent trims it when it grows past
   :data:`OUTPUT_MAX_BYTES` (keeping the tail) and reads its tail into the run's row, so a planner
   that prints without end neither reaches the terminal nor fills the disk.
-- :func:`worker_dir` makes the folder of those files (named with the benchmark's pid) and removes
-  the folders of benchmarks that are gone: one killed cannot remove its own.
+- :func:`worker_dir` makes the folder of those files, locked while its benchmark runs, and removes
+  the folders of benchmarks that are gone (their lock free): one killed cannot remove its own.
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import fcntl
 import os
 import re
 import shutil
@@ -51,6 +52,7 @@ from planbench.runtime.threads import limit_threads as limit_compute_threads
 __all__ = [
     "Cgroups",
     "OutputFile",
+    "WORKER_DIR_LOCK",
     "WORKER_DIR_PREFIX",
     "descendants",
     "detach",
@@ -335,24 +337,47 @@ def _remove_stale(parent: str) -> None:
 WORKER_DIR_PREFIX = "planbench-workers-"
 """A benchmark's folder for its workers' output files and scratch folders, in the system's temporary
 folder: this prefix, the benchmark's pid, a dash, a random part."""
+WORKER_DIR_LOCK = ".lock"
+"""The file in that folder that its benchmark holds locked (``flock``) while it runs."""
 
 
-def worker_dir() -> str:
-    """A new folder for this benchmark's workers (:data:`WORKER_DIR_PREFIX`), after removing those of
-    benchmarks that are gone: a benchmark killed (``SIGKILL``, out of memory) cannot remove its own,
-    and each one left a folder of output files in the temporary folder for good."""
+def worker_dir() -> tuple[str, int]:
+    """A new folder for this benchmark's workers (:data:`WORKER_DIR_PREFIX`) and the descriptor of
+    its lock, which the caller keeps open while it runs; first the folders of benchmarks that are
+    gone are removed: a benchmark killed (``SIGKILL``, out of memory) cannot remove its own, and
+    each one left a folder of output files in the temporary folder for good. Gone means the folder's
+    lock can be taken (the kernel drops a lock with its process, whatever pid namespace that process
+    was in); a folder without a lock file goes by whether the pid in its name runs."""
     parent = tempfile.gettempdir()
     pattern = re.compile(re.escape(WORKER_DIR_PREFIX) + r"(\d+)-")
     with contextlib.suppress(OSError):
         for name in os.listdir(parent):
             match = pattern.match(name)
             path = os.path.join(parent, name)
-            if match is None or process_alive(int(match.group(1))):
-                continue
             with contextlib.suppress(OSError):
-                if os.stat(path).st_uid == os.getuid():  # never another user's
+                if match is None or os.lstat(path).st_uid != os.getuid() or not os.path.isdir(path):
+                    continue  # not a benchmark's folder, or another user's
+                if _gone(path, int(match.group(1))):
                     shutil.rmtree(path, ignore_errors=True)
-    return tempfile.mkdtemp(prefix=f"{WORKER_DIR_PREFIX}{os.getpid()}-")
+    path = tempfile.mkdtemp(prefix=f"{WORKER_DIR_PREFIX}{os.getpid()}-")
+    lock = os.open(os.path.join(path, WORKER_DIR_LOCK), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return path, lock
+
+
+def _gone(path: str, pid: int) -> bool:
+    """Whether the benchmark of the workers' folder ``path`` (named with ``pid``) has ended."""
+    try:
+        lock = os.open(os.path.join(path, WORKER_DIR_LOCK), os.O_RDWR | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return not process_alive(pid)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False  # held: its benchmark runs
+    finally:
+        os.close(lock)
+    return True
 
 
 def _kill_own_group() -> None:

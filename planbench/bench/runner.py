@@ -255,7 +255,8 @@ class Runner:
         if self.jobs < 1:
             raise PlanbenchError(f"--jobs must be >= 1, got {jobs}")
         self.ctx = mp.get_context(start_method)
-        self._tmp = ""
+        self._tmp = ""  # the workers' folder (``procs.worker_dir``), made with the first slot
+        self._tmp_lock = -1  # the descriptor of its lock, held while this runner has the folder
         self._count = 0
         self._runs = 0
         self._start_failures = 0
@@ -351,10 +352,11 @@ class Runner:
             if self._tmp:
                 shutil.rmtree(self._tmp, ignore_errors=True)
                 self._tmp = ""
+                os.close(self._tmp_lock)
 
     def _grow(self, n: int) -> None:
         if not self._tmp:
-            self._tmp = worker_dir()  # and those of benchmarks killed before they could remove theirs
+            self._tmp, self._tmp_lock = worker_dir()  # and those of benchmarks killed before they could remove theirs
             make_undumpable()  # no confined controller may read or write this process's memory
             if self.warm_numba:
                 compile_cache.warm_now()  # trusted code, before any plugin's; its workers copy it
