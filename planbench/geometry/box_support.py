@@ -12,7 +12,8 @@ queried a hull against a finger box first: ``tests/test_same_paths.py``).
 :func:`pin_exact_boxes` makes that first query itself, from a direction with no zero component,
 for both of the function's instances (GJK's shapes without and with their swept-sphere radius),
 so the factor is 1 in every process that imports planbench before it queries a box. A process that
-queried a box before importing planbench keeps whatever its first query set.
+queried a box before importing planbench keeps whatever its first query set. (The cone's and the
+cylinder's factors in the same file are constants: no history there.)
 """
 
 from __future__ import annotations
