@@ -83,7 +83,7 @@ def test_a_run_killed_on_timeout_takes_its_child_processes_with_it(tmp_path):
     assert wait_gone([pids["worker"], pids["child"]]) == []
 
 
-def children_gone_pid() -> int:
+def ended_pid() -> int:
     """The pid of a process that has ended (a child started and waited for)."""
     child = subprocess.Popen([sys.executable, "-c", "pass"])
     child.wait()
@@ -124,7 +124,7 @@ def test_workers_and_their_children_die_when_the_main_process_is_killed(tmp_path
     left = [p.name for p in temp.iterdir()]
     assert left == [next(n for n in left if n.startswith(f"{WORKER_DIR_PREFIX}{proc.pid}-"))]
     assert (temp / left[0] / WORKER_DIR_LOCK).exists()  # its lock, released with the process
-    gone = children_gone_pid()
+    gone = ended_pid()
     held = temp / f"{WORKER_DIR_PREFIX}{gone}-elsewhere"  # a pid not ours (another pid namespace): its lock held
     held.mkdir()
     holder = os.open(held / WORKER_DIR_LOCK, os.O_RDWR | os.O_CREAT)

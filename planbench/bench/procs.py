@@ -359,9 +359,12 @@ def worker_dir() -> tuple[str, int]:
                     continue  # not a benchmark's folder, or another user's
                 if _gone(path, int(match.group(1))):
                     shutil.rmtree(path, ignore_errors=True)
-    path = tempfile.mkdtemp(prefix=f"{WORKER_DIR_PREFIX}{os.getpid()}-")
-    lock = os.open(os.path.join(path, WORKER_DIR_LOCK), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    new = ".planbench-new-"  # the folder is locked before it takes a name that the sweep reads
+    made = tempfile.mkdtemp(prefix=new, dir=parent)
+    lock = os.open(os.path.join(made, WORKER_DIR_LOCK), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
     fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    path = os.path.join(parent, f"{WORKER_DIR_PREFIX}{os.getpid()}-{os.path.basename(made)[len(new) :]}")
+    os.rename(made, path)
     return path, lock
 
 
