@@ -447,6 +447,33 @@ def test_a_retreat_ends_farther_from_the_threat_or_is_not_made(free_task):
     assert retreat(q, threat, body, checker, limits, tiny, 0.02, np.random.default_rng(0)) is None
 
 
+def test_a_threat_is_measured_from_the_parts_a_joint_moves():
+    """Cells beside the base, which no joint moves, are no threat: a retreat can never take the base
+    farther from them, and measured from it they stopped the arm for retreats that all failed
+    (``dynamic-test:xarm7_pair_fast_depth/0008``). Cells beside a moving link still are."""
+    from planbench.reactive.body import body_points
+
+    for name in ("panda", "xarm7"):  # bases taller than the first link's reach (the UR5's shoulder sits on its base)
+        robot = planbench.load_robot(name)
+        q = np.clip(np.zeros(robot.nq), robot.lower, robot.upper)
+        body = ArmSamples(robot)
+        objects = robot.collision_model.geometryObjects
+        assert 0 not in {objects[int(i)].parentJoint for i in np.unique(body.part)}
+        base = next(i for i, o in enumerate(objects) if o.parentJoint == 0)
+        M = objects[base].placement  # the base's in the world: it never moves
+        points = body_points(robot, 0.02)[base] @ M.rotation.T + M.translation
+        grid = OccupancyGrid.empty(np.full(3, -1.0), np.full(3, 1.2), 0.02)
+        beside = np.array([points[:, 0].min() - 0.05, points[:, 1].mean(), points[:, 2].min() + 0.02])
+        cells = np.unique(np.ravel_multi_index(grid.index_of(_cube(beside, half=0.01)).T, grid.shape))
+        threat = Threat(grid, cells)
+        to_base = float(np.min(np.linalg.norm(points[:, None, :] - threat.tree.data[None, :, :], axis=-1)))
+        assert to_base < 0.08, (name, to_base)
+        assert threat.distance(body, q) > to_base + 0.05, name  # farther from every part that moves
+        hand = robot.frame_pose(q, robot.settings.ee_frame).translation
+        cells = np.unique(np.ravel_multi_index(grid.index_of(_cube(hand + [0.0, 0.0, 0.1], half=0.01)).T, grid.shape))
+        assert Threat(grid, cells).distance(body, q) < 0.15, name  # by the hand: a threat
+
+
 def test_the_benchmark_warms_it_up_through_a_plan():
     """A benchmark run charges the controller's CPU time, so the first plan's one-time costs (the
     imports, OMPL's and coal's first objects, numba's line walk) must be met untimed: on

@@ -12,7 +12,8 @@ The threat is what came in lately, without a track: the cells of the moving clus
 ``prediction_memory``) and, where a track's velocity is trusted, the cells it sweeps. A track
 needs frames close together and a replanning controller sees frames only between its plans, so
 the moving cells alone must do. When one lies within ``evade_distance`` of the arm's body (its
-sample points, ``SAMPLE_SPACING`` apart, to the cells' centres), the arm retreats: a straight
+sample points, ``SAMPLE_SPACING`` apart, to the cells' centres; the parts that a joint moves, not
+the base, which no retreat moves), the arm retreats: a straight
 joint motion of at most ``evade_step`` per joint, the one of ``evade_samples`` random ones (joint
 limits kept) whose end keeps the body farthest from those cells (up to twice the distance; then
 the shortest), its motion checked against every occupied cell and the arm itself. None farther
@@ -77,21 +78,33 @@ class EvadeSettings:
 SAMPLE_SPACING = 0.05
 """[m] Spacing of the body's sample points a threat's distance is measured from: those of
 :func:`~planbench.reactive.body.body_points`, one kept per cube of this side, so every point of the
-body lies within about this of one; 534 on the Panda where the grid's 2 cm give 30,151 (a retreat
-scores dozens of configurations in one tick: 23 ms a retreat, against 93 ms with the grid's)."""
+body lies within about this of one; 470 on the Panda (its base left out: :class:`ArmSamples`),
+where the grid's 2 cm give 30,151 (a retreat scores dozens of configurations in one tick: 23 ms a
+retreat, against 93 ms with the grid's)."""
 
 
 class ArmSamples:
-    """Sample points [m] of the arm's body in the world at a configuration, ``spacing`` apart."""
+    """Sample points [m] of the arm's body in the world at a configuration, ``spacing`` apart: of
+    the parts a joint moves only. A part fixed to the world (the base) is left out: no motion takes
+    it farther from anything, so a threat measured from it could never be retreated from, and the
+    arm stood still under it (on ``dynamic-test:xarm7_pair_fast_depth/0008``, cells that came in
+    beside the xArm7's base, within 3-7 cm of it, made 11 of 29 retreats fail while the arm was
+    stopped for them, and the crossing ball hit it)."""
 
     def __init__(self, robot: Robot, spacing: float = SAMPLE_SPACING) -> None:
         self.robot = robot
-        parts = []
-        for points in body_points(robot, spacing):  # mesh vertices kept: thin them to one per cube
+        moved = [obj.parentJoint != 0 for obj in robot.collision_model.geometryObjects]
+        parts, kept = [], []
+        for index, points in enumerate(body_points(robot, spacing)):  # mesh vertices kept: thin them to one per cube
+            if not moved[index]:
+                continue
             _, first = np.unique(np.floor(points / spacing).astype(np.int64), axis=0, return_index=True)
             parts.append(points[np.sort(first)])
+            kept.append(index)
+        if not parts:
+            raise InvalidConfigError(f"robot {robot.name!r} has no collision geometry that a joint moves")
         self.local = np.concatenate(parts)
-        self.part = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+        self.part = np.repeat(np.asarray(kept), [len(p) for p in parts])
         self._data = robot.model.createData()
         self._geometry_data = pin.GeometryData(robot.collision_model)
 
