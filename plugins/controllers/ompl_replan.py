@@ -74,7 +74,7 @@ to form in most runs, and the differences were mostly in runs where it predicted
 **Getting out of the way** (``evade``, :class:`~.evade.EvadeSettings`; with either sensing): with
 ``"retreat"`` (the default since 2026-11-27, chosen on ``dynamic-tune``), on every frame the
 cells of obstacles that came in lately (the predictor's moving clusters, and what its tracks
-sweep) within ``evade_distance`` of the arm's body make it retreat,
+sweep) within ``evade_distance`` of the arm's body (the parts a joint moves) make it retreat,
 unless its path leads well away from them (twice that distance within ``scan_horizon``): a
 short straight joint motion, at the full velocity limits, to where the body is farthest from them
 (:func:`~.evade.retreat`), checked against every occupied cell (truth: the frame's scene) and
