@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 import planbench
 from planbench.errors import InvalidConfigError
@@ -21,6 +22,7 @@ from planbench.reactive.controller import ControlTask, Observation
 from planbench.reactive.scenario import CameraSettings
 from planbench.reactive.shadows import ARM, SURFACE, occluders
 from planbench.registry import make_controller
+from planbench_plugins.controllers.evade import ArmSamples
 from planbench_plugins.controllers.unknown import near_unknown, unknown_as_occupied
 from planbench_plugins.ik_loop import place_control_points
 from planbench_plugins.ompl_planners import cells_checker
@@ -128,6 +130,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"dead_end": "jump"},
         {"known_plan_at": "later"},
         {"surface_shadow": "never"},
+        {"known_sliced_when": "sometimes"},
+        {"known_sliced_when": "threat", "evade": "none"},
+        {"known_hold_distance": 0.0},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -471,3 +476,59 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     assert not any(body.in_unknown(q, ~cube) for q in qs[60:]), info  # never in the cube
     checker = cells_checker(robot, grid, np.array([np.ravel_multi_index(cell, grid.shape)]))
     assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell
+
+
+def _two_frames_then_run(task: ControlTask, first: Observation, second: Observation, ticks: int, **settings):
+    """``ompl-replan`` given ``first`` at 0 s and ``second`` 0.2 s later before its first tick (a
+    change between them reads as motion), then ``second`` every 3 ticks: the configurations after
+    each tick, and the controller."""
+    c = make_controller("ompl-replan", **settings)
+    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
+    q = np.array(task.start, dtype=float)
+    c.setup(task)
+    c.reset(q.copy(), np.random.default_rng(0))
+    c.update(dataclasses.replace(first, time=0.0, frame=0))
+    qs = [q.copy()]
+    for k in range(ticks):
+        if k % 3 == 0:
+            c.update(dataclasses.replace(second, time=0.2 + k * task.period, frame=1 + k // 3))
+        qd = c.step(0.2 + k * task.period, q.copy(), second, task.goal)
+        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
+        qs.append(q.copy())
+    return np.array(qs), c
+
+
+def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_may_not_be_safe(free_task, open_space):
+    """``known_sliced_when = "threat"``: with one frame (no motion can be told from it), or with an
+    obstacle that came in between two frames 0.2-0.4 m from the arm, the plan in known space round
+    an unknown cube runs in slices while the arm moves; with two frames and nothing that moved it
+    is made at once, the arm held still. Either way the arm never enters the cube."""
+    grid, path = open_space
+    body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
+    known = _block_on_path(free_task, grid, path, body)
+    settings = dict(unknown="occupied", known_checks_per_tick=50, known_sliced_when="threat")
+    seen = _seeing(grid, known)
+
+    qs, c = _run(free_task, seen, 300, **settings)  # one frame at the first plan
+    info = c.info()
+    assert info["known_slices"] > 1 and info["known_calm"] == 0, info
+    assert not any(body.in_unknown(q, known) for q in qs), info
+
+    qs, c = _two_frames_then_run(free_task, seen, seen, 300, **settings)  # two frames, nothing moved
+    info = c.info()
+    assert info["known_calm"] >= 1 and info["known_slices"] == 0 and info["known_plans"] >= 1, info
+    assert not any(body.in_unknown(q, known) for q in qs), info
+
+    centres = grid.origin + (np.indices(grid.shape).reshape(3, -1).T + 0.5) * grid.resolution
+    samples = ArmSamples(free_task.robot)
+    near_start = cKDTree(samples.at(path[0])).query(centres)[0]
+    near_goal = cKDTree(samples.at(path[-1])).query(centres)[0]
+    spot = np.flatnonzero((near_start > 0.25) & (near_start < 0.3) & (near_goal > 0.25) & known.reshape(-1))[0]
+    ijk = np.unravel_index(spot, grid.shape)
+    data = np.zeros(grid.shape)
+    data[tuple(slice(i - 1, i + 2) for i in ijk)] = 1.0  # a 3-cell cube, seen, where the first frame saw free space
+    came = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=known))
+    qs, c = _two_frames_then_run(free_task, seen, came, 300, **settings)
+    info = c.info()
+    assert info["known_threat_slices"] >= 1 and info["known_calm"] == 0 and info["known_slices"] > 1, info
+    assert not any(body.in_unknown(q, known) for q in qs), info

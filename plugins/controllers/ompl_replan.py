@@ -163,6 +163,16 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     up to the unknown cells (:mod:`planbench_plugins.ompl_planners.sliced`). On the first 32 depth
     scenarios of ``dynamic-tune`` slices of 50 solved 24, as many as the plan at once
     (docs/reactive.md)."""
+    known_sliced_when: str = "always"
+    """Safe mode, with ``known_checks_per_tick`` > 0: ``"always"``, every plan in known space runs
+    in slices; ``"threat"``, in slices only while standing still may not be safe: before the
+    arm has had two frames (no obstacle's motion can be told from one) or while a cell of an
+    obstacle that came in lately (``evade``'s threat) lies within ``known_hold_distance`` of the
+    arm's body; otherwise it is made at once, the arm held still. Needs ``evade``."""
+    known_hold_distance: float = 0.5
+    """Safe mode, ``known_sliced_when = "threat"``: [m] the distance from the arm's body within
+    which a threat's cell makes the plan in known space run in slices (0.5 m: what an obstacle at
+    1 m/s, the fast scenarios' peak speed, covers in ``known_plan_time``'s 0.5 s)."""
     known_plan_checks: int = 10000
     """Safe mode: the most collision checks of a sliced plan in known space (its budget: about
     0.5-1 s of work, spread over 200 ticks), with ``known_cpu_share`` 0; with a share, the budget is
@@ -269,6 +279,7 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             "start_margin",
             "surface_margin",
             "goal_block_time",
+            "known_hold_distance",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -281,6 +292,13 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(f'surface_shadow must be "enter" or "avoid", got {self.surface_shadow!r}')
         if self.known_plan_at not in ("start", "stop"):
             raise InvalidConfigError(f'known_plan_at must be "start" or "stop", got {self.known_plan_at!r}')
+        if self.known_sliced_when not in ("always", "threat"):
+            raise InvalidConfigError(f'known_sliced_when must be "always" or "threat", got {self.known_sliced_when!r}')
+        if self.known_sliced_when == "threat" and self.evade == "none":
+            raise InvalidConfigError(
+                'known_sliced_when = "threat" reads evade\'s threat: set evade = "retreat" '
+                'or known_sliced_when = "always"'
+            )
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait", "appeared"):
@@ -432,17 +450,19 @@ class OMPLReplanController(Controller):
         if self.predictor is not None:
             self.predictor.reset()
         self.fresh = False
+        self.frames = 0  # observations taken in this run
         self.still = True  # the last command was a stop (or nothing): a plan may start now
         self.may_plan = False  # one plan per frame at most
         self.stats: dict[str, Any] = {"plans": 0, "failed_plans": 0, "plan_times": [], "invalidated": 0, "dropped": 0}
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
-        self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0)
+        self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0, known_calm=0, known_threat_slices=0)
         self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
         self.tick_cpu = time.process_time()  # [s] process CPU time when the current tick began
 
     def update(self, observation: Observation) -> None:
         self.observation = observation
+        self.frames += 1
         depth = observation.scene is None
         if self.predictor is not None and (depth or self.config.evade != "none"):  # where obstacles go
             prediction = self.predictor.observe(observation)
@@ -880,7 +900,7 @@ class OMPLReplanController(Controller):
             if not self._enters_unknown(0.0):
                 return
         goal_q = self.task.goal.q
-        if self.config.known_checks_per_tick > 0 and goal_q is not None:
+        if self.config.known_checks_per_tick > 0 and goal_q is not None and self._hold_unsafe(q):
             known = self._cells_checker(self._known_space_obstacles(), q, self.predicted)
             try:  # in slices, while the arm follows the optimistic path up to the unknown cells
                 seed = int(self.rng.integers(2**31))
@@ -894,6 +914,22 @@ class OMPLReplanController(Controller):
             self.known_pending = True
             return
         self._plan_known(q)
+
+    def _hold_unsafe(self, q: np.ndarray) -> bool:
+        """Safe mode, slices on: whether the plan in known space runs in slices from ``q``
+        (``known_sliced_when``): always, or while the arm cannot tell that no obstacle is coming
+        at it (fewer than two frames, or a threat's cell within ``known_hold_distance``)."""
+        if self.config.known_sliced_when == "always":
+            return True
+        obs, body = self.observation, self.samples
+        if obs is None or body is None or self.frames < 2:
+            return True
+        reach = self.config.known_hold_distance
+        if Threat(obs.grid, self.threat).distance(body, q, reach) < reach:
+            self.stats["known_threat_slices"] += 1
+            return True
+        self.stats["known_calm"] += 1
+        return False
 
     def _plan_known(self, q: np.ndarray) -> bool:
         """Safe mode: plan from ``q`` in known space (every unknown cell an obstacle but those the
