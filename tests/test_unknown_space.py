@@ -156,16 +156,25 @@ def free_task() -> ControlTask:
     return ControlTask(p.robot, p.start, p.goal, p.tolerances, 0.01, "free")
 
 
-def _run(task: ControlTask, observation: Observation | list[tuple[int, Observation]], ticks: int, **settings):
+def _run(
+    task: ControlTask,
+    observation: Observation | list[tuple[int, Observation]],
+    ticks: int,
+    before: Observation | None = None,
+    **settings,
+):
     """``ompl-replan`` driven as the runner drives it (no compute time charged), the same frame
-    delivered every 3 ticks (a list of (tick, frame): the last whose tick has come): the
-    configurations after each tick, and the controller."""
+    delivered every 3 ticks (a list of (tick, frame): the last whose tick has come), after
+    ``before`` 0.2 s earlier if given (a change between them reads as motion): the configurations
+    after each tick, and the controller."""
     frames = observation if isinstance(observation, list) else [(0, observation)]
     c = make_controller("ompl-replan", **settings)
     robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
     q = np.array(task.start, dtype=float)
     c.setup(task)
     c.reset(q.copy(), np.random.default_rng(0))
+    if before is not None:
+        c.update(dataclasses.replace(before, time=-0.2, frame=-1))
     qs = [q.copy()]
     for k in range(ticks):
         seen = [f for when, f in frames if when <= k][-1]
@@ -478,29 +487,9 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     assert not any(checker.in_collision(q) for q in qs)  # never into the occupied cell
 
 
-def _two_frames_then_run(task: ControlTask, first: Observation, second: Observation, ticks: int, **settings):
-    """``ompl-replan`` given ``first`` at 0 s and ``second`` 0.2 s later before its first tick (a
-    change between them reads as motion), then ``second`` every 3 ticks: the configurations after
-    each tick, and the controller."""
-    c = make_controller("ompl-replan", **settings)
-    robot, vmax = task.robot, np.asarray(task.robot.velocity_limit)
-    q = np.array(task.start, dtype=float)
-    c.setup(task)
-    c.reset(q.copy(), np.random.default_rng(0))
-    c.update(dataclasses.replace(first, time=0.0, frame=0))
-    qs = [q.copy()]
-    for k in range(ticks):
-        if k % 3 == 0:
-            c.update(dataclasses.replace(second, time=0.2 + k * task.period, frame=1 + k // 3))
-        qd = c.step(0.2 + k * task.period, q.copy(), second, task.goal)
-        q = np.clip(q + task.period * np.clip(qd, -vmax, vmax), robot.lower, robot.upper)
-        qs.append(q.copy())
-    return np.array(qs), c
-
-
 def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_may_not_be_safe(free_task, open_space):
     """``known_sliced_when = "threat"``: with one frame (no motion can be told from it), or with an
-    obstacle that came in between two frames 0.2-0.4 m from the arm, the plan in known space round
+    obstacle that came in between two frames 0.25-0.3 m from the arm, the plan in known space round
     an unknown cube runs in slices while the arm moves; with two frames and nothing that moved it
     is made at once, the arm held still. Either way the arm never enters the cube."""
     grid, path = open_space
@@ -514,7 +503,7 @@ def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_ma
     assert info["known_slices"] > 1 and info["known_calm"] == 0, info
     assert not any(body.in_unknown(q, known) for q in qs), info
 
-    qs, c = _two_frames_then_run(free_task, seen, seen, 300, **settings)  # two frames, nothing moved
+    qs, c = _run(free_task, seen, 300, before=seen, **settings)  # two frames, nothing moved
     info = c.info()
     assert info["known_calm"] >= 1 and info["known_slices"] == 0 and info["known_plans"] >= 1, info
     assert not any(body.in_unknown(q, known) for q in qs), info
@@ -528,7 +517,7 @@ def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_ma
     data = np.zeros(grid.shape)
     data[tuple(slice(i - 1, i + 2) for i in ijk)] = 1.0  # a 3-cell cube, seen, where the first frame saw free space
     came = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=known))
-    qs, c = _two_frames_then_run(free_task, seen, came, 300, **settings)
+    qs, c = _run(free_task, came, 300, before=seen, **settings)
     info = c.info()
     assert info["known_threat_slices"] >= 1 and info["known_calm"] == 0 and info["known_slices"] > 1, info
     assert not any(body.in_unknown(q, known) for q in qs), info
