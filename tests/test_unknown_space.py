@@ -133,6 +133,8 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_sliced_when": "sometimes"},
         {"known_sliced_when": "threat", "evade": "none"},
         {"known_hold_distance": 0.0},
+        {"plan_sliced_when": "always"},
+        {"plan_sliced_when": "threat", "known_checks_per_tick": 0},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -521,3 +523,69 @@ def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_ma
     info = c.info()
     assert info["known_threat_slices"] >= 1 and info["known_calm"] == 0 and info["known_slices"] > 1, info
     assert not any(body.in_unknown(q, known) for q in qs), info
+
+
+def _came_in(task: ControlTask, grid: OccupancyGrid, path: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """A 3-cell cube of occupied cells whose centre lies ``lo``-``hi`` m from the arm's body at the
+    start and more than 0.25 m from it at the goal (the grid's data)."""
+    centres = grid.origin + (np.indices(grid.shape).reshape(3, -1).T + 0.5) * grid.resolution
+    samples = ArmSamples(task.robot)
+    near_start = cKDTree(samples.at(path[0])).query(centres)[0]
+    near_goal = cKDTree(samples.at(path[-1])).query(centres)[0]
+    spot = np.flatnonzero((near_start > lo) & (near_start < hi) & (near_goal > 0.25))[0]
+    data = np.zeros(grid.shape)
+    data[tuple(slice(i - 1, i + 2) for i in np.unravel_index(spot, grid.shape))] = 1.0
+    return data
+
+
+def test_ompl_replan_slices_its_plan_to_the_goal_only_while_standing_still_may_not_be_safe(free_task, open_space):
+    """``plan_sliced_when = "threat"``: with one frame, or with a cube that came in between two
+    frames 0.25-0.3 m from the arm, the plan to the goal runs in slices, the arm standing until it
+    has a path; with two frames and nothing that moved it is made at once. The arm reaches the
+    goal each time, and its path starts where it stood."""
+    grid, path = open_space
+    every = np.ones(grid.shape, dtype=bool)
+    seen = Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=every))
+    settings = dict(known_checks_per_tick=20, plan_sliced_when="threat")
+
+    qs, c = _run(free_task, seen, 600, **settings)  # one frame at the plan
+    info = c.info()
+    assert info["sliced_plans"] == 1 and info["plan_slices"] > 1 and info["plans"] == 1, info
+    assert np.allclose(qs[1], qs[0]) and np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+
+    qs, c = _run(free_task, seen, 600, before=seen, **settings)  # two frames, nothing moved
+    info = c.info()
+    assert info["plan_calm"] >= 1 and info["sliced_plans"] == 0 and info["plan_slices"] == 0, info
+    assert np.allclose(qs[-1], free_task.goal.q, atol=1e-6), info
+
+    data = _came_in(free_task, grid, path, 0.25, 0.3)
+    came = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=every))
+    qs, c = _run(free_task, came, 900, before=seen, **settings)
+    info = c.info()
+    assert info["plan_threat_slices"] >= 1 and info["plan_calm"] == 0 and info["plan_slices"] > 1, info
+    assert info["evasions"] == 0 and np.allclose(qs[1], qs[0]), info  # farther than evade_distance: it waits
+    checker = cells_checker(free_task.robot, grid, np.flatnonzero(data > 0.5))
+    assert not any(checker.in_collision(q) for q in qs)
+
+
+def test_ompl_replan_retreat_drops_its_plan_in_slices(free_task, open_space):
+    """A cube comes in 0.08-0.12 m from the standing arm while its plan to the goal runs in slices
+    (5 checks a tick): the arm retreats at once, from where it stood, and plans again afterwards;
+    the dropped plan gave it no path."""
+    grid, path = open_space
+    every = np.ones(grid.shape, dtype=bool)
+    seen = Observation(0.0, OccupancyGrid(grid.data, grid.origin, grid.resolution, known=every))
+    data = _came_in(free_task, grid, path, 0.08, 0.12)
+    came = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=every))
+    settings = dict(known_checks_per_tick=5, plan_sliced_when="threat")
+    qs, c = _run(free_task, [(0, seen), (6, came)], 300, **settings)
+    info = c.info()
+    assert info["evasions"] >= 1 and info["sliced_plans"] >= 2, info  # the dropped plan, one after the retreat
+    moved = int(np.argmax(np.any(np.abs(qs - qs[0]) > 1e-9, axis=1)))
+    assert 6 <= moved <= 8, moved  # stood through the slices, left on the frame that showed the cube
+    cube = grid.origin + (np.argwhere(data > 0.5) + 0.5) * grid.resolution
+    samples = ArmSamples(free_task.robot)
+    gap = [cKDTree(cube).query(samples.at(q))[0].min() for q in (qs[0], qs[moved + 5])]
+    assert gap[1] > gap[0], gap  # the first motion is away from the cube, not along a path to the goal
+    checker = cells_checker(free_task.robot, grid, np.flatnonzero(data > 0.5))
+    assert not any(checker.in_collision(q) for q in qs)

@@ -169,6 +169,16 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     arm has had two frames (no obstacle's motion can be told from one) or while a cell of an
     obstacle that came in lately (``evade``'s threat) lies within ``known_hold_distance`` of the
     arm's body; otherwise it is made at once, the arm held still. Needs ``evade``."""
+    plan_sliced_when: str = "never"
+    """The plan to the goal (the optimistic one): ``"never"`` (the default), made at once, the arm
+    held still for up to ``plan_time``; ``"threat"``, in slices (``known_checks_per_tick`` checks,
+    with ``known_cpu_share`` of each tick's CPU; ``plan_time`` of CPU in all, or
+    ``known_plan_checks`` checks without a share) while standing still may not be safe, as
+    ``known_sliced_when`` tells it: the arm stands meanwhile, every frame is read and a threat
+    within ``evade_distance`` makes it retreat (the plan dropped). A plan made at once blinds the
+    arm for its whole time: a forearm swinging back 7 cm from the Panda's start reached it while it
+    planned (``panda_swinging_fast/0003``, docs/reactive.md). Needs ``evade`` and
+    ``known_checks_per_tick`` > 0; a pose goal is planned at once."""
     known_hold_distance: float = 0.5
     """Safe mode, ``known_sliced_when = "threat"``: [m] the distance from the arm's body within
     which a threat's cell makes the plan in known space run in slices (0.5 m: what an obstacle at
@@ -299,6 +309,13 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
                 'known_sliced_when = "threat" reads evade\'s threat: set evade = "retreat" '
                 'or known_sliced_when = "always"'
             )
+        if self.plan_sliced_when not in ("never", "threat"):
+            raise InvalidConfigError(f'plan_sliced_when must be "never" or "threat", got {self.plan_sliced_when!r}')
+        if self.plan_sliced_when == "threat" and (self.evade == "none" or self.known_checks_per_tick == 0):
+            raise InvalidConfigError(
+                'plan_sliced_when = "threat" reads evade\'s threat and slices by known_checks_per_tick: set '
+                'evade = "retreat" and known_checks_per_tick > 0, or plan_sliced_when = "never"'
+            )
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
         if self.goal_obstacles not in ("ignore", "wait", "appeared"):
@@ -420,6 +437,9 @@ class OMPLReplanController(Controller):
         self.known_path = False  # safe mode: the path was planned in known space
         self.known_query: SlicedRRTConnect | None = None  # safe mode: the plan in known space, in slices
         self.known_cpu = 0.0  # [s] CPU time its slices have taken (its budget with known_cpu_share)
+        self.plan_query: SlicedRRTConnect | None = None  # plan_sliced_when: the plan to the goal, in slices
+        self.plan_cpu = 0.0  # [s] CPU time its slices have taken
+        self.plan_frame = 0  # the frame count when it began
         self.known_pending = False  # safe mode, known_plan_at "stop": the path's plan in known space is yet to be made
         self.observation: Observation | None = None
         self.checker: CollisionChecker | None = None  # truth: the frame's scene, less what the arm touches
@@ -457,6 +477,7 @@ class OMPLReplanController(Controller):
         self.stats.update(known_plans=0, looks=0, forced=0, known_slices=0, known_unneeded=0, known_failed=0)
         self.stats.update(goal_blocked=0, relaxed=0, stuck=0, predicted_frames=0, predicted_cells_max=0)
         self.stats.update(rest_checks=0, arm_shadow=0, evasions=0, evade_failed=0, known_calm=0, known_threat_slices=0)
+        self.stats.update(sliced_plans=0, plan_slices=0, plan_calm=0, plan_threat_slices=0)
         self.frame_q = self.start.copy()  # depth: the arm where it was when the last frame came
         self.tick_cpu = time.process_time()  # [s] process CPU time when the current tick began
 
@@ -493,7 +514,9 @@ class OMPLReplanController(Controller):
             if self.retreat_due:  # stopped: the retreat starts where the arm stands
                 self.retreat_due = False
                 self._retreat(q)
-            if self.path is None and self.may_plan:
+            if self.path is None and self.plan_query is not None:
+                self._plan_slice(q)
+            elif self.path is None and self.may_plan:
                 self.may_plan = False
                 self._plan(q)
             if self.path is None:
@@ -883,10 +906,22 @@ class OMPLReplanController(Controller):
         elif obs.scene is None:
             assert self.occupied is not None
             checker = self._cells_checker(self.occupied, q, self.predicted)
-        if not self._plan_once(q, checker):
-            if depth and not len(self.predicted) and not self.goal_refused:  # nor is a sweep or a blocked goal
-                self._relax()
+        if self._slice_plan(q, checker):
             return
+        if not self._plan_once(q, checker):
+            self._plan_failed(depth)
+            return
+        self._planned(q)
+
+    def _plan_failed(self, depth: bool) -> None:
+        """After a plan to the goal without a path: in safe mode with depth, one more failure
+        toward relaxing the surface margin (not while cells are swept or the goal is refused)."""
+        if depth and not len(self.predicted) and not self.goal_refused:  # nor is a sweep or a blocked goal
+            self._relax()
+
+    def _planned(self, q: np.ndarray) -> None:
+        """After a plan to the goal found the path followed now, from ``q``: in safe mode, when it
+        enters cells the arm may not enter, the plan in known space (at once or in slices)."""
         self.failed_in_row = 0
         if self.allowed is None or self.body is None:
             return
@@ -915,21 +950,76 @@ class OMPLReplanController(Controller):
             return
         self._plan_known(q)
 
-    def _hold_unsafe(self, q: np.ndarray) -> bool:
-        """Safe mode, slices on: whether the plan in known space runs in slices from ``q``
-        (``known_sliced_when``): always, or while the arm cannot tell that no obstacle is coming
-        at it (fewer than two frames, or a threat's cell within ``known_hold_distance``)."""
-        if self.config.known_sliced_when == "always":
+    def _hold_unsafe(self, q: np.ndarray, when: str | None = None, counted: str = "known") -> bool:
+        """Slices on: whether a plan from ``q`` runs in slices (``when``: ``known_sliced_when`` by
+        default): always, or while the arm cannot tell that no obstacle is coming at it (fewer
+        than two frames, or a threat's cell within ``known_hold_distance``). ``counted``: the
+        prefix of the counters in ``info`` (``known_calm``, ``known_threat_slices``)."""
+        if (when or self.config.known_sliced_when) == "always":
             return True
         obs, body = self.observation, self.samples
         if obs is None or body is None or self.frames < 2:
             return True
         reach = self.config.known_hold_distance
         if Threat(obs.grid, self.threat).distance(body, q, reach) < reach:
-            self.stats["known_threat_slices"] += 1
+            self.stats[f"{counted}_threat_slices"] += 1
             return True
-        self.stats["known_calm"] += 1
+        self.stats[f"{counted}_calm"] += 1
         return False
+
+    def _slice_plan(self, q: np.ndarray, checker: CollisionChecker | None) -> bool:
+        """``plan_sliced_when``: whether the plan to the goal from ``q`` against ``checker`` starts
+        in slices now (advanced by :meth:`_plan_slice`, one slice a tick, the arm standing); False:
+        it is made at once (never sliced, a pose goal, nothing coming, or the start or the goal in
+        the checker's obstacles, which the planner made at once reports)."""
+        goal_q = self.task.goal.q
+        if self.config.plan_sliced_when == "never" or goal_q is None or checker is None:
+            return False
+        if not self._hold_unsafe(q, self.config.plan_sliced_when, "plan"):
+            return False
+        try:
+            exact = self.config.known_cpu_share > 0
+            seed = int(self.rng.integers(2**31))
+            self.plan_query = SlicedRRTConnect(checker, q, np.asarray(goal_q), seed=seed, exact=exact)
+        except ValueError:
+            return False
+        self.plan_cpu, self.plan_frame = 0.0, self.frames
+        self.stats["sliced_plans"] += 1
+        return True
+
+    def _plan_slice(self, q: np.ndarray) -> None:
+        """One slice of the plan to the goal in slices; once it has a path, follow it from ``q``
+        (where the plan started: the arm stood meanwhile, and a retreat drops the plan), checked
+        first against the frame that came last if one came while it ran."""
+        query = self.plan_query
+        assert query is not None
+        c = self.config
+        before, cpu = query.checks, time.process_time()
+        cpu_until = self.tick_cpu + c.known_cpu_share * self.task.period if c.known_cpu_share > 0 else None
+        done = query.advance(c.known_checks_per_tick, cpu_until)
+        self.plan_cpu += time.process_time() - cpu
+        self.stats["plan_slices"] += 1
+        if not done:
+            spent = self.plan_cpu >= c.plan_time if c.known_cpu_share > 0 else query.checks >= c.known_plan_checks
+            if spent or query.checks == before or query.failed:
+                self.plan_query = None
+                self.stats["plans"] += 1
+                self.stats["failed_plans"] += 1
+                self.stats["plan_times"].append(self.plan_cpu)
+                self.goal_refused = False
+                obs = self.observation
+                self._plan_failed(self.safe and obs is not None and obs.grid.known is not None and obs.scene is None)
+            return
+        self.plan_query = None
+        self.stats["plans"] += 1
+        self.stats["plan_times"].append(self.plan_cpu)
+        assert query.path is not None
+        self._take(query.path)
+        if self.frames > self.plan_frame and self._rest_collides(q):  # a frame since showed it blocked
+            self.stats["invalidated"] += 1
+            self.path = None
+            return
+        self._planned(q)
 
     def _plan_known(self, q: np.ndarray) -> bool:
         """Safe mode: plan from ``q`` in known space (every unknown cell an obstacle but those the
@@ -1087,6 +1177,7 @@ class OMPLReplanController(Controller):
         """Follow ``path`` from its start, timed at ``pace`` [rad/s] per joint (by default the
         scaled velocity limits)."""
         self.pace = self.vmax if pace is None else pace
+        self.plan_query = None  # a plan under way in slices is superseded (a retreat's path, or its own)
         steps = np.max(np.abs(np.diff(path, axis=0)) / self.pace, axis=1) if len(path) > 1 else np.zeros(0)
         self.path, self.times = path, np.concatenate([[0.0], np.cumsum(steps)])
         self.evading = False  # a retreat says so after taking its path
