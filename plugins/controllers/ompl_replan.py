@@ -900,8 +900,7 @@ class OMPLReplanController(Controller):
         obs = self.observation
         assert obs is not None
         checker = self.checker  # truth: the frame's scene
-        safe = self.safe and obs.grid.known is not None
-        depth = safe and obs.scene is None
+        depth = self._safe_depth()
         if depth:
             assert self.occupied is not None
             checker = self._cells_checker(np.union1d(self.occupied, self._hidden()), q, self.predicted)
@@ -914,6 +913,11 @@ class OMPLReplanController(Controller):
             self._plan_failed(depth)
             return
         self._planned(q)
+
+    def _safe_depth(self) -> bool:
+        """Safe mode with a depth frame (one that knows which cells it has not seen)."""
+        obs = self.observation
+        return self.safe and obs is not None and obs.grid.known is not None and obs.scene is None
 
     def _plan_failed(self, depth: bool) -> None:
         """After a plan to the goal without a path: in safe mode with depth, one more failure
@@ -995,26 +999,18 @@ class OMPLReplanController(Controller):
         first against the frame that came last if one came while it ran."""
         query = self.plan_query
         assert query is not None
-        c = self.config
-        before, cpu = query.checks, time.process_time()
-        cpu_until = self.tick_cpu + c.known_cpu_share * self.task.period if c.known_cpu_share > 0 else None
-        done = query.advance(c.known_checks_per_tick, cpu_until)
-        self.plan_cpu += time.process_time() - cpu
+        done, self.plan_cpu, over = self._advance(query, self.plan_cpu, self.config.plan_time)
         self.stats["plan_slices"] += 1
-        if not done:
-            spent = self.plan_cpu >= c.plan_time if c.known_cpu_share > 0 else query.checks >= c.known_plan_checks
-            if spent or query.checks == before or query.failed:
-                self.plan_query = None
-                self.stats["plans"] += 1
-                self.stats["failed_plans"] += 1
-                self.stats["plan_times"].append(self.plan_cpu)
-                self.goal_refused = False
-                obs = self.observation
-                self._plan_failed(self.safe and obs is not None and obs.grid.known is not None and obs.scene is None)
+        if not done and not over:
             return
         self.plan_query = None
         self.stats["plans"] += 1
         self.stats["plan_times"].append(self.plan_cpu)
+        if not done:
+            self.stats["failed_plans"] += 1
+            self.goal_refused = False
+            self._plan_failed(self._safe_depth())
+            return
         assert query.path is not None
         self._take(query.path)
         if self.frames > self.plan_frame and self._rest_collides(q):  # a frame since showed it blocked
@@ -1041,19 +1037,10 @@ class OMPLReplanController(Controller):
         enter (the frames seen since have shown them)."""
         query = self.known_query
         assert query is not None
-        before, cpu = query.checks, time.process_time()
-        share = self.config.known_cpu_share
-        cpu_until = self.tick_cpu + share * self.task.period if share > 0 else None
-        done = query.advance(self.config.known_checks_per_tick, cpu_until)
-        self.known_cpu += time.process_time() - cpu
+        done, self.known_cpu, over = self._advance(query, self.known_cpu, self.config.known_plan_time)
         self.stats["known_slices"] += 1
         if not done:
-            spent = (
-                self.known_cpu >= self.config.known_plan_time
-                if share > 0
-                else query.checks >= self.config.known_plan_checks
-            )
-            if spent or query.checks == before or query.failed:
+            if over:
                 self.known_query = None  # over its budget, or stuck: the optimistic path stays
                 self.stats["known_failed"] += 1
             return
@@ -1073,6 +1060,22 @@ class OMPLReplanController(Controller):
         self._take(path)
         self.known_path = True
         self.stats["known_plans"] += 1
+
+    def _advance(self, query: SlicedRRTConnect, cpu: float, cpu_budget: float) -> tuple[bool, float, bool]:
+        """One slice of a plan in slices (``known_checks_per_tick`` checks, ending at
+        ``known_cpu_share`` of the tick's CPU time when that is set), ``cpu`` [s] of CPU spent on it
+        before: whether it is done, the CPU spent on it now, and whether it is over without a path
+        (its budget spent: ``cpu_budget`` [s] of CPU with a share, else ``known_plan_checks``
+        checks; or stuck, or its search ended)."""
+        c = self.config
+        before, t0 = query.checks, time.process_time()
+        cpu_until = self.tick_cpu + c.known_cpu_share * self.task.period if c.known_cpu_share > 0 else None
+        done = query.advance(c.known_checks_per_tick, cpu_until)
+        cpu += time.process_time() - t0
+        if done:
+            return True, cpu, False
+        spent = cpu >= cpu_budget if c.known_cpu_share > 0 else query.checks >= c.known_plan_checks
+        return False, cpu, spent or query.checks == before or query.failed
 
     def _admit_arm_shadow(self) -> None:
         """Safe mode, depth: let the arm into the unknown cells its body fills along the new path
