@@ -135,6 +135,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_hold_distance": 0.0},
         {"plan_sliced_when": "always"},
         {"plan_sliced_when": "threat", "known_checks_per_tick": 0},
+        {"known_sliced_when": "contact", "evade": "none"},
+        {"plan_sliced_when": "contact", "known_checks_per_tick": 0},
+        {"hold_time": float("inf")},
     ],
 )
 def test_bad_safe_mode_settings_of_ompl_replan_are_named_errors(setting):
@@ -589,3 +592,68 @@ def test_ompl_replan_retreat_drops_its_plan_in_slices(free_task, open_space):
     assert gap[1] > gap[0], gap  # the first motion is away from the cube, not along a path to the goal
     checker = cells_checker(free_task.robot, grid, np.flatnonzero(data > 0.5))
     assert not any(checker.in_collision(q) for q in qs)
+
+
+def _cube_frames(grid: OccupancyGrid, centre: np.ndarray, step: np.ndarray, n: int, rate: float = 30.0):
+    """``n`` frames at ``rate`` [Hz] of a 3-cell cube whose centre [cells] moves by ``step`` [cells]
+    a frame (rounded to whole cells), every cell seen."""
+    every = np.ones(grid.shape, dtype=bool)
+    frames = []
+    for k in range(n):
+        i = np.round(centre + k * step).astype(int)
+        data = np.zeros(grid.shape)
+        data[tuple(slice(j - 1, j + 2) for j in i)] = 1.0
+        frames.append(Observation(k / rate, OccupancyGrid(data, grid.origin, grid.resolution, known=every), frame=k))
+    return frames
+
+
+@pytest.mark.parametrize(
+    ("speed", "sign", "lo", "hi", "contact_slices"),
+    [(0.1, -1.0, 0.44, 0.49, False), (1.2, 1.0, 0.55, 0.6, True)],
+    ids=["slow-and-near", "fast-and-far"],
+)
+def test_ompl_replan_contact_rule_reads_the_tracked_speed(free_task, open_space, speed, sign, lo, hi, contact_slices):
+    """``plan_sliced_when = "contact"``: after frames of a cube moving at ``speed`` [m/s] (tracked,
+    its velocity trusted), ``lo``-``hi`` m from the standing arm, the plan to the goal runs in
+    slices only when the cube covers that distance while a plan made at once would hold the arm
+    (``hold_time`` 1.5 s, plus ``evade_distance`` 0.15 m). The slow cube comes straight at the arm
+    and the fast one goes straight away (``sign``), since only the speed counts, and either way the
+    cells the fixed rule reads (the moving face, what the track sweeps) are no nearer than the
+    cube. The fixed ``"threat"`` rule (0.5 m) decides the other way in
+    both cases: a slow cube near the arm, a fast one beyond 0.5 m."""
+    grid, path = open_space
+    samples = ArmSamples(free_task.robot)
+    centres = grid.origin + (np.indices(grid.shape).reshape(3, -1).T + 0.5) * grid.resolution
+    tree = cKDTree(samples.at(path[0]))
+    distance = tree.query(centres)[0]
+    cells_per_frame = speed / 30.0 / grid.resolution
+    n = max(6, int(np.ceil(3 / cells_per_frame)) + 3)  # 4 frames of a track at least, 3 cells moved
+    travel = (n - 1) * cells_per_frame * grid.resolution
+    for spot in np.flatnonzero((distance > lo - sign * travel - 0.05) & (distance < hi - sign * travel + 0.05))[::37]:
+        away = centres[spot] - samples.at(path[0])[int(tree.query(centres[spot])[1])]
+        step = sign * away / np.linalg.norm(away) * cells_per_frame
+        start = np.array(np.unravel_index(spot, grid.shape), dtype=float)
+        end = np.round(start + step * (n - 1)).astype(int)
+        if np.any(np.round(start) < 2) or np.any(end < 2) or np.any(end > np.array(grid.shape) - 3):
+            continue
+        cube = np.argwhere(np.ones((3, 3, 3))) - 1 + end
+        if lo <= tree.query(grid.origin + (cube + 0.5) * grid.resolution)[0].min() <= hi:
+            break
+    else:
+        raise AssertionError("no place for the cube")
+    for rule, sliced in (("contact", contact_slices), ("threat", not contact_slices)):
+        c = make_controller("ompl-replan", known_checks_per_tick=20, plan_sliced_when=rule)
+        c.setup(free_task)
+        c.reset(np.array(free_task.start, dtype=float), np.random.default_rng(0))
+        for frame in _cube_frames(grid, start, step, n):
+            c.update(frame)
+        speeds = [float(np.linalg.norm(tr.velocity)) for tr in c.tracks if tr.velocity is not None]
+        assert len(speeds) == 1, [tr.velocity for tr in c.tracks]
+        reach = (
+            speeds[0] * c.config.hold_time + c.config.evade_distance
+        )  # what the rule reads, on the side of the cube's distance it should be
+        assert reach > hi if contact_slices else reach < lo, speeds
+        c.step(0.0, np.array(free_task.start, dtype=float), None, free_task.goal)
+        info = c.info()
+        assert info["plan_threat_slices" if sliced else "plan_calm"] == 1, (rule, info)
+        assert info["sliced_plans"] == int(sliced), (rule, info)

@@ -118,7 +118,7 @@ from planbench.scene import Scene
 from planbench_plugins.controllers.cells import cell_boxes
 from planbench_plugins.controllers.evade import ArmSamples, EvadeSettings, Threat, retreat
 from planbench_plugins.controllers.observed import ArmCells, GoalCells, LinkBoxes, PathBoxes, scene_without_touched
-from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, warm_up
+from planbench_plugins.controllers.prediction import MotionPredictor, PredictionSettings, Track, warm_up
 from planbench_plugins.controllers.unknown import UnknownSettings
 from planbench_plugins.ompl_planners import SlicedRRTConnect, cells_checker
 
@@ -168,13 +168,16 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     in slices; ``"threat"``, in slices only while standing still may not be safe: before the
     arm has had two frames (no obstacle's motion can be told from one) or while a cell of an
     obstacle that came in lately (``evade``'s threat) lies within ``known_hold_distance`` of the
-    arm's body; otherwise it is made at once, the arm held still. Needs ``evade``."""
+    arm's body; otherwise it is made at once, the arm held still. ``"contact"``: as ``"threat"``,
+    but a tracked obstacle counts only within what its speed covers in ``hold_time`` (plus
+    ``evade_distance``). Needs ``evade``."""
     plan_sliced_when: str = "never"
     """The plan to the goal (the optimistic one): ``"never"`` (the default), made at once, the arm
     held still for up to ``plan_time``; ``"threat"``, in slices (``known_checks_per_tick`` checks,
     with ``known_cpu_share`` of each tick's CPU; ``plan_time`` of CPU in all, or
     ``known_plan_checks`` checks without a share) while standing still may not be safe, as
-    ``known_sliced_when`` tells it: the arm stands meanwhile, every frame is read and a threat
+    ``known_sliced_when`` tells it (``"contact"``: as ``known_sliced_when = "contact"``): the arm
+    stands meanwhile, every frame is read and a threat
     within ``evade_distance`` makes it retreat (the plan dropped). A plan made at once blinds the
     arm for its whole time: a forearm swinging back 7 cm from the Panda's start reached it while it
     planned (``panda_swinging_fast/0003``, docs/reactive.md). Needs ``evade`` and
@@ -184,7 +187,15 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     known_hold_distance: float = 0.5
     """Safe mode, ``known_sliced_when = "threat"``: [m] the distance from the arm's body within
     which a threat's cell makes the plan in known space run in slices (0.5 m: what an obstacle at
-    1 m/s, the fast scenarios' peak speed, covers in ``known_plan_time``'s 0.5 s)."""
+    1 m/s, the fast scenarios' peak speed, covers in ``known_plan_time``'s 0.5 s). With
+    ``"contact"``, only for moving cells whose track has no trusted velocity yet."""
+    hold_time: float = 1.5
+    """``"contact"`` (``known_sliced_when``, ``plan_sliced_when``): [s] how long a plan made at once
+    may hold the arm still (1.5 s: ``plan_time`` and then ``known_plan_time``; with 0.5 s a
+    forearm tracked beyond reach came back during the two plans in 3 of 5 seeds of
+    ``panda_swinging_fast/0003``). A tracked obstacle makes the plan run in slices when it is
+    within what its tracked speed covers in this time, plus ``evade_distance``, of the arm's body:
+    a slow one near the arm leaves the plan made at once, a fast one farther off does not."""
     known_plan_checks: int = 10000
     """Safe mode: the most collision checks of a sliced plan in known space (its budget: about
     0.5-1 s of work, spread over 200 ticks), with ``known_cpu_share`` 0; with a share, the budget is
@@ -292,6 +303,7 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             "surface_margin",
             "goal_block_time",
             "known_hold_distance",
+            "hold_time",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -304,19 +316,24 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(f'surface_shadow must be "enter" or "avoid", got {self.surface_shadow!r}')
         if self.known_plan_at not in ("start", "stop"):
             raise InvalidConfigError(f'known_plan_at must be "start" or "stop", got {self.known_plan_at!r}')
-        if self.known_sliced_when not in ("always", "threat"):
-            raise InvalidConfigError(f'known_sliced_when must be "always" or "threat", got {self.known_sliced_when!r}')
-        if self.known_sliced_when == "threat" and self.evade == "none":
+        if self.known_sliced_when not in ("always", "threat", "contact"):
             raise InvalidConfigError(
-                'known_sliced_when = "threat" reads evade\'s threat: set evade = "retreat" '
+                f'known_sliced_when must be "always", "threat" or "contact", got {self.known_sliced_when!r}'
+            )
+        if self.known_sliced_when != "always" and self.evade == "none":
+            raise InvalidConfigError(
+                f'known_sliced_when = "{self.known_sliced_when}" reads evade\'s threat: set evade = "retreat" '
                 'or known_sliced_when = "always"'
             )
-        if self.plan_sliced_when not in ("never", "threat"):
-            raise InvalidConfigError(f'plan_sliced_when must be "never" or "threat", got {self.plan_sliced_when!r}')
-        if self.plan_sliced_when == "threat" and (self.evade == "none" or self.known_checks_per_tick == 0):
+        if self.plan_sliced_when not in ("never", "threat", "contact"):
             raise InvalidConfigError(
-                'plan_sliced_when = "threat" reads evade\'s threat and slices by known_checks_per_tick: set '
-                'evade = "retreat" and known_checks_per_tick > 0, or plan_sliced_when = "never"'
+                f'plan_sliced_when must be "never", "threat" or "contact", got {self.plan_sliced_when!r}'
+            )
+        if self.plan_sliced_when != "never" and (self.evade == "none" or self.known_checks_per_tick == 0):
+            raise InvalidConfigError(
+                f'plan_sliced_when = "{self.plan_sliced_when}" reads evade\'s threat and slices by '
+                'known_checks_per_tick: set evade = "retreat" and known_checks_per_tick > 0, '
+                'or plan_sliced_when = "never"'
             )
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
@@ -467,6 +484,8 @@ class OMPLReplanController(Controller):
         self.failed_in_row = 0  # plans failed since the last that found a path
         self.predicted = np.zeros(0, dtype=np.intp)  # depth, "swept": the cells moving clusters sweep (flat)
         self.threat = np.zeros(0, dtype=np.intp)  # evade: moving cells and what tracks sweep (flat)
+        self.moving = np.zeros(0, dtype=np.intp)  # evade: the frame's clustered moving cells (flat)
+        self.tracks: tuple[Track, ...] = ()  # evade: the tracks alive after the frame
         self.evading = False  # the path followed is a retreat (evade)
         self.retreat_due = False  # evade: a threat came at the moving arm; it stops, then retreats
         if self.predictor is not None:
@@ -491,6 +510,7 @@ class OMPLReplanController(Controller):
             prediction = self.predictor.observe(observation)
             if self.config.evade != "none":
                 self.threat = np.union1d(prediction.moving, prediction.cells)
+                self.moving, self.tracks = prediction.moving, prediction.tracks
             if self.config.prediction != "none" and depth:  # truth: its plans check the exact scene
                 self.predicted = prediction.cells
             if len(self.predicted):
@@ -959,19 +979,41 @@ class OMPLReplanController(Controller):
     def _hold_unsafe(self, q: np.ndarray, when: str | None = None, counted: str = "known") -> bool:
         """Slices on: whether a plan from ``q`` runs in slices (``when``: ``known_sliced_when`` by
         default): always, or while the arm cannot tell that no obstacle is coming at it (fewer
-        than two frames, or a threat's cell within ``known_hold_distance``). ``counted``: the
+        than two frames, or a threat's cell within ``known_hold_distance``; ``"contact"``: within
+        what it covers while the arm is held, :meth:`_contact_near`). ``counted``: the
         prefix of the counters in ``info`` (``known_calm``, ``known_threat_slices``)."""
         if (when or self.config.known_sliced_when) == "always":
             return True
         obs, body = self.observation, self.samples
         if obs is None or body is None or self.frames < 2:
             return True
-        reach = self.config.known_hold_distance
-        if Threat(obs.grid, self.threat).distance(body, q, reach) < reach:
-            self.stats[f"{counted}_threat_slices"] += 1
-            return True
-        self.stats[f"{counted}_calm"] += 1
-        return False
+        if (when or self.config.known_sliced_when) == "contact":
+            near = self._contact_near(q)
+        else:
+            reach = self.config.known_hold_distance
+            near = Threat(obs.grid, self.threat).distance(body, q, reach) < reach
+        self.stats[f"{counted}_threat_slices" if near else f"{counted}_calm"] += 1
+        return near
+
+    def _contact_near(self, q: np.ndarray) -> bool:
+        """``"contact"``: whether an obstacle that came in lately could reach the arm's body at
+        ``q`` while a plan made at once holds it (``hold_time``): a track with a trusted velocity
+        within its speed times ``hold_time`` plus ``evade_distance``; moving cells with no such
+        track within ``known_hold_distance``."""
+        obs, body = self.observation, self.samples
+        assert obs is not None and body is not None
+        c = self.config
+        timed = [tr for tr in self.tracks if tr.velocity is not None]
+        for tr in timed:
+            assert tr.velocity is not None
+            reach = float(np.linalg.norm(tr.velocity)) * c.hold_time + c.evade_distance
+            if Threat(obs.grid, tr.cells).distance(body, q, reach) < reach:
+                return True
+        untimed = self.moving
+        if timed and len(untimed):
+            untimed = np.setdiff1d(untimed, np.concatenate([tr.cells for tr in timed]), assume_unique=False)
+        reach = c.known_hold_distance
+        return bool(len(untimed)) and Threat(obs.grid, untimed).distance(body, q, reach) < reach
 
     def _slice_plan(self, q: np.ndarray, checker: CollisionChecker | None) -> bool:
         """``plan_sliced_when``: whether the plan to the goal from ``q`` against ``checker`` starts
