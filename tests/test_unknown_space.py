@@ -131,11 +131,9 @@ def test_bad_unknown_settings_are_named_errors(name, setting):
         {"known_plan_at": "later"},
         {"surface_shadow": "never"},
         {"known_sliced_when": "sometimes"},
-        {"known_sliced_when": "threat", "evade": "none"},
         {"known_hold_distance": 0.0},
         {"plan_sliced_when": "always"},
         {"plan_sliced_when": "threat", "known_checks_per_tick": 0},
-        {"known_sliced_when": "contact", "evade": "none"},
         {"plan_sliced_when": "contact", "known_checks_per_tick": 0},
         {"hold_time": float("inf")},
     ],
@@ -268,6 +266,8 @@ def test_ompl_replan_safe_mode_plans_around_an_unknown_block_in_known_space(free
         known_checks_per_tick=per_tick,
         known_plan_at=at,
         known_cpu_share=share,
+        known_sliced_when="always",
+        plan_sliced_when="never",  # the plan to the goal at once: the arm sets off on the first tick
     )
     info = c.info()
     assert not any(body.in_unknown(q, known) for q in qs), info  # never in the block
@@ -302,6 +302,8 @@ def test_ompl_replan_sliced_plan_in_known_space_spends_cpu_time_not_checks(free_
         plan_clock="wall",  # the first plan's limit on the true clock
         known_checks_per_tick=2000,
         known_cpu_share=0.9,
+        known_sliced_when="always",
+        plan_sliced_when="never",  # the first plan at once, under the true clock
     )
     info = c.info()
     assert info["known_slices"] == 1 and info["known_failed"] == 1 and info["known_plans"] == 0, info
@@ -478,6 +480,7 @@ def test_ompl_replan_safe_mode_replans_at_a_dead_end_of_hidden_cells(free_task, 
     first = _seeing(grid, known)
     later = Observation(0.0, OccupancyGrid(data, grid.origin, grid.resolution, known=shown))
     settings = dict(unknown="occupied", surface_margin=0.25, plan_time=0.3, known_plan_time=0.1, look_frames=60)
+    settings.update(known_checks_per_tick=0, plan_sliced_when="never")  # every plan at once: counted as made
     frames = [(0, first), (150, later)]
     _, c = _run_frames(free_task, frames, 700, **settings)
     info = c.info()
@@ -500,7 +503,7 @@ def test_ompl_replan_slices_its_plan_in_known_space_only_while_standing_still_ma
     grid, path = open_space
     body = ArmBody(free_task.robot, grid.origin, grid.shape, grid.resolution)
     known = _block_on_path(free_task, grid, path, body)
-    settings = dict(unknown="occupied", known_checks_per_tick=50, known_sliced_when="threat")
+    settings = dict(unknown="occupied", known_checks_per_tick=50, known_sliced_when="threat", plan_sliced_when="never")
     seen = _seeing(grid, known)
 
     qs, c = _run(free_task, seen, 300, **settings)  # one frame at the first plan

@@ -41,12 +41,14 @@ FASTER does for quadrotors: the plan may cross unknown space, the committed moti
 - **known space first**: a plan is made as the default does; if its path fills a cell the arm may
   not enter (below), the arm plans again with every such cell an obstacle (the occupied cells and
   the two-cell layer of unknown ones next to the space the arm may enter stand for them all: any
-  motion into the rest crosses that layer). By default that plan is made at once, within
-  ``known_plan_time``, the arm held still. With ``known_checks_per_tick`` > 0 it runs in slices of
-  that many collision checks, one per tick, up to ``known_plan_checks`` in all (with
-  ``known_cpu_share``, also ending at that share of the tick's CPU time, ``known_plan_time`` of
-  CPU in all), while the arm follows the first path up to the unknown cells (measured on
-  ``dynamic-tune``: no better than at once either way, docs/reactive.md, so not the default).
+  motion into the rest crosses that layer). That plan, and the plan to the goal, are made at once
+  (within ``known_plan_time`` and ``plan_time``, the arm held still) unless an obstacle tracked
+  near the arm could reach it meanwhile (``known_sliced_when``, ``plan_sliced_when``:
+  ``"contact"`` by default); then they run in slices of the tick's CPU time
+  (``known_checks_per_tick``, ``known_cpu_share``), ``known_plan_time`` and ``plan_time`` of CPU
+  in all, while the arm follows the first path up to the unknown cells, or stands and reads every
+  frame (the plan to the goal), ready to retreat (measured on ``dynamic-tune`` and
+  ``dynamic-test``, docs/reactive.md).
   When a sliced plan has a path and the first path still enters cells the arm may not enter, the
   arm goes straight to the farthest of its waypoints that a free motion reaches (else back the way
   it came); while the plan runs, the arm waits short of unknown cells instead of going in after
@@ -149,41 +151,47 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     the arm may not enter (with ``known_checks_per_tick`` 0: the plan is made at once, the arm
     held still meanwhile)."""
     known_plan_at: str = "start"
-    """Safe mode, with ``known_checks_per_tick`` 0: when the plan in known space is made.
+    """Safe mode, when the plan in known space is made at once (``known_checks_per_tick`` 0, or
+    ``known_sliced_when`` finds no threat in reach): when it is made.
     ``"start"``: at once after the optimistic plan whose path enters cells the arm may not enter,
     the arm held still meanwhile; ``"stop"``: only when the follower, stopped short of such cells,
     has looked ``look_frames`` frames and the cells are still unknown, before it would go into
     them. With ``"stop"`` the arm sets off along the optimistic path at once (as with truth
     sensing), and a stretch of unknown cells that the frames on the way show (the shadow of a
     moving obstacle moves on) costs no plan at all."""
-    known_checks_per_tick: int = 0
-    """Safe mode: 0 (the default): the plan in known space is made at once, the arm held still for
-    up to ``known_plan_time``; > 0: in slices of this many collision checks, one per tick (50: about
-    3-6 ms, 60-110 µs a check on a loaded 2-core machine), while the arm follows the optimistic path
-    up to the unknown cells (:mod:`planbench_plugins.ompl_planners.sliced`). On the first 32 depth
-    scenarios of ``dynamic-tune`` slices of 50 solved 24, as many as the plan at once
-    (docs/reactive.md)."""
-    known_sliced_when: str = "always"
+    known_checks_per_tick: int = 2000
+    """Safe mode: 0, the plan in known space is made at once, the arm held still for up to
+    ``known_plan_time``; > 0: in slices of at most this many collision checks, one slice per tick
+    (50: about 3-6 ms, 60-110 µs a check on a loaded 2-core machine; the default 2000 with
+    ``known_cpu_share`` 0.9: as many as fit in the tick), while the arm follows the optimistic path
+    up to the unknown cells (:mod:`planbench_plugins.ompl_planners.sliced`), when
+    ``known_sliced_when`` says so. 0 needs ``plan_sliced_when = "never"``. Default since
+    2026-12-04 with the ``"contact"`` rules (docs/reactive.md, "A threat from its tracked
+    speed"): on ``dynamic-tune`` 61 of 72 and no collision with an observed obstacle, against 64
+    with one for the plan at once; on ``dynamic-test`` 128 of 144 with none."""
+    known_sliced_when: str = "contact"
     """Safe mode, with ``known_checks_per_tick`` > 0: ``"always"``, every plan in known space runs
     in slices; ``"threat"``, in slices only while standing still may not be safe: before the
     arm has had two frames (no obstacle's motion can be told from one) or while a cell of an
     obstacle that came in lately (``evade``'s threat) lies within ``known_hold_distance`` of the
-    arm's body; otherwise it is made at once, the arm held still. ``"contact"``: as ``"threat"``,
-    but a tracked obstacle counts only within what its speed covers in ``hold_time`` (plus
-    ``evade_distance``). Needs ``evade``."""
-    plan_sliced_when: str = "never"
-    """The plan to the goal (the optimistic one): ``"never"`` (the default), made at once, the arm
-    held still for up to ``plan_time``; ``"threat"``, in slices (``known_checks_per_tick`` checks,
+    arm's body; otherwise it is made at once, the arm held still. ``"contact"`` (the default): as
+    ``"threat"``, but a tracked obstacle counts only within what its speed covers in ``hold_time``
+    (plus ``evade_distance``). Obstacles are tracked for it with ``evade = "none"`` too."""
+    plan_sliced_when: str = "contact"
+    """The plan to the goal (the optimistic one): ``"never"``, made at once, the arm held still for
+    up to ``plan_time``; ``"threat"``, in slices (``known_checks_per_tick`` checks,
     with ``known_cpu_share`` of each tick's CPU; ``plan_time`` of CPU in all, or
     ``known_plan_checks`` checks without a share) while standing still may not be safe, as
     ``known_sliced_when`` tells it (``"contact"``: as ``known_sliced_when = "contact"``): the arm
     stands meanwhile, every frame is read and a threat
     within ``evade_distance`` makes it retreat (the plan dropped). A plan made at once blinds the
     arm for its whole time: a forearm swinging back 7 cm from the Panda's start reached it while it
-    planned (``panda_swinging_fast/0003``, docs/reactive.md). Needs ``evade`` and
-    ``known_checks_per_tick`` > 0; a pose goal is planned at once. Measured on ``dynamic-tune``
-    with ``known_sliced_when = "threat"``: 54 of 72 against the default's 64 (plans dropped and
-    late where something always moves near the arm), so not the default."""
+    planned (``panda_swinging_fast/0003``, docs/reactive.md); with ``evade = "none"`` it only
+    reads the frames. Needs ``known_checks_per_tick`` > 0; a pose goal is planned at once.
+    Measured on ``dynamic-tune`` with ``"threat"``: 54 of 72 against 64 made at once (plans
+    dropped and late where something always moves near the arm); ``"contact"`` (the default, see
+    ``known_checks_per_tick``) slices only where a tracked obstacle could arrive while the arm is
+    held."""
     known_hold_distance: float = 0.5
     """Safe mode, ``known_sliced_when = "threat"``: [m] the distance from the arm's body within
     which a threat's cell makes the plan in known space run in slices (0.5 m: what an obstacle at
@@ -200,10 +208,10 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
     """Safe mode: the most collision checks of a sliced plan in known space (its budget: about
     0.5-1 s of work, spread over 200 ticks), with ``known_cpu_share`` 0; with a share, the budget is
     ``known_plan_time`` of CPU time, the plan made at once's."""
-    known_cpu_share: float = 0.0
-    """Safe mode, with ``known_checks_per_tick`` > 0: 0 (the default), a slice ends by its count
-    alone; in (0, 1), a slice also ends at the first check after the tick has used this share of
-    the control period in CPU time, its frame's work included (the search then runs on a thread of
+    known_cpu_share: float = 0.9
+    """Safe mode, with ``known_checks_per_tick`` > 0: 0, a slice ends by its count alone; in
+    (0, 1) (the default 0.9), a slice also ends at the first check after the tick has used this
+    share of the control period in CPU time, its frame's work included (the search then runs on a thread of
     its own, paused between slices: :class:`~planbench_plugins.ompl_planners.SlicedRRTConnect`
     with ``exact``). With a large count it spreads the work of the plan made at once over the
     fewest ticks that keep each within the period, while the arm moves."""
@@ -320,20 +328,14 @@ class OMPLReplanConfig(UnknownSettings, PredictionSettings, EvadeSettings):
             raise InvalidConfigError(
                 f'known_sliced_when must be "always", "threat" or "contact", got {self.known_sliced_when!r}'
             )
-        if self.known_sliced_when != "always" and self.evade == "none":
-            raise InvalidConfigError(
-                f'known_sliced_when = "{self.known_sliced_when}" reads evade\'s threat: set evade = "retreat" '
-                'or known_sliced_when = "always"'
-            )
         if self.plan_sliced_when not in ("never", "threat", "contact"):
             raise InvalidConfigError(
                 f'plan_sliced_when must be "never", "threat" or "contact", got {self.plan_sliced_when!r}'
             )
-        if self.plan_sliced_when != "never" and (self.evade == "none" or self.known_checks_per_tick == 0):
+        if self.plan_sliced_when != "never" and self.known_checks_per_tick == 0:
             raise InvalidConfigError(
-                f'plan_sliced_when = "{self.plan_sliced_when}" reads evade\'s threat and slices by '
-                'known_checks_per_tick: set evade = "retreat" and known_checks_per_tick > 0, '
-                'or plan_sliced_when = "never"'
+                f'plan_sliced_when = "{self.plan_sliced_when}" slices by known_checks_per_tick: set '
+                'known_checks_per_tick > 0, or plan_sliced_when = "never"'
             )
         if self.dead_end not in ("wait", "replan"):
             raise InvalidConfigError(f'dead_end must be "wait" or "replan", got {self.dead_end!r}')
@@ -432,13 +434,13 @@ class OMPLReplanController(Controller):
         self.pace = self.vmax  # [rad/s] the path's timing: the scaled limits, a retreat's the full ones
         self.safe = self.config.unknown == "occupied"
         body_points(task.robot, 0.02)  # the body's sample points at the default resolution, untimed
-        self.samples = ArmSamples(task.robot) if self.config.evade != "none" else None  # built untimed
+        self.samples = ArmSamples(task.robot) if self._watches() else None  # built untimed
         self.link_boxes = LinkBoxes(task.robot)
         shadows = self.config.arm_shadow or self.config.surface_shadow == "avoid"
         if shadows and task.cameras:  # the compiled line walk loaded (or compiled), untimed
             tiny = OccupancyGrid.empty(np.zeros(3), np.full(3, 0.1), 0.05)
             occluders(np.arange(2), tiny, np.zeros(tiny.shape, dtype=bool), task.cameras[:1])
-        tracked = self.config.prediction != "none" or self.config.evade != "none"
+        tracked = self.config.prediction != "none" or self._watches()
         self.predictor = MotionPredictor(self.config) if tracked else None
         if self.predictor is not None:
             warm_up(self.config, lambda block: None)  # scipy's k-d tree and graph code loaded, untimed
@@ -506,9 +508,9 @@ class OMPLReplanController(Controller):
         self.observation = observation
         self.frames += 1
         depth = observation.scene is None
-        if self.predictor is not None and (depth or self.config.evade != "none"):  # where obstacles go
+        if self.predictor is not None and (depth or self._watches()):  # where obstacles go
             prediction = self.predictor.observe(observation)
-            if self.config.evade != "none":
+            if self._watches():
                 self.threat = np.union1d(prediction.moving, prediction.cells)
                 self.moving, self.tracks = prediction.moving, prediction.tracks
             if self.config.prediction != "none" and depth:  # truth: its plans check the exact scene
@@ -975,6 +977,12 @@ class OMPLReplanController(Controller):
             self.known_pending = True
             return
         self._plan_known(q)
+
+    def _watches(self) -> bool:
+        """Whether the frames' moving cells and tracks are followed: for a retreat (``evade``) or to
+        tell whether a plan runs in slices (``known_sliced_when``, ``plan_sliced_when``)."""
+        c = self.config
+        return c.evade != "none" or c.known_sliced_when != "always" or c.plan_sliced_when != "never"
 
     def _hold_unsafe(self, q: np.ndarray, when: str | None = None, counted: str = "known") -> bool:
         """Slices on: whether a plan from ``q`` runs in slices (``when``: ``known_sliced_when`` by
