@@ -275,6 +275,47 @@ def test_a_frames_new_cells_are_checked_in_octrees_of_at_most_a_slices_cells(tas
 
 
 @pytest.mark.parametrize("observe", [truth, depth])
+def test_a_frames_check_of_the_path_also_ends_its_slices_when_the_ticks_cpu_time_has_run_out(task, observe, monkeypatch):
+    """With a CPU clock that has always run out (a counter), a frame's check of the rest of the
+    path checks one configuration a tick, and still finds the box on the path; without that
+    share of the period a slice checks many."""
+    hand_at = lambda d: task.robot.frame_pose(  # noqa: E731
+        d.c.reference.at(0.5 * (d.c.t_ref + d.c.reference.duration))[0], task.goal.pose.frame
+    ).translation
+
+    def checks_per_tick(**settings):
+        d = Driver(task, **settings)
+        d.run(observe(Scene()), 400, until=lambda d: d.c.reference is not None and d.c.job is None and d.k >= 40)
+        assert d.c.reference is not None
+        box = Scene((Obstacle("box", "box", tuple(hand_at(d)), size=(0.12, 0.12, 0.12)),))
+        counted = {"n": 0}
+        real = CollisionChecker.in_collision
+
+        def count(self, q):
+            counted["n"] += 1
+            return real(self, q)
+
+        with monkeypatch.context() as m:
+            if settings.get("slice_cpu_share"):
+                reads = iter(range(10**9))
+                m.setattr(time, "process_time", lambda: float(next(reads)))
+            m.setattr(CollisionChecker, "in_collision", count)
+            per_tick = []
+            while d.c.reference is not None and d.k < 2000:
+                before = counted["n"]
+                d.run(observe(box), 1)
+                per_tick.append(counted["n"] - before)
+        assert d.c.reference is None and d.c.info()["replans"]["invalidated"] == 1
+        return per_tick
+
+    timed = checks_per_tick(slice_cpu_share=0.5)
+    plain = checks_per_tick(slice_cpu_share=0.0)
+    assert max(timed) <= 2  # a configuration, and the arm's touch of the cells near it (depth)
+    assert max(plain) > 2
+    assert len(timed) > len(plain)
+
+
+@pytest.mark.parametrize("observe", [truth, depth])
 def test_it_replans_when_an_obstacle_appears_on_its_path(task, observe):
     d = Driver(task)
     d.run(observe(Scene()), 400, until=lambda d: d.c.reference is not None and d.k >= 40)

@@ -127,7 +127,8 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     # --- planning, a slice per tick --------------------------------------------------------------
     plan_checks_per_tick: int = 50
     """Collision checks of one planning or path-check slice; one slice per tick (about 2-3 ms with
-    depth sensing; docs/reactive.md has the measurement)."""
+    depth sensing; docs/reactive.md has the measurement). With ``slice_cpu_share`` a slice also
+    ends once the tick has used that share of the period."""
     scale_slices: bool = True
     """Size the slices for the task's control period: ``plan_checks_per_tick`` and ``octree_cells``
     are a 10 ms tick's, the checks multiplied by the share of the period left beyond
@@ -136,7 +137,7 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     parts, so a tick
     stays near a tenth of the work; at 100 Hz nothing changes. False: the numbers as given."""
     slice_cpu_share: float = 0.6
-    """> 0 (0.6, the default): a search or shortening slice also ends at the first check after the
+    """> 0 (0.6, the default): a search, shortening or path-check slice also ends at the first check after the
     tick has used this share of the control period in CPU time (after at least one check), so that
     a slice of slow checks does not pass the period; the search's checks and path stay the same,
     only when it finds them moves with the clock (:mod:`planbench_plugins.ompl_planners.sliced`,
@@ -642,16 +643,23 @@ class MatrixFieldGuidedController(Controller):
                     checker = yield from self._cells_checker(kept, pause_after_last=False)
         yield
         rest = self._rest()
-        per = self.slice_checks
-        for k in range(0, len(rest), per):
-            chunk = rest[k : k + per]
-            self._count(len(chunk))
-            hit = next((i for i, x in enumerate(chunk) if checker.in_collision(x)), None)
-            if hit is not None:
-                self._drop_path("blocked" if k + hit == len(rest) - 1 else "invalidated", stop_job=False)
-                return
-            if k + per < len(rest):
+        k = 0
+        while k < len(rest):
+            made = 0  # a slice: up to ``slice_checks`` configurations, ended early by the tick's CPU time
+            while k < len(rest) and made < self.slice_checks and (made == 0 or not self._cpu_spent()):
+                if checker.in_collision(rest[k]):
+                    self._count(made + 1)
+                    self._drop_path("blocked" if k == len(rest) - 1 else "invalidated", stop_job=False)
+                    return
+                k += 1
+                made += 1
+            self._count(made)
+            if k < len(rest):
                 yield
+
+    def _cpu_spent(self) -> bool:
+        """Whether this tick's share of CPU time (``slice_cpu_share``) has run out."""
+        return self._cpu_until is not None and time.process_time() >= self._cpu_until
 
     def _rest(self) -> list[np.ndarray]:
         """The configurations at which the rest of the path is checked: from the reference's
