@@ -111,7 +111,8 @@ TICK_COST = 0.0005
 """[s] What a tick costs besides its slice (the tracking law, the call and a frame's share), charged
 every tick: about 0.2-0.3 ms in process and 0.5 ms across processes on the Panda at 1 kHz. A
 search slice gets ``plan_checks_per_tick`` times the period left beyond it over that of a 10 ms
-tick (``scale_slices``): 3 checks at 1 kHz (5 checks, a tenth, made ticks of 1.3 ms at p99)."""
+tick (``scale_slices``): 11 checks at 1 kHz with the default 200 (3 with 50; 5 checks, before slices
+ended by CPU time, made ticks of 1.3 ms at p99)."""
 
 SLICE_PERIOD = 0.01
 """[s] The control period for which the slice sizes are given (``plan_checks_per_tick``,
@@ -125,15 +126,17 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     is not used: the kernels are built at the observed grid's resolution)."""
 
     # --- planning, a slice per tick --------------------------------------------------------------
-    plan_checks_per_tick: int = 50
-    """Collision checks of one planning or path-check slice; one slice per tick (about 2-3 ms with
-    depth sensing; docs/reactive.md has the measurement). With ``slice_cpu_share`` a slice also
-    ends once the tick has used that share of the period."""
+    plan_checks_per_tick: int = 200
+    """Collision checks of one planning or path-check slice; one slice per tick. With
+    ``slice_cpu_share`` (the default) a slice also ends once the tick has used that share of the
+    period, which at 100 Hz usually comes first (checks cost 20-50 us with depth sensing). 200 since
+    2026-12-05 (was 50, chosen before that bound, when 100 cost deadlines): on ``dynamic-tune`` the
+    same 58 of 72 with fewer missed deadlines (docs/reactive.md, "Checks a slice under a CPU bound")."""
     scale_slices: bool = True
     """Size the slices for the task's control period: ``plan_checks_per_tick`` and ``octree_cells``
     are a 10 ms tick's, the checks multiplied by the share of the period left beyond
     :data:`TICK_COST` (at least 1), the cells by ``period / 10 ms`` (at least :data:`MIN_SLICE_CELLS`),
-    and a grid's scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 3 checks, 1,000 cells, 20
+    and a grid's scan takes ``2 * 10 ms / period`` slices: at 1 kHz, 11 checks, 1,000 cells, 20
     parts, so a tick
     stays near a tenth of the work; at 100 Hz nothing changes. False: the numbers as given."""
     slice_cpu_share: float = 0.6
