@@ -282,11 +282,10 @@ def test_a_frames_check_of_the_path_also_ends_its_slices_when_the_ticks_cpu_time
     """With a CPU clock that has always run out (a counter), a frame's check of the rest of the
     path checks one configuration a tick, and still finds the box on the path; without that
     share of the period a slice checks many."""
-    hand_at = lambda d: (
-        task.robot.frame_pose(  # noqa: E731
-            d.c.reference.at(0.5 * (d.c.t_ref + d.c.reference.duration))[0], task.goal.pose.frame
-        ).translation
-    )
+
+    def hand_at(d):  # where the hand will be half way along the rest of the path
+        ahead = d.c.reference.at(0.5 * (d.c.t_ref + d.c.reference.duration))[0]
+        return task.robot.frame_pose(ahead, task.goal.pose.frame).translation
 
     def checks_per_tick(**settings):
         d = Driver(task, **settings)

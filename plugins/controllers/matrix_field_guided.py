@@ -650,12 +650,12 @@ class MatrixFieldGuidedController(Controller):
         while k < len(rest):
             made = 0  # a slice: up to ``slice_checks`` configurations, ended early by the tick's CPU time
             while k < len(rest) and made < self.slice_checks and (made == 0 or not self._cpu_spent()):
+                made += 1
                 if checker.in_collision(rest[k]):
-                    self._count(made + 1)
+                    self._count(made)
                     self._drop_path("blocked" if k == len(rest) - 1 else "invalidated", stop_job=False)
                     return
                 k += 1
-                made += 1
             self._count(made)
             if k < len(rest):
                 yield
