@@ -253,6 +253,31 @@ def test_with_slice_cpu_share_a_slice_ends_when_the_ticks_cpu_time_has_run_out(t
     assert np.array_equal(timed.reference.waypoints, plain.reference.waypoints)
 
 
+def test_a_turns_cpu_share_counts_from_its_update_and_a_spent_turn_runs_no_slice(task, monkeypatch):
+    """With ``slice_cpu_share``, a turn that took in a frame counts its share from the update: once
+    the update (with the goal's cells, classified by the turn's step) has used it, that turn runs
+    no slice of work; a turn without a frame runs one however late its clock, so the work goes on.
+    The update itself only takes in the field's grid at 100 Hz."""
+    clock = {"t": 0.0}
+    monkeypatch.setattr(time, "process_time", lambda: clock["t"])
+    period = task.period
+    d = Driver(task, slice_cpu_share=0.5)
+    frame = depth(Scene())
+    d.c.update(frame)
+    assert d.c.goal_out is None  # the goal's cells wait for the step: not the field's update
+    clock["t"] += 0.6 * period  # the update took more than the turn's share
+    d.c.step(0.0, d.q.copy(), None, task.goal)
+    info = d.c.info()
+    assert info["slices"] == 0 and d.c.goal_out is not None  # classified, and no slice after it
+    clock["t"] += 5 * period  # a turn without a frame: a slice however its clock reads
+    d.c.step(period, d.q.copy(), None, task.goal)
+    assert d.c.info()["slices"] == 1
+    d.c.update(dataclasses.replace(frame, time=2 * period, frame=1))
+    clock["t"] += 0.1 * period  # within the share: the frame's turn runs its slice too
+    d.c.step(2 * period, d.q.copy(), None, task.goal)
+    assert d.c.info()["slices"] == 2
+
+
 def test_a_frames_new_cells_are_checked_in_octrees_of_at_most_a_slices_cells(task, monkeypatch):
     """The check of a frame builds the octrees of the cells it added a slice's worth at a time
     (``octree_cells``), as a plan does, and still finds the path blocked."""

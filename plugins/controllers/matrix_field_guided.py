@@ -280,6 +280,7 @@ class MatrixFieldGuidedController(Controller):
         self.qd_max = np.asarray(robot.velocity_limit, dtype=float)
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
+        self.field.kernels(0.02)  # and the kernels and gain there (the first frame's otherwise: 5-9 ms)
         if self.predictor is not None:
             warm_up(c, self._warm_push)
         # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
@@ -350,10 +351,15 @@ class MatrixFieldGuidedController(Controller):
         self._plan_started = 0
         self._ticks = 0
         self._cpu_until: float | None = None  # with slice_cpu_share: the process CPU time [s] a slice ends at
+        self._turn_began: float | None = None  # the process CPU time [s] at this turn's update (None: no frame)
 
     def update(self, observation: Observation) -> None:
         """Take in a frame: the field's grid (its unknown cells near the arm occupied first, with
         ``unknown = "occupied"``); its checks run in the next steps' slices."""
+        self._turn_began = time.process_time()  # this turn's CPU share counts from here
+        if self.goal_cells_due is not None:  # two frames without a step between: none goes unclassified
+            self._classify_goal_cells(*self.goal_cells_due)
+            self.goal_cells_due = None
         self.observation = observation
         self.grid = self._unknown_read(observation)
         surfaces = observation.points is not None and self.grid is observation.grid
@@ -372,17 +378,19 @@ class MatrixFieldGuidedController(Controller):
         self.fresh = True
         self.frame_turn = self.fine  # fine slices: this turn carries the update, its step no slice
         if observation.scene is None:
-            if self.fine:  # the step after the frame's turn does it (that turn carries the update)
-                self.goal_cells_due = (observation, self.grid)
-            else:
-                self._classify_goal_cells(observation, self.grid)
+            # the goal's cells are a plan's bookkeeping, not the field's: classified by a step (the
+            # next one with fine slices, this turn's otherwise), charged there
+            self.goal_cells_due = (observation, self.grid)
 
     def step(self, t: float, q: np.ndarray, observation: Observation | None, goal: Goal) -> np.ndarray:
         """The tracking law from ``q`` [rad] (module docstring) after at most one slice of work."""
         q = np.asarray(q, dtype=float)
         self._ticks += 1
-        if self.config.slice_cpu_share > 0:
-            self._cpu_until = time.process_time() + self.config.slice_cpu_share * self.task.period
+        began, self._turn_began = self._turn_began, None
+        busy = began is not None  # this turn took in a frame
+        if self.config.slice_cpu_share > 0:  # the turn's share: from its update, when it took in a frame
+            began = time.process_time() if began is None else began
+            self._cpu_until = began + self.config.slice_cpu_share * self.task.period
         if self.frame_turn:
             self.frame_turn = False
             return self._command(t, q)  # the frame's update is this turn's work
@@ -390,8 +398,12 @@ class MatrixFieldGuidedController(Controller):
             frame, grid = self.goal_cells_due
             self.goal_cells_due = None
             self._classify_goal_cells(frame, grid)
-            return self._command(t, q)  # no slice of work on this tick
-        if self.grid is not None:
+            if self.fine:
+                return self._command(t, q)  # no slice of work on this tick
+            busy = True
+        # a turn that did other work runs a slice only while its share lasts; any other runs one
+        # (of one check at least), so the work always goes on
+        if self.grid is not None and not (busy and self._cpu_spent()):
             self._work(q)
         return self._command(t, q)
 
