@@ -21,8 +21,8 @@ search and shortening slices of ``plan_checks_per_tick`` collision checks (the s
 to two motions of ``plan_range / motion_resolution`` checks beyond:
 :mod:`planbench_plugins.ompl_planners.sliced`), or, while a path is tracked, the check of the
 latest frame (below). A slice's end is set by check counts and frames, and a search or
-shortening slice also ends once the tick's CPU time has run out (``slice_cpu_share``; 0 turns
-that off).
+shortening slice also ends once the tick's CPU time has run out (``slice_cpu_share``, counted
+from the turn's ``update`` when it took in a frame; 0 turns that off).
 While it plans, the arm holds the reference it had (after a lag replan: where it is) with the field
 on; a plan starts there, and the tracker takes the path from where the arm is (its feedback closes
 the small gap). A query that finds nothing in ``plan_check_budget`` checks starts again from the
@@ -142,7 +142,9 @@ class MatrixFieldGuidedControllerConfig(FieldSettings, UnknownSettings, Predicti
     slice_cpu_share: float = 0.6
     """> 0 (0.6, the default): a search, shortening or path-check slice also ends at the first check after the
     tick has used this share of the control period in CPU time (after at least one check), so that
-    a slice of slow checks does not pass the period; the search's checks and path stay the same,
+    a slice of slow checks does not pass the period; a turn that takes in a frame counts from its
+    ``update``, and runs no slice when the update and the goal cells' classification used the
+    share (any other turn runs one); the search's checks and path stay the same,
     only when it finds them moves with the clock (:mod:`planbench_plugins.ompl_planners.sliced`,
     "A slice's CPU time"). 0: a slice ends by its check count alone. Chosen on ``dynamic-tune``
     (the same 57 of 72 solved, a quarter of the missed deadlines) in docs/reactive.md ("A slice's
