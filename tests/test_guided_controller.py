@@ -278,6 +278,31 @@ def test_a_turns_cpu_share_counts_from_its_update_and_a_spent_turn_runs_no_slice
     assert d.c.info()["slices"] == 2
 
 
+def test_the_arms_cells_at_the_goal_are_fitted_in_setup_to_the_sensors_default_grid(task):
+    """The cells near the arm's body at the goal are built in ``setup`` for the sensor's default
+    grid (untimed), so that a first frame on it classifies the goal's cells without building them;
+    a frame on another grid builds them for that grid, the same as a fit made there."""
+    from planbench.reactive.sensing import default_bounds
+    from planbench_plugins.controllers.observed import ArmCells
+
+    d = Driver(task)
+    body = d.c.arm_cells.body
+    assert body is not None and d.c.cells.body is None  # before any frame: the run's cells not yet fitted
+    grid = OccupancyGrid.empty(*default_bounds(task.robot, 0.02), 0.02)
+    d.c.update(Observation(0.0, grid, 0, np.zeros((0, 3)), None))
+    d.c.step(0.0, d.q.copy(), None, task.goal)
+    assert d.c.cells.body is body and d.c.goal_out is not None  # classified on the cells built in setup
+    fresh = ArmCells(task.robot, task.goal.q)
+    fresh.fit(grid)
+    assert np.array_equal(np.sort(d.c.cells.near_goal), np.sort(fresh.near_goal)) and len(fresh.near_goal)
+    other = depth(Scene(), t=0.01, frame=1)  # BOUNDS: another grid
+    d.c.update(other)
+    d.c.step(0.01, d.q.copy(), None, task.goal)
+    fresh.fit(other.grid)
+    assert d.c.cells.body is not body
+    assert np.array_equal(np.sort(d.c.cells.near_goal), np.sort(fresh.near_goal))
+
+
 def test_a_frames_new_cells_are_checked_in_octrees_of_at_most_a_slices_cells(task, monkeypatch):
     """The check of a frame builds the octrees of the cells it added a slice's worth at a time
     (``octree_cells``), as a plan does, and still finds the path blocked."""

@@ -71,10 +71,11 @@ import numpy as np
 from planbench.checking.collision import CollisionChecker
 from planbench.errors import InvalidConfigError
 from planbench.field.scene_field import FieldSettings
-from planbench.geometry.occupancy import OccupancyGrid
+from planbench.geometry.occupancy import OccupancyGrid, grid_shape
 from planbench.problem import Goal
 from planbench.reactive.body import body_points
 from planbench.reactive.controller import Controller, ControlTask, Observation
+from planbench.reactive.sensing import default_bounds
 from planbench_plugins.controllers.live import LiveRepulsion
 from planbench_plugins.controllers.matrix_field import GridField
 from planbench_plugins.controllers.observed import ArmCells, GoalCells, finished, scene_without_touched_in_steps
@@ -283,6 +284,10 @@ class MatrixFieldGuidedController(Controller):
         self.arm.at(np.asarray(task.start, dtype=float))  # first-call costs out of the timed ticks
         body_points(robot, 0.02)  # the arm's body at the sensors' default resolution (depth: cells near it)
         self.field.kernels(0.02)  # and the kernels and gain there (the first frame's otherwise: 5-9 ms)
+        # the arm's cells at the goal on the sensor's default grid (the first frame's otherwise: 3-6 ms)
+        self.arm_cells = ArmCells(robot, self.goal_q)
+        lower, upper = default_bounds(robot, 0.02)
+        self.arm_cells.fit_geometry(lower, grid_shape(lower, upper, 0.02), 0.02)
         if self.predictor is not None:
             warm_up(c, self._warm_push)
         # the slices' sizes: a 10 ms tick's, scaled with the period (``scale_slices``)
@@ -304,7 +309,7 @@ class MatrixFieldGuidedController(Controller):
         """A new run from ``q``: nothing observed, nothing planned, the arm holding ``q``."""
         self.rng = rng
         self.repulsion.replace(None)
-        self.cells = ArmCells(self.task.robot, self.goal_q)
+        self.cells = ArmCells(self.task.robot, self.goal_q)  # fitted by the first classification
         self.observation: Observation | None = None
         self.grid: OccupancyGrid | None = None  # the latest grid as ``unknown`` reads it
         self.frame = 0  # frames taken in
@@ -628,6 +633,8 @@ class MatrixFieldGuidedController(Controller):
     def _classify_goal_cells(self, observation: Observation, grid: OccupancyGrid) -> None:
         """Depth: which cells near the arm's body at the goal are left out of plans and checks
         (:attr:`goal_out`, :class:`.observed.GoalCells`)."""
+        if self.cells.body is None:  # the run's first: the cells fitted in setup (refitted if on another grid)
+            self.cells = self.arm_cells
         self.cells.fit(grid)
         self.goal_out = self.goal_cells.classify(observation.time, grid, self.cells.near_goal)
 

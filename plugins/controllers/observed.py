@@ -60,12 +60,17 @@ class ArmCells:
     def fit(self, grid: OccupancyGrid) -> bool:
         """Use ``grid``'s cells (its shape, origin and resolution); True when they changed, and
         the body and :attr:`near_goal` were built anew."""
-        key = (grid.shape, tuple(grid.origin), grid.resolution)
+        return self.fit_geometry(np.asarray(grid.origin, dtype=float), grid.shape, grid.resolution)
+
+    def fit_geometry(self, origin: np.ndarray, shape: tuple[int, ...], resolution: float) -> bool:
+        """:meth:`fit` for a grid of lower corner ``origin`` [m], ``shape`` and ``resolution`` [m]
+        given before any frame (a controller's setup, so that its first frame does not pay for it)."""
+        key = (tuple(int(n) for n in shape), tuple(float(x) for x in origin), float(resolution))
         if key == self._key:
             return False
         self._key = key
-        self.body = ArmBody(self.robot, grid.origin, grid.shape, grid.resolution)
-        self.size = int(np.prod(grid.shape))
+        self.body = ArmBody(self.robot, np.asarray(origin, dtype=float), key[0], key[2])  # type: ignore[arg-type]
+        self.size = int(np.prod(shape))
         self.near_goal = self.near(self.goal_q, 1) if self.goal_q is not None else np.zeros(0, dtype=np.intp)
         self.at_goal = self.body.cells(self.goal_q) if self.goal_q is not None else np.zeros(0, dtype=np.intp)
         return True
